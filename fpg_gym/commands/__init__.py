@@ -1,0 +1,1 @@
+"""Sub-commands of the ``fpg-gym`` command line (see :mod:`fpg_gym.cli`)."""

@@ -1,0 +1,195 @@
+"""Readers for mocap clips (BVH, DeepMimic, positions ``.npz``) and the embedded default.
+
+:func:`read_clip` picks the reader from the file name (``.bvh``/``.bvh.gz``: BVH, ``.npz``:
+positions, ``.txt``/``.json``: DeepMimic) unless ``format`` says otherwise. :func:`load_clips`
+expands folders and the word ``default`` (the 15 DeepMimic clips in the pybullet wheel), reads
+in parallel processes with a progress bar, and returns the clips in a stable order.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from functools import partial
+from pathlib import Path
+
+from fpg_gym.errors import DataFormatError
+from fpg_gym.io.bvh import BANDAI_NAMCO_MAP, BvhPoint, JointSource, read_bvh
+from fpg_gym.io.clip import Clip
+from fpg_gym.io.deepmimic import DEFAULT_CLIP_NAMES, load_default_clips, read_deepmimic
+from fpg_gym.io.positions import read_positions, write_positions
+
+__all__ = [
+    "BANDAI_NAMCO_MAP",
+    "DEFAULT_CLIP_NAMES",
+    "DataFormatError",
+    "MOCAP_FORMATS",
+    "BvhPoint",
+    "Clip",
+    "find_mocap_files",
+    "load_clips",
+    "load_default_clips",
+    "read_bvh",
+    "read_clip",
+    "read_deepmimic",
+    "read_positions",
+    "write_positions",
+]
+
+#: Mocap formats :func:`read_clip` understands.
+MOCAP_FORMATS: tuple[str, ...] = ("bvh", "deepmimic", "positions")
+DEFAULT_INPUT = "default"
+
+
+def mocap_format(path: str | Path) -> str:
+    """The mocap format of a file, from its name.
+
+    Raises
+    ------
+    ValueError
+        If the extension is not one of ``.bvh``, ``.bvh.gz``, ``.npz``, ``.txt``, ``.json``.
+    """
+    name = Path(path).name.lower()
+    if name.endswith((".bvh", ".bvh.gz")):
+        return "bvh"
+    if name.endswith(".npz"):
+        return "positions"
+    if name.endswith((".txt", ".json")):
+        return "deepmimic"
+    raise ValueError(
+        f"{path}: unknown mocap format; expected .bvh, .bvh.gz, .npz (positions) or "
+        ".txt/.json (DeepMimic), or pass format= one of " + ", ".join(MOCAP_FORMATS)
+    )
+
+
+def read_clip(
+    path: str | Path,
+    *,
+    format: str | None = None,
+    joint_map: Mapping[str, JointSource] | None = None,
+    units: str = "auto",
+) -> Clip:
+    """Read one mocap file as a Kinect-20 clip at 30 Hz.
+
+    Parameters
+    ----------
+    path : str or Path
+    format : {"bvh", "deepmimic", "positions"}, optional
+        Overrides detection by file name.
+    joint_map : mapping, optional
+        BVH joint map (Bandai Namco's by default); ignored by other formats.
+    units : str
+        BVH length unit ("auto", "m", "cm", "mm").
+    """
+    kind = format or mocap_format(path)
+    if kind == "bvh":
+        return read_bvh(path, joint_map or BANDAI_NAMCO_MAP, units=units)
+    if kind == "deepmimic":
+        return read_deepmimic(path)
+    if kind == "positions":
+        return read_positions(path)
+    raise ValueError(f"format: expected one of {', '.join(MOCAP_FORMATS)}, got {format!r}")
+
+
+def _is_mocap_file(path: Path) -> bool:
+    try:
+        mocap_format(path)
+    except ValueError:
+        return False
+    return not path.name.startswith(".")
+
+
+def find_mocap_files(inputs: Iterable[str | Path]) -> list[Path]:
+    """Expand folders (recursively, sorted) into the mocap files they hold.
+
+    Raises
+    ------
+    FileNotFoundError
+        If an input does not exist or a folder holds no mocap file.
+    """
+    files: list[Path] = []
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(p for p in path.rglob("*") if p.is_file() and _is_mocap_file(p))
+            if not found:
+                raise FileNotFoundError(f"{path}: folder holds no .bvh, .bvh.gz, .npz or .txt file")
+            files.extend(found)
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise FileNotFoundError(f"{path}: no such file or folder")
+    return files
+
+
+def _read_for_pool(path: Path, units: str, joint_map: Mapping[str, JointSource] | None) -> Clip:
+    return read_clip(path, joint_map=joint_map, units=units)
+
+
+def load_clips(
+    inputs: Sequence[str | Path],
+    *,
+    workers: int | None = None,
+    progress: bool = True,
+    units: str = "auto",
+    joint_map: Mapping[str, JointSource] | None = None,
+    on_clip: Callable[[Clip], None] | None = None,
+) -> list[Clip]:
+    """Read every clip named by ``inputs`` (files, folders, or ``"default"``).
+
+    Parameters
+    ----------
+    inputs : sequence of str or Path
+        Mocap files, folders searched recursively, or the word ``"default"`` for the embedded
+        DeepMimic clips.
+    workers : int, optional
+        Reader processes; ``os.cpu_count()`` by default, 1 reads in this process.
+    progress : bool
+        Show a tqdm progress bar on stderr.
+    units, joint_map
+        Passed to :func:`read_clip` for BVH files.
+    on_clip : callable, optional
+        Called with each clip as soon as it is read (in input order).
+
+    Raises
+    ------
+    DataFormatError
+        The first bad file, named in the message.
+    """
+    from tqdm.auto import tqdm
+
+    clips: list[Clip] = []
+    paths: list[Path] = []
+    for item in inputs:
+        if str(item) == DEFAULT_INPUT:
+            for clip in load_default_clips():
+                clips.append(clip)
+                if on_clip:
+                    on_clip(clip)
+        else:
+            paths.extend(find_mocap_files([item]))
+    if not paths:
+        return clips
+    workers = workers or os.cpu_count() or 1
+    reader = partial(_read_for_pool, units=units, joint_map=joint_map)
+    bar = tqdm(total=len(paths), desc="reading mocap", unit="file", disable=not progress)
+    try:
+        if workers <= 1 or len(paths) < 4:
+            results: Iterable[Clip] = map(reader, paths)
+            for clip in results:
+                clips.append(clip)
+                if on_clip:
+                    on_clip(clip)
+                bar.update()
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                chunk = max(1, min(32, len(paths) // (workers * 8)))
+                for clip in pool.map(reader, paths, chunksize=chunk):
+                    clips.append(clip)
+                    if on_clip:
+                        on_clip(clip)
+                    bar.update()
+    finally:
+        bar.close()
+    return clips

@@ -1,0 +1,325 @@
+"""Pose utilities: FPG Eq. 1 distance, normalisation, bone lengths, retargeting, mirroring.
+
+A pose is a float array ``(20, 3)`` of Kinect-20 joint positions in metres, Y up, right-handed;
+a batch or clip is ``(..., 20, 3)``. Every function here is vectorised over leading axes.
+
+Normalisation (DESIGN.md, "data flow") moves the root (HipCenter) to the origin and removes the
+rotation about the vertical axis so that the body faces +Z. The facing direction comes from the
+hip line: with ``right = HipRight - HipLeft`` projected on the ground plane,
+``forward = up x right``. When the hips collapse onto each other (an untracked frame), the
+shoulder line is used instead, and the yaw is 0 when both are degenerate.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import numpy.typing as npt
+
+from fpg_gym import skeleton
+
+FloatArray = npt.NDArray[np.floating]
+
+_HIP_LEFT = skeleton.joint_index("HipLeft")
+_HIP_RIGHT = skeleton.joint_index("HipRight")
+_SHOULDER_LEFT = skeleton.joint_index("ShoulderLeft")
+_SHOULDER_RIGHT = skeleton.joint_index("ShoulderRight")
+_DEGENERATE_LINE_M = 1e-4
+
+
+def as_poses(value: object, name: str = "poses", *, ndim: int | None = None) -> np.ndarray:
+    """Validate an array of poses and return it as float32.
+
+    Parameters
+    ----------
+    value : array_like
+        Candidate array of shape ``(..., 20, 3)``.
+    name : str
+        Argument name used in error messages.
+    ndim : int, optional
+        Required number of dimensions (2 for one pose, 3 for a clip or batch).
+
+    Raises
+    ------
+    ValueError
+        If the shape is not ``(..., 20, 3)`` (or not ``ndim``-dimensional) or a value is NaN/inf.
+    """
+    array = np.asarray(value, dtype=np.float32)
+    expected = "(..., 20, 3)" if ndim is None else "(" + "N, " * (ndim - 2) + "20, 3)"
+    if (
+        array.ndim < 2
+        or array.shape[-2:] != (skeleton.NUM_JOINTS, 3)
+        or (ndim is not None and array.ndim != ndim)
+    ):
+        raise ValueError(f"{name}: expected shape {expected}, got {array.shape}")
+    if not np.all(np.isfinite(array)):
+        bad = np.argwhere(~np.isfinite(array))[0]
+        raise ValueError(f"{name}: non-finite value at index {tuple(int(i) for i in bad)}")
+    return array
+
+
+# --------------------------------------------------------------------------- distances (Eq. 1)
+
+
+def pose_distance(a: FloatArray, b: FloatArray) -> np.ndarray:
+    """FPG Eq. 1: ``max_j ||a(j) - b(j)||``, broadcasting over leading axes.
+
+    ``pose_distance(pose, poses)`` scores one pose against N poses.
+    """
+    diff = np.asarray(a, dtype=np.float64) - np.asarray(b, dtype=np.float64)
+    return np.sqrt(np.einsum("...jc,...jc->...j", diff, diff)).max(axis=-1)
+
+
+def pairwise_pose_distance(
+    a: FloatArray, b: FloatArray, *, max_block_bytes: int = 256 * 2**20
+) -> np.ndarray:
+    """FPG Eq. 1 for every pair: ``(N, 20, 3) x (M, 20, 3) -> (N, M)`` float64.
+
+    Computed in row blocks so that no temporary exceeds ``max_block_bytes``.
+    """
+    a64 = np.asarray(a, dtype=np.float64).reshape(-1, skeleton.NUM_JOINTS, 3)
+    b64 = np.asarray(b, dtype=np.float64).reshape(-1, skeleton.NUM_JOINTS, 3)
+    out = np.empty((len(a64), len(b64)))
+    per_row = max(1, len(b64) * skeleton.NUM_JOINTS * 3 * 8)
+    rows = max(1, max_block_bytes // per_row)
+    for start in range(0, len(a64), rows):
+        block = a64[start : start + rows, None] - b64[None]
+        out[start : start + rows] = np.sqrt(np.einsum("nmjc,nmjc->nmj", block, block)).max(-1)
+    return out
+
+
+# --------------------------------------------------------------------------- normalisation
+
+
+@dataclass(frozen=True)
+class Placement:
+    """Where a normalised pose was in the original space: root position and yaw.
+
+    ``original = R_y(yaw) @ normalised + root``.
+
+    Attributes
+    ----------
+    root : ndarray, shape (..., 3)
+        Root (HipCenter) position in the original space.
+    yaw : ndarray, shape (...)
+        Heading angle in radians: the angle from +Z towards +X of the facing direction.
+    """
+
+    root: np.ndarray
+    yaw: np.ndarray
+
+
+def yaw_matrix(yaw: FloatArray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` about +Y by ``yaw`` radians (right-handed)."""
+    yaw = np.asarray(yaw, dtype=np.float64)
+    c, s = np.cos(yaw), np.sin(yaw)
+    zero, one = np.zeros_like(yaw), np.ones_like(yaw)
+    return np.stack(
+        [np.stack([c, zero, s], -1), np.stack([zero, one, zero], -1), np.stack([-s, zero, c], -1)],
+        -2,
+    )
+
+
+def facing_yaw(poses: FloatArray) -> np.ndarray:
+    """Heading angle of each pose from its hip line (shoulder line as fallback), radians."""
+    poses = np.asarray(poses, dtype=np.float64)
+    right = poses[..., _HIP_RIGHT, :] - poses[..., _HIP_LEFT, :]
+    shoulders = poses[..., _SHOULDER_RIGHT, :] - poses[..., _SHOULDER_LEFT, :]
+    hip_ok = np.hypot(right[..., 0], right[..., 2]) > _DEGENERATE_LINE_M
+    right = np.where(hip_ok[..., None], right, shoulders)
+    # forward = up x right = (r_z, 0, -r_x); yaw measured from +Z towards +X.
+    forward_x, forward_z = right[..., 2], -right[..., 0]
+    ok = np.hypot(forward_x, forward_z) > _DEGENERATE_LINE_M
+    return np.where(ok, np.arctan2(forward_x, forward_z), 0.0)
+
+
+def normalise(poses: FloatArray) -> tuple[np.ndarray, Placement]:
+    """Move the root to the origin and turn each pose to face +Z.
+
+    Parameters
+    ----------
+    poses : array_like, shape (..., 20, 3)
+
+    Returns
+    -------
+    normalised : ndarray, shape (..., 20, 3), float32
+    placement : Placement
+        What :func:`denormalise` needs to undo the transform.
+    """
+    poses64 = np.asarray(poses, dtype=np.float64)
+    root = poses64[..., skeleton.ROOT, :]
+    yaw = facing_yaw(poses64)
+    # p_norm = R_y(-yaw) (p - root); for row vectors: (p - root) @ R_y(-yaw).T = (p - root) @ R_y(yaw)
+    normalised = np.einsum("...jc,...cd->...jd", poses64 - root[..., None, :], yaw_matrix(yaw))
+    return normalised.astype(np.float32), Placement(root=root, yaw=yaw)
+
+
+def denormalise(poses: FloatArray, placement: Placement) -> np.ndarray:
+    """Inverse of :func:`normalise`: ``R_y(yaw) p + root``, float32."""
+    poses64 = np.asarray(poses, dtype=np.float64)
+    rotation = yaw_matrix(placement.yaw)
+    out = np.einsum("...jc,...dc->...jd", poses64, rotation) + np.asarray(placement.root)[..., None, :]
+    return out.astype(np.float32)
+
+
+# --------------------------------------------------------------------------- bones
+
+
+def bone_vectors(poses: FloatArray) -> np.ndarray:
+    """Child minus parent for the 19 bones: ``(..., 20, 3) -> (..., 19, 3)``."""
+    poses = np.asarray(poses)
+    return poses[..., skeleton.BONES[:, 1], :] - poses[..., skeleton.BONES[:, 0], :]
+
+
+def bone_lengths(poses: FloatArray) -> np.ndarray:
+    """Bone lengths in metres: ``(..., 20, 3) -> (..., 19)``."""
+    return np.linalg.norm(bone_vectors(np.asarray(poses, dtype=np.float64)), axis=-1)
+
+
+def rest_pose(lengths: FloatArray | None = None) -> np.ndarray:
+    """A neutral standing pose facing +Z, root at the origin, float32 ``(20, 3)``.
+
+    Parameters
+    ----------
+    lengths : array_like, shape (19,), optional
+        Bone lengths in metres; :data:`DEFAULT_BONE_LENGTHS` when omitted.
+    """
+    lengths = DEFAULT_BONE_LENGTHS if lengths is None else np.asarray(lengths, dtype=np.float64)
+    return _assemble(np.zeros(3), REST_DIRECTIONS, lengths).astype(np.float32)
+
+
+def _assemble(root: np.ndarray, directions: np.ndarray, lengths: np.ndarray) -> np.ndarray:
+    """Joint positions from the root, unit bone directions and bone lengths (tree walk as a
+    matrix product with :data:`skeleton.PATH_MATRIX`)."""
+    vectors = directions * np.asarray(lengths)[..., :, None]
+    return root[..., None, :] + np.einsum("jb,...bc->...jc", skeleton.PATH_MATRIX, vectors)
+
+
+def retarget(poses: FloatArray, lengths: FloatArray) -> np.ndarray:
+    """Give each pose the given bone lengths, keeping every bone's direction and the root.
+
+    A zero-length bone takes its direction from :data:`REST_DIRECTIONS`.
+
+    Parameters
+    ----------
+    poses : array_like, shape (..., 20, 3)
+    lengths : array_like, shape (19,) or (..., 19)
+        Target bone lengths in metres, broadcast against the poses.
+
+    Returns
+    -------
+    ndarray, shape (..., 20, 3), float32
+    """
+    poses64 = np.asarray(poses, dtype=np.float64)
+    lengths64 = np.asarray(lengths, dtype=np.float64)
+    if lengths64.shape[-1:] != (skeleton.NUM_BONES,):
+        raise ValueError(f"lengths: expected shape (..., 19), got {lengths64.shape}")
+    vectors = bone_vectors(poses64)
+    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    safe = norms > 1e-9
+    directions = np.where(safe, vectors / np.where(safe, norms, 1.0), REST_DIRECTIONS)
+    return _assemble(poses64[..., skeleton.ROOT, :], directions, lengths64).astype(np.float32)
+
+
+# --------------------------------------------------------------------------- mirroring, time
+
+
+def mirror(poses: FloatArray, axis: int = 0) -> np.ndarray:
+    """Left/right mirror image: swap left and right joints and negate coordinate ``axis``.
+
+    For normalised poses (facing +Z) the default ``axis=0`` mirrors about the sagittal plane.
+    """
+    out = np.array(np.asarray(poses)[..., skeleton.MIRROR_PERMUTATION, :], copy=True)
+    out[..., axis] *= -1
+    return out
+
+
+def resample(positions: FloatArray, fps_in: float, fps_out: float = 30.0) -> np.ndarray:
+    """Linearly resample a clip ``(T, ...)`` from ``fps_in`` to ``fps_out`` frames per second.
+
+    The output covers the same duration, ``floor((T - 1) * fps_out / fps_in) + 1`` frames,
+    starting at the first input frame.
+    """
+    if fps_in <= 0 or fps_out <= 0:
+        raise ValueError(f"frame rates must be positive, got fps_in={fps_in}, fps_out={fps_out}")
+    positions = np.asarray(positions)
+    if len(positions) == 0:
+        raise ValueError("resample: empty clip")
+    if np.isclose(fps_in, fps_out):
+        return positions.copy()
+    count = int(np.floor((len(positions) - 1) * fps_out / fps_in + 1e-9)) + 1
+    source_time = np.arange(count) * (fps_in / fps_out)
+    lower = np.minimum(np.floor(source_time).astype(np.intp), len(positions) - 1)
+    upper = np.minimum(lower + 1, len(positions) - 1)
+    frac = (source_time - lower).reshape((-1,) + (1,) * (positions.ndim - 1))
+    out = positions[lower] * (1.0 - frac) + positions[upper] * frac
+    return out.astype(positions.dtype)
+
+
+def height(poses: FloatArray) -> np.ndarray:
+    """Vertical extent (max Y minus min Y) of each pose in metres."""
+    y = np.asarray(poses)[..., 1]
+    return y.max(axis=-1) - y.min(axis=-1)
+
+
+# --------------------------------------------------------------------------- rest pose data
+
+_REST_DIRECTION_BY_JOINT: dict[str, tuple[float, float, float]] = {
+    # Unit direction of the bone ending at each joint, for a body facing +Z (its left is +X).
+    "Spine": (0.0, 1.0, 0.0),
+    "ShoulderCenter": (0.0, 1.0, 0.0),
+    "Head": (0.0, 1.0, 0.0),
+    "ShoulderLeft": (1.0, -0.25, 0.0),
+    "ElbowLeft": (0.0, -1.0, 0.0),
+    "WristLeft": (0.0, -1.0, 0.0),
+    "HandLeft": (0.0, -1.0, 0.0),
+    "ShoulderRight": (-1.0, -0.25, 0.0),
+    "ElbowRight": (0.0, -1.0, 0.0),
+    "WristRight": (0.0, -1.0, 0.0),
+    "HandRight": (0.0, -1.0, 0.0),
+    "HipLeft": (1.0, -0.4, 0.0),
+    "KneeLeft": (0.0, -1.0, 0.0),
+    "AnkleLeft": (0.0, -1.0, 0.0),
+    "FootLeft": (0.0, -0.3, 1.0),
+    "HipRight": (-1.0, -0.4, 0.0),
+    "KneeRight": (0.0, -1.0, 0.0),
+    "AnkleRight": (0.0, -1.0, 0.0),
+    "FootRight": (0.0, -0.3, 1.0),
+}
+
+#: Unit bone directions of the neutral standing pose, ``(19, 3)``, in :data:`skeleton.BONES` order.
+REST_DIRECTIONS: np.ndarray = np.array(
+    [_REST_DIRECTION_BY_JOINT[skeleton.JOINT_NAMES[c]] for _, c in skeleton.BONES]
+)
+REST_DIRECTIONS /= np.linalg.norm(REST_DIRECTIONS, axis=1, keepdims=True)
+REST_DIRECTIONS.flags.writeable = False
+
+_DEFAULT_LENGTH_BY_JOINT: dict[str, float] = {
+    # Typical adult Kinect-20 bone lengths in metres (a 1.75 m person).
+    "Spine": 0.24,
+    "ShoulderCenter": 0.26,
+    "Head": 0.16,
+    "ShoulderLeft": 0.18,
+    "ElbowLeft": 0.28,
+    "WristLeft": 0.25,
+    "HandLeft": 0.08,
+    "ShoulderRight": 0.18,
+    "ElbowRight": 0.28,
+    "WristRight": 0.25,
+    "HandRight": 0.08,
+    "HipLeft": 0.10,
+    "KneeLeft": 0.42,
+    "AnkleLeft": 0.41,
+    "FootLeft": 0.13,
+    "HipRight": 0.10,
+    "KneeRight": 0.42,
+    "AnkleRight": 0.41,
+    "FootRight": 0.13,
+}
+
+#: Default bone lengths in metres, ``(19,)``, used when a user's lengths are unknown.
+DEFAULT_BONE_LENGTHS: np.ndarray = np.array(
+    [_DEFAULT_LENGTH_BY_JOINT[skeleton.JOINT_NAMES[c]] for _, c in skeleton.BONES]
+)
+DEFAULT_BONE_LENGTHS.flags.writeable = False
