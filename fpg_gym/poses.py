@@ -150,7 +150,7 @@ def normalise(poses: FloatArray) -> tuple[np.ndarray, Placement]:
     poses64 = np.asarray(poses, dtype=np.float64)
     root = poses64[..., skeleton.ROOT, :]
     yaw = facing_yaw(poses64)
-    # p_norm = R_y(-yaw) (p - root); for row vectors: (p - root) @ R_y(-yaw).T = (p - root) @ R_y(yaw)
+    # p_norm = R_y(-yaw) (p - root), i.e. for row vectors (p - root) @ R_y(yaw)
     normalised = np.einsum("...jc,...cd->...jd", poses64 - root[..., None, :], yaw_matrix(yaw))
     return normalised.astype(np.float32), Placement(root=root, yaw=yaw)
 
@@ -159,7 +159,10 @@ def denormalise(poses: FloatArray, placement: Placement) -> np.ndarray:
     """Inverse of :func:`normalise`: ``R_y(yaw) p + root``, float32."""
     poses64 = np.asarray(poses, dtype=np.float64)
     rotation = yaw_matrix(placement.yaw)
-    out = np.einsum("...jc,...dc->...jd", poses64, rotation) + np.asarray(placement.root)[..., None, :]
+    out = (
+        np.einsum("...jc,...dc->...jd", poses64, rotation)
+        + np.asarray(placement.root)[..., None, :]
+    )
     return out.astype(np.float32)
 
 
@@ -258,9 +261,34 @@ def resample(positions: FloatArray, fps_in: float, fps_out: float = 30.0) -> np.
 
 
 def height(poses: FloatArray) -> np.ndarray:
-    """Vertical extent (max Y minus min Y) of each pose in metres."""
+    """Vertical extent (max Y minus min Y) of each pose in metres (posture dependent)."""
     y = np.asarray(poses)[..., 1]
     return y.max(axis=-1) - y.min(axis=-1)
+
+
+_STATURE_CHAIN = [
+    skeleton.BONE_OF_JOINT[skeleton.joint_index(name)]
+    for name in ("Spine", "ShoulderCenter", "Head")
+]
+_LEG_BONES = [
+    [skeleton.BONE_OF_JOINT[skeleton.joint_index(f"{part}{side}")] for part in ("Knee", "Ankle")]
+    for side in ("Left", "Right")
+]
+#: Share of stature below the ankle joint (0.039) and above the head centre (0.065), from the
+#: segment proportions of Drillis & Contini (1966) as tabulated by Winter (2009, Fig. 4.1).
+_STATURE_OUTSIDE_CHAIN = 0.039 + 0.065
+
+
+def stature(lengths: FloatArray) -> np.ndarray:
+    """Posture-independent standing height estimated from bone lengths ``(..., 19)``, metres.
+
+    The ankle-to-head-centre chain (mean leg, spine, neck and head bones) divided by the share of
+    stature it spans in anthropometric tables (Drillis & Contini 1966).
+    """
+    lengths = np.asarray(lengths, dtype=np.float64)
+    chain = lengths[..., _STATURE_CHAIN].sum(-1)
+    legs = np.mean([lengths[..., bones].sum(-1) for bones in _LEG_BONES], axis=0)
+    return (chain + legs) / (1.0 - _STATURE_OUTSIDE_CHAIN)
 
 
 # --------------------------------------------------------------------------- rest pose data
@@ -296,7 +324,7 @@ REST_DIRECTIONS /= np.linalg.norm(REST_DIRECTIONS, axis=1, keepdims=True)
 REST_DIRECTIONS.flags.writeable = False
 
 _DEFAULT_LENGTH_BY_JOINT: dict[str, float] = {
-    # Typical adult Kinect-20 bone lengths in metres (a 1.75 m person).
+    # Typical adult Kinect-20 bone lengths in metres (stature about 1.7 m, see stature()).
     "Spine": 0.24,
     "ShoulderCenter": 0.26,
     "Head": 0.16,

@@ -15,7 +15,7 @@ def axis_rotation(axis: str, angle: FloatArray) -> np.ndarray:
     ``angle`` radians (right-handed)."""
     angle = np.asarray(angle, dtype=np.float64)
     c, s = np.cos(angle), np.sin(angle)
-    out = np.zeros(angle.shape + (3, 3))
+    out = np.zeros((*angle.shape, 3, 3))
     i = _AXES[axis.upper()]
     j, k = (i + 1) % 3, (i + 2) % 3
     out[..., i, i] = 1.0

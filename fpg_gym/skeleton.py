@@ -108,9 +108,7 @@ BONES.flags.writeable = False
 NUM_BONES: Final[int] = len(BONES)
 
 #: Bone names "Parent-Child", in the order of :data:`BONES`.
-BONE_NAMES: Final[tuple[str, ...]] = tuple(
-    f"{JOINT_NAMES[p]}-{JOINT_NAMES[c]}" for p, c in BONES
-)
+BONE_NAMES: Final[tuple[str, ...]] = tuple(f"{JOINT_NAMES[p]}-{JOINT_NAMES[c]}" for p, c in BONES)
 
 #: For each non-root joint, the index of the bone that ends at it; -1 for the root.
 BONE_OF_JOINT: Final[npt.NDArray[np.intp]] = np.full(NUM_JOINTS, -1, dtype=np.intp)

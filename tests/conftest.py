@@ -1,4 +1,4 @@
-"""Shared fixtures: the real data folder ``../shared/data`` (skipped when absent) and a seeded RNG."""
+"""Shared fixtures: the real data folder ``../shared/data`` (skipped when absent), a seeded RNG."""
 
 from __future__ import annotations
 

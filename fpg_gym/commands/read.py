@@ -33,8 +33,10 @@ def run(args: argparse.Namespace) -> int:
     spread = np.array([float(np.ptp(bone_lengths(c.positions), axis=0).max()) for c in clips])
     print(f"clips            {len(clips)}")
     print(f"frames           {frames} ({frames / 30.0 / 60.0:.1f} min at 30 Hz)")
-    print(f"height (p90)     median {np.median(heights):.3f} m, range {heights.min():.3f}-{heights.max():.3f} m")
-    print(f"bone spread      median {1000 * np.median(spread):.2f} mm, max {1000 * spread.max():.2f} mm")
+    low, high = heights.min(), heights.max()
+    print(f"height (p90)     median {np.median(heights):.3f} m, range {low:.3f}-{high:.3f} m")
+    spread_mm = 1000 * spread
+    print(f"bone spread      median {np.median(spread_mm):.2f} mm, max {spread_mm.max():.2f} mm")
     print(f"read time        {seconds:.2f} s ({frames / max(seconds, 1e-9):.0f} frames/s)")
     if args.json:
         emit_json(

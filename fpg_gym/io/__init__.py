@@ -9,7 +9,7 @@ in parallel processes with a progress bar, and returns the clips in a stable ord
 from __future__ import annotations
 
 import os
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 from pathlib import Path
@@ -23,10 +23,10 @@ from fpg_gym.io.positions import read_positions, write_positions
 __all__ = [
     "BANDAI_NAMCO_MAP",
     "DEFAULT_CLIP_NAMES",
-    "DataFormatError",
     "MOCAP_FORMATS",
     "BvhPoint",
     "Clip",
+    "DataFormatError",
     "find_mocap_files",
     "load_clips",
     "load_default_clips",
@@ -134,7 +134,6 @@ def load_clips(
     progress: bool = True,
     units: str = "auto",
     joint_map: Mapping[str, JointSource] | None = None,
-    on_clip: Callable[[Clip], None] | None = None,
 ) -> list[Clip]:
     """Read every clip named by ``inputs`` (files, folders, or ``"default"``).
 
@@ -149,8 +148,6 @@ def load_clips(
         Show a tqdm progress bar on stderr.
     units, joint_map
         Passed to :func:`read_clip` for BVH files.
-    on_clip : callable, optional
-        Called with each clip as soon as it is read (in input order).
 
     Raises
     ------
@@ -159,37 +156,30 @@ def load_clips(
     """
     from tqdm.auto import tqdm
 
-    clips: list[Clip] = []
-    paths: list[Path] = []
+    # Each input becomes a list of ready clips ("default") or of files to read, in input order.
+    groups: list[list[Clip] | list[Path]] = []
     for item in inputs:
-        if str(item) == DEFAULT_INPUT:
-            for clip in load_default_clips():
-                clips.append(clip)
-                if on_clip:
-                    on_clip(clip)
-        else:
-            paths.extend(find_mocap_files([item]))
-    if not paths:
-        return clips
+        groups.append(
+            load_default_clips() if str(item) == DEFAULT_INPUT else find_mocap_files([item])
+        )
+    paths = [p for group in groups for p in group if isinstance(p, Path)]
+    read: dict[Path, Clip] = {}
     workers = workers or os.cpu_count() or 1
     reader = partial(_read_for_pool, units=units, joint_map=joint_map)
-    bar = tqdm(total=len(paths), desc="reading mocap", unit="file", disable=not progress)
+    bar = tqdm(
+        total=len(paths), desc="reading mocap", unit="file", disable=not progress or not paths
+    )
     try:
         if workers <= 1 or len(paths) < 4:
-            results: Iterable[Clip] = map(reader, paths)
-            for clip in results:
-                clips.append(clip)
-                if on_clip:
-                    on_clip(clip)
+            for path in paths:
+                read[path] = reader(path)
                 bar.update()
         else:
             with ProcessPoolExecutor(max_workers=workers) as pool:
                 chunk = max(1, min(32, len(paths) // (workers * 8)))
-                for clip in pool.map(reader, paths, chunksize=chunk):
-                    clips.append(clip)
-                    if on_clip:
-                        on_clip(clip)
+                for path, clip in zip(paths, pool.map(reader, paths, chunksize=chunk), strict=True):
+                    read[path] = clip
                     bar.update()
     finally:
         bar.close()
-    return clips
+    return [read[item] if isinstance(item, Path) else item for group in groups for item in group]

@@ -146,13 +146,19 @@ def humanoid_model() -> HumanoidModel:
             parent_link = info[16]
             if name == "root":  # the fixed joint base -> root: same origin as the base
                 world[0] = world_position
-                inertial[name] = np.array(pybullet.getDynamicsInfo(body, joint, physicsClientId=client)[3])
+                inertial[name] = np.array(
+                    pybullet.getDynamicsInfo(body, joint, physicsClientId=client)[3]
+                )
                 continue
-            parent_name = pybullet.getJointInfo(body, parent_link, physicsClientId=client)[12].decode()
+            parent_name = pybullet.getJointInfo(body, parent_link, physicsClientId=client)[
+                12
+            ].decode()
             names.append(name)
             parents.append(names.index(parent_name))
             world.append(world_position)
-            inertial[name] = np.array(pybullet.getDynamicsInfo(body, joint, physicsClientId=client)[3])
+            inertial[name] = np.array(
+                pybullet.getDynamicsInfo(body, joint, physicsClientId=client)[3]
+            )
             shapes = pybullet.getCollisionShapeData(body, joint, physicsClientId=client)
             dims[name] = np.array(shapes[0][3]) if shapes else np.zeros(3)
     finally:
@@ -221,7 +227,7 @@ def _resample_frames(frames: np.ndarray, fps: float) -> np.ndarray:
     a, b = frames[lower], frames[upper]
     out = a + (b - a) * fraction[:, None]  # correct for position and the revolute angles
     column = 4
-    for _, size in (("root", 4),) + _MOTION_LAYOUT:
+    for _, size in (("root", 4), *_MOTION_LAYOUT):
         if size == 4:
             out[:, column : column + 4] = slerp(
                 a[:, column : column + 4], b[:, column : column + 4], fraction
@@ -252,7 +258,8 @@ def forward_kinematics(frames: np.ndarray) -> np.ndarray:
             world_position.append(frames[:, 1:4])
             continue
         world_position.append(
-            world_position[parent] + np.einsum("tij,j->ti", world_rotation[parent], model.offsets[index])
+            world_position[parent]
+            + np.einsum("tij,j->ti", world_rotation[parent], model.offsets[index])
         )
         world_rotation.append(world_rotation[parent] @ local)
     out = np.empty((count, skeleton.NUM_JOINTS, 3))

@@ -26,6 +26,10 @@ def read_positions(path: str | Path) -> Clip:
         If a key is missing, a shape is wrong, or a value is NaN/inf.
     """
     path = Path(path)
+    if not path.is_file():
+        raise DataFormatError(path, "no such file")
+    if not zipfile.is_zipfile(path):
+        raise DataFormatError(path, "not a readable .npz archive (not a zip file)")
     try:
         with np.load(path, allow_pickle=False) as archive:
             keys = set(archive.files)

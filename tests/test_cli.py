@@ -1,0 +1,63 @@
+"""The command line: help, the read command, errors; README and CI agree on the test command."""
+
+from __future__ import annotations
+
+import json
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fpg_gym.cli import COMMAND_MODULES, build_parser, main
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def test_help_lists_every_command(capsys: pytest.CaptureFixture[str]) -> None:
+    with pytest.raises(SystemExit) as info:
+        main(["--help"])
+    assert info.value.code == 0
+    out = capsys.readouterr().out
+    for module in COMMAND_MODULES:
+        assert module.replace("_", "-") in out
+
+
+def test_console_script_runs() -> None:
+    result = subprocess.run(
+        [sys.executable, "-m", "fpg_gym.cli", "--version"],
+        capture_output=True,
+        text=True,
+        check=True,
+    )
+    assert result.stdout.startswith("fpg-gym ")
+
+
+def test_read_default_json(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["read", "default", "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["clips"] == 15
+    assert summary["frames"] > 900
+    assert summary["max_bone_spread_m"] < 1e-3
+
+
+def test_bad_input_is_a_clear_error(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["read", str(tmp_path / "missing.bvh")]) == 2
+    assert "missing.bvh: no such file or folder" in capsys.readouterr().err
+
+
+def test_parser_builds() -> None:
+    assert build_parser().prog == "fpg-gym"
+
+
+def _fenced_commands(text: str) -> list[str]:
+    return re.findall(r"```(?:bash|sh)\n(.*?)\n```", text, flags=re.S)
+
+
+def test_ci_runs_the_readme_test_command_verbatim() -> None:
+    readme = (REPO / "README.md").read_text()
+    marker = "<!-- test-command -->"
+    assert marker in readme, "README must mark its test command"
+    block = _fenced_commands(readme.split(marker, 1)[1])[0].strip()
+    assert block in (REPO / ".ci" / "run").read_text()

@@ -1,0 +1,130 @@
+"""Pose utilities: Eq. 1 distance, normalisation, bones, retargeting, mirroring, resampling."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fpg_gym import poses, skeleton
+from fpg_gym.io import load_default_clips
+
+
+@pytest.fixture(scope="module")
+def clip_poses() -> np.ndarray:
+    return np.concatenate([c.positions for c in load_default_clips(["walk", "punch"])])
+
+
+def _naive_distance(a: np.ndarray, b: np.ndarray) -> float:
+    return max(float(np.linalg.norm(a[j].astype(np.float64) - b[j])) for j in range(20))
+
+
+def test_eq1_one_against_many_matches_naive_loop(clip_poses: np.ndarray) -> None:
+    query, others = clip_poses[0], clip_poses[1:40]
+    expected = [_naive_distance(query, other) for other in others]
+    np.testing.assert_allclose(poses.pose_distance(query, others), expected, rtol=1e-12)
+
+
+def test_eq1_pairwise_matches_naive_loop_across_blocks(clip_poses: np.ndarray) -> None:
+    a, b = clip_poses[:17], clip_poses[20:45]
+    expected = np.array([[_naive_distance(x, y) for y in b] for x in a])
+    # A tiny block size forces several blocks.
+    result = poses.pairwise_pose_distance(a, b, max_block_bytes=3 * 25 * 60 * 8)
+    np.testing.assert_allclose(result, expected, rtol=1e-12)
+
+
+def test_normalise_is_invariant_to_yaw_and_translation(
+    clip_poses: np.ndarray, rng: np.random.Generator
+) -> None:
+    normalised, _ = poses.normalise(clip_poses)
+    yaw = rng.uniform(-np.pi, np.pi, size=len(clip_poses))
+    shift = rng.normal(size=(len(clip_poses), 3))
+    moved = np.einsum("tdc,tjc->tjd", poses.yaw_matrix(yaw), clip_poses) + shift[:, None]
+    moved_normalised, _ = poses.normalise(moved)
+    np.testing.assert_allclose(moved_normalised, normalised, atol=2e-5)
+
+
+def test_normalised_pose_faces_plus_z_with_root_at_origin(clip_poses: np.ndarray) -> None:
+    normalised, _ = poses.normalise(clip_poses)
+    np.testing.assert_allclose(normalised[:, skeleton.ROOT], 0.0, atol=1e-6)
+    hips = (
+        normalised[:, skeleton.joint_index("HipRight")]
+        - normalised[:, skeleton.joint_index("HipLeft")]
+    )
+    # right = -X when facing +Z: no Z component of the hip line, and right hip at negative X.
+    np.testing.assert_allclose(hips[:, 2], 0.0, atol=1e-5)
+    assert np.all(hips[:, 0] < 0)
+
+
+def test_denormalise_inverts_normalise(clip_poses: np.ndarray) -> None:
+    normalised, placement = poses.normalise(clip_poses)
+    np.testing.assert_allclose(poses.denormalise(normalised, placement), clip_poses, atol=2e-5)
+
+
+def test_degenerate_hips_fall_back_to_shoulders() -> None:
+    pose = poses.rest_pose()
+    pose[skeleton.joint_index("HipLeft")] = pose[skeleton.joint_index("HipRight")]
+    assert abs(float(poses.facing_yaw(pose))) < 1e-9
+    assert np.isfinite(poses.normalise(pose)[0]).all()
+
+
+def test_retarget_gives_exact_lengths_and_keeps_directions(clip_poses: np.ndarray) -> None:
+    target = poses.DEFAULT_BONE_LENGTHS * 1.1
+    out = poses.retarget(clip_poses, target)
+    np.testing.assert_allclose(
+        poses.bone_lengths(out), np.broadcast_to(target, (len(out), 19)), atol=1e-5
+    )
+    before = poses.bone_vectors(clip_poses.astype(np.float64))
+    after = poses.bone_vectors(out.astype(np.float64))
+    cosine = (
+        (before * after).sum(-1) / np.linalg.norm(before, axis=-1) / np.linalg.norm(after, axis=-1)
+    )
+    assert cosine.min() > 1 - 1e-6
+    np.testing.assert_allclose(out[:, skeleton.ROOT], clip_poses[:, skeleton.ROOT], atol=1e-6)
+
+
+def test_retarget_rejects_wrong_length_count(clip_poses: np.ndarray) -> None:
+    with pytest.raises(ValueError, match=r"lengths: expected shape \(\.\.\., 19\)"):
+        poses.retarget(clip_poses, np.ones(18))
+
+
+def test_rest_pose_has_default_lengths_and_stands() -> None:
+    rest = poses.rest_pose()
+    np.testing.assert_allclose(poses.bone_lengths(rest), poses.DEFAULT_BONE_LENGTHS, atol=1e-6)
+    assert 1.4 < float(poses.height(rest)) < 2.0
+    assert abs(float(poses.stature(poses.DEFAULT_BONE_LENGTHS)) - 1.75) < 0.1
+    assert rest[skeleton.joint_index("Head"), 1] > rest[skeleton.joint_index("FootLeft"), 1]
+
+
+def test_mirror_is_an_involution_that_keeps_bone_lengths(clip_poses: np.ndarray) -> None:
+    normalised, _ = poses.normalise(clip_poses)
+    mirrored = poses.mirror(normalised)
+    np.testing.assert_array_equal(poses.mirror(mirrored), normalised)
+    np.testing.assert_allclose(
+        np.sort(poses.bone_lengths(mirrored), axis=1),
+        np.sort(poses.bone_lengths(normalised), axis=1),
+        atol=1e-6,
+    )
+    left = skeleton.joint_index("HandLeft")
+    right = skeleton.joint_index("HandRight")
+    np.testing.assert_allclose(mirrored[:, left, 0], -normalised[:, right, 0])
+
+
+def test_resample_halves_a_60hz_clip_exactly(clip_poses: np.ndarray) -> None:
+    out = poses.resample(clip_poses[:21], 60.0, 30.0)
+    np.testing.assert_array_equal(out, clip_poses[:21:2])
+
+
+def test_resample_interpolates_linearly() -> None:
+    ramp = np.arange(5, dtype=np.float64)[:, None] * np.ones((1, 3))
+    out = poses.resample(ramp, 10.0, 25.0)
+    assert len(out) == 11
+    np.testing.assert_allclose(out[:, 0], np.arange(11) * 0.4)
+
+
+def test_as_poses_names_argument_and_shape() -> None:
+    with pytest.raises(ValueError, match=r"target: expected shape \(20, 3\), got \(19, 3\)"):
+        poses.as_poses(np.zeros((19, 3)), "target", ndim=2)
+    bad = np.zeros((2, 20, 3))
+    bad[1, 4, 2] = np.nan
+    with pytest.raises(ValueError, match=r"clip: non-finite value at index \(1, 4, 2\)"):
+        poses.as_poses(bad, "clip")
