@@ -1,0 +1,1 @@
+"""Learned candidate samplers (torch, stable-baselines3): see issue 9."""
