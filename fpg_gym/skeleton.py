@@ -148,6 +148,12 @@ def _ancestor_bone_matrix() -> npt.NDArray[np.float64]:
 PATH_MATRIX: Final[npt.NDArray[np.float64]] = _ancestor_bone_matrix()
 PATH_MATRIX.flags.writeable = False
 
+#: Kinect joint tracking states, as the SDKs report them (``NUI_SKELETON_POSITION_TRACKING_STATE``
+#: in SDK v1, ``TrackingState`` in SDK 2.0).
+NOT_TRACKED: Final[int] = 0
+INFERRED: Final[int] = 1
+TRACKED: Final[int] = 2
+
 #: Kinect v2 ``JointType`` names (25 joints), in SDK 2.0 order.
 KINECT_V2_JOINT_NAMES: Final[tuple[str, ...]] = (
     "SpineBase",
