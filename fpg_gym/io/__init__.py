@@ -18,7 +18,9 @@ from fpg_gym.errors import DataFormatError
 from fpg_gym.io.bvh import BANDAI_NAMCO_MAP, BvhPoint, JointSource, read_bvh
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.deepmimic import DEFAULT_CLIP_NAMES, load_default_clips, read_deepmimic
+from fpg_gym.io.kinect import read_recording
 from fpg_gym.io.positions import read_positions, write_positions
+from fpg_gym.io.recording import Recording, write_recording
 
 __all__ = [
     "BANDAI_NAMCO_MAP",
@@ -27,6 +29,7 @@ __all__ = [
     "BvhPoint",
     "Clip",
     "DataFormatError",
+    "Recording",
     "find_mocap_files",
     "load_clips",
     "load_default_clips",
@@ -34,7 +37,9 @@ __all__ = [
     "read_clip",
     "read_deepmimic",
     "read_positions",
+    "read_recording",
     "write_positions",
+    "write_recording",
 ]
 
 #: Mocap formats :func:`read_clip` understands.

@@ -1,0 +1,213 @@
+"""Error and quality measures of skeleton streams (FPG 2016 §8, Shum 2013 §VIII).
+
+Every function is vectorised over frames and joints; positions are ``(T, 20, 3)`` arrays in
+metres (any space, as long as reference and estimate share it).
+
+* :func:`frame_error` — FPG Eq. 13 (= Shum Eq. 18) per frame: the mean over the 19 bones of the
+  distance between reference and estimated *bone vectors*. Comparing bone vectors instead of
+  positions makes the error independent of where the root is.
+* :func:`mean_error` — Eq. 13 over all frames; :func:`err_ratio` — Err0.2, the share of frames
+  whose error is at least 0.2 m (FPG Table 2).
+* :func:`bone_length_variation` — standard deviation over time of each bone's length: a clean
+  skeleton has none, the Kinect has some because it estimates every joint independently.
+* :func:`jitter` — mean acceleration magnitude per joint, from second differences.
+
+Examples
+--------
+>>> import numpy as np
+>>> from fpg_gym import metrics, poses
+>>> clip = np.repeat(poses.rest_pose()[None], 5, axis=0)
+>>> float(metrics.mean_error(clip, clip + 0.1))  # a rigid shift changes no bone vector
+0.0
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import numpy.typing as npt
+
+from fpg_gym import skeleton
+
+__all__ = [
+    "ERR_THRESHOLD_M",
+    "bone_length_variation",
+    "err_ratio",
+    "frame_error",
+    "jitter",
+    "mean_error",
+]
+
+#: The threshold of Err0.2 (FPG Table 2), metres.
+ERR_THRESHOLD_M = 0.2
+
+
+def _clip_array(value: object, name: str) -> np.ndarray:
+    """Validate a ``(T, 20, 3)`` array (T >= 1) and return it as float64."""
+    array = np.asarray(value, dtype=np.float64)
+    if array.ndim == 2:
+        array = array[None]
+    if array.ndim != 3 or array.shape[1:] != (skeleton.NUM_JOINTS, 3):
+        raise ValueError(f"{name}: expected shape (T, 20, 3) or (20, 3), got {array.shape}")
+    if len(array) == 0:
+        raise ValueError(f"{name}: no frames")
+    if not np.all(np.isfinite(array)):
+        bad = tuple(int(i) for i in np.argwhere(~np.isfinite(array))[0])
+        raise ValueError(f"{name}: non-finite value at index {bad}")
+    return array
+
+
+def frame_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarray:
+    """FPG Eq. 13 per frame: mean over bones of ``||(r(j) - r(pa j)) - (x(j) - x(pa j))||``.
+
+    The paper writes the mean over the joints; the root has no parent, so the mean runs over the
+    19 bones (joints with a parent), see :data:`fpg_gym.skeleton.BONES`.
+
+    Parameters
+    ----------
+    reference, estimate : array_like, shape (T, 20, 3) or (20, 3)
+        Ground truth and estimated joint positions in metres, in the same space.
+
+    Returns
+    -------
+    ndarray, shape (T,), float64
+        Error of each frame in metres.
+
+    Raises
+    ------
+    ValueError
+        If a shape is wrong, the shapes differ, or a value is NaN/inf.
+    """
+    ref = _clip_array(reference, "reference")
+    est = _clip_array(estimate, "estimate")
+    if ref.shape != est.shape:
+        raise ValueError(f"reference {ref.shape} and estimate {est.shape} differ in shape")
+    parents, children = skeleton.BONES[:, 0], skeleton.BONES[:, 1]
+    diff = (ref[:, children] - ref[:, parents]) - (est[:, children] - est[:, parents])
+    return np.sqrt(np.einsum("tbc,tbc->tb", diff, diff)).mean(axis=1)
+
+
+def mean_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> float:
+    """FPG Eq. 13 over a whole sequence: mean over frames and bones, metres."""
+    return float(frame_error(reference, estimate).mean())
+
+
+def err_ratio(errors: npt.ArrayLike, threshold: float = ERR_THRESHOLD_M) -> float:
+    """Err0.2 (FPG Table 2): the share of frames whose error is at least ``threshold``.
+
+    Parameters
+    ----------
+    errors : array_like, shape (T,)
+        Per-frame errors, e.g. from :func:`frame_error`.
+    threshold : float
+        Metres; 0.2 in the paper.
+
+    Returns
+    -------
+    float
+        A share in [0, 1] (multiply by 100 for the paper's percentages).
+    """
+    values = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if values.size == 0:
+        raise ValueError("errors: empty")
+    if not np.all(np.isfinite(values)):
+        raise ValueError("errors: non-finite value")
+    return float(np.mean(values >= threshold))
+
+
+def bone_length_variation(
+    positions: npt.ArrayLike, states: npt.ArrayLike | None = None, *, min_frames: int = 2
+) -> np.ndarray:
+    """Standard deviation over time of each bone's length, metres, ``(19,)``.
+
+    Parameters
+    ----------
+    positions : array_like, shape (T, 20, 3)
+    states : array_like, shape (T, 20), optional
+        Tracking states (2 tracked, 1 inferred, 0 not tracked). When given, a bone's length
+        counts only in frames where both of its joints are tracked (state 2), as a sensor-side
+        statistic of independently estimated joints.
+    min_frames : int
+        A bone seen in fewer frames gets NaN.
+
+    Returns
+    -------
+    ndarray, shape (19,), float64
+        Per-bone standard deviation (NaN where a bone has fewer than ``min_frames`` frames);
+        ``np.nanmean`` of it is the summary the realism table reports.
+    """
+    pos = _clip_array(positions, "positions")
+    vectors = pos[:, skeleton.BONES[:, 1]] - pos[:, skeleton.BONES[:, 0]]
+    lengths = np.linalg.norm(vectors, axis=-1)  # (T, 19)
+    if states is None:
+        use = np.ones_like(lengths, dtype=bool)
+    else:
+        st = _states_array(states, len(pos))
+        tracked = st == 2
+        use = tracked[:, skeleton.BONES[:, 0]] & tracked[:, skeleton.BONES[:, 1]]
+    count = use.sum(axis=0)
+    safe = np.maximum(count, 1)
+    mean = np.where(use, lengths, 0.0).sum(axis=0) / safe
+    var = np.where(use, (lengths - mean) ** 2, 0.0).sum(axis=0) / safe
+    return np.where(count >= min_frames, np.sqrt(var), np.nan)
+
+
+def jitter(
+    positions: npt.ArrayLike,
+    *,
+    fps: float = 30.0,
+    timestamps: npt.ArrayLike | None = None,
+    valid: npt.ArrayLike | None = None,
+) -> np.ndarray:
+    """Mean acceleration magnitude of each joint, m/s², ``(20,)``.
+
+    The acceleration at frame t is the second difference of positions over the (possibly
+    uneven) frame intervals: ``2 ((p[t+1]-p[t])/h1 - (p[t]-p[t-1])/h0) / (h0 + h1)``. On a real
+    stream it mixes the motion's own acceleration with the sensor's vibration; compare a raw
+    stream with its ground truth, or streams of similar motions.
+
+    Parameters
+    ----------
+    positions : array_like, shape (T, 20, 3)
+    fps : float
+        Frame rate used when ``timestamps`` is omitted.
+    timestamps : array_like, shape (T,), optional
+        Seconds, strictly increasing.
+    valid : array_like of bool, shape (T,), optional
+        Frames to use (e.g. frames with a body); an acceleration needs three valid frames.
+
+    Returns
+    -------
+    ndarray, shape (20,), float64
+        NaN for every joint when fewer than three consecutive valid frames exist.
+    """
+    pos = _clip_array(positions, "positions")
+    count = len(pos)
+    if timestamps is None:
+        if not fps > 0:
+            raise ValueError(f"fps: expected a positive frame rate, got {fps}")
+        times = np.arange(count) / float(fps)
+    else:
+        times = np.asarray(timestamps, dtype=np.float64).reshape(-1)
+        if times.shape != (count,):
+            raise ValueError(f"timestamps: expected shape ({count},), got {times.shape}")
+        if count > 1 and not np.all(np.diff(times) > 0):
+            raise ValueError("timestamps: must be strictly increasing")
+    if count < 3:
+        return np.full(skeleton.NUM_JOINTS, np.nan)
+    ok = np.ones(count, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    if ok.shape != (count,):
+        raise ValueError(f"valid: expected shape ({count},), got {ok.shape}")
+    h0 = (times[1:-1] - times[:-2])[:, None, None]
+    h1 = (times[2:] - times[1:-1])[:, None, None]
+    acc = 2.0 * ((pos[2:] - pos[1:-1]) / h1 - (pos[1:-1] - pos[:-2]) / h0) / (h0 + h1)
+    use = ok[:-2] & ok[1:-1] & ok[2:]
+    if not use.any():
+        return np.full(skeleton.NUM_JOINTS, np.nan)
+    return np.linalg.norm(acc[use], axis=-1).mean(axis=0)
+
+
+def _states_array(states: npt.ArrayLike, count: int) -> np.ndarray:
+    st = np.asarray(states)
+    if st.shape != (count, skeleton.NUM_JOINTS):
+        raise ValueError(f"states: expected shape ({count}, 20), got {st.shape}")
+    return st

@@ -1,0 +1,507 @@
+"""Occluders, the body's collision shapes and the ray caster (pybullet ``rayTestBatch``).
+
+The stage is the body frame of a placed clip: Y up, origin on the floor under the body's mean
+root position, the body facing +Z on average (its left side at +X). Occluders are boxes given in
+that frame; a *carried* box follows the midpoint of the two hands and turns with the body.
+
+Visibility of a joint is what a depth camera can see of the body surface around it: rays go from
+the camera to points on a small disc in front of the joint (pulled towards the camera by the
+body part's radius, spread across the view direction), and the joint's visible fraction is the
+share of rays that reach their point. A ray is blocked by any scene box, and by any body shape
+that does not belong to the joint itself (a hand is hidden by the torso, not by its own
+forearm). The body is made of simple shapes sized from the clip's bone lengths: one capsule per
+limb bone, a sphere for the head, a box for the torso. All shapes are static collision objects
+in a pybullet DIRECT client of the caster's own, moved every frame with
+``resetBasePositionAndOrientation``; one ``rayTestBatch`` per frame casts every ray.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import numpy.typing as npt
+
+from fpg_gym import skeleton
+from fpg_gym.pybullet_utils import connect_direct, pybullet
+
+__all__ = ["Box", "RayCaster", "TraceResult", "body_shape_poses", "box_poses"]
+
+_J = skeleton.joint_index
+
+#: Capsule radius (metres) of each limb bone, keyed by the bone's child joint. The spine, hip and
+#: shoulder bones are covered by the torso box instead.
+LIMB_RADIUS: dict[str, float] = {
+    "Head": 0.05,  # the neck, ShoulderCenter-Head
+    "ElbowLeft": 0.05,
+    "WristLeft": 0.04,
+    "HandLeft": 0.04,
+    "ElbowRight": 0.05,
+    "WristRight": 0.04,
+    "HandRight": 0.04,
+    "KneeLeft": 0.075,
+    "AnkleLeft": 0.055,
+    "FootLeft": 0.045,
+    "KneeRight": 0.075,
+    "AnkleRight": 0.055,
+    "FootRight": 0.045,
+}
+HEAD_RADIUS = 0.10
+TORSO_HALF_DEPTH = 0.10
+_TORSO_JOINTS = (
+    "HipCenter",
+    "Spine",
+    "ShoulderCenter",
+    "ShoulderLeft",
+    "ShoulderRight",
+    "HipLeft",
+    "HipRight",
+)
+
+#: Limb bones with a capsule: indices into :data:`skeleton.BONES`.
+LIMB_BONES: np.ndarray = np.array(
+    [b for b, (_, c) in enumerate(skeleton.BONES) if skeleton.JOINT_NAMES[c] in LIMB_RADIUS]
+)
+NUM_BODY_SHAPES = len(LIMB_BONES) + 2  # + head sphere + torso box
+_HEAD_SHAPE = len(LIMB_BONES)
+_TORSO_SHAPE = len(LIMB_BONES) + 1
+
+#: How far (metres) each joint's ray targets are pulled towards the camera: the radius of the
+#: body part around the joint, so that rays aim at the visible surface, not the joint centre.
+SURFACE_OFFSET: np.ndarray = np.array(
+    [
+        HEAD_RADIUS if name == "Head" else TORSO_HALF_DEPTH if name in _TORSO_JOINTS else 0.05
+        for name in skeleton.JOINT_NAMES
+    ]
+)
+
+
+def _own_shapes() -> np.ndarray:
+    """(20, NUM_BODY_SHAPES) bool: the body shapes that belong to each joint."""
+    own = np.zeros((skeleton.NUM_JOINTS, NUM_BODY_SHAPES), dtype=bool)
+    for shape, bone in enumerate(LIMB_BONES):
+        parent, child = skeleton.BONES[bone]
+        own[parent, shape] = own[child, shape] = True
+    own[_J("Head"), _HEAD_SHAPE] = True
+    for name in _TORSO_JOINTS:
+        own[_J(name), _TORSO_SHAPE] = True
+    return own
+
+
+OWN_SHAPES = _own_shapes()
+
+
+@dataclass(frozen=True)
+class Box:
+    """A box occluder in the stage (body frame: Y up, body facing +Z, its left at +X).
+
+    Attributes
+    ----------
+    name : str
+        What it stands for (``"workbench"``, ``"shelf"``, ``"panel"``, ``"seat"``...).
+    size : tuple of 3 floats
+        Full extents along the box's own X (width), Y (height), Z (depth), metres.
+    center : tuple of 3 floats
+        Centre in the stage, metres; for a carried box, the offset from the carrying point in
+        the body's heading frame (X to the body's left, Y up, Z forward).
+    yaw_deg : float
+        Rotation about +Y, degrees (for a carried box, relative to the body's heading).
+    carried_by : str
+        ``""`` for a static box; ``"hands"`` for a box that follows the midpoint of the two
+        hands, or a joint name (e.g. ``"HandRight"``) for a box held by that joint.
+    """
+
+    name: str
+    size: tuple[float, float, float]
+    center: tuple[float, float, float]
+    yaw_deg: float = 0.0
+    carried_by: str = ""
+
+    def __post_init__(self) -> None:
+        size = np.asarray(self.size, dtype=np.float64)
+        center = np.asarray(self.center, dtype=np.float64)
+        if size.shape != (3,) or not np.all(size > 0) or not np.all(np.isfinite(size)):
+            raise ValueError(f"box {self.name!r}: size must be 3 positive numbers, got {self.size}")
+        if center.shape != (3,) or not np.all(np.isfinite(center)):
+            raise ValueError(f"box {self.name!r}: center must be 3 finite numbers")
+        if self.carried_by not in ("", "hands"):
+            skeleton.joint_index(self.carried_by)  # raises KeyError naming the valid joints
+
+    @property
+    def carried(self) -> bool:
+        """Whether the box moves with the body."""
+        return bool(self.carried_by)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-friendly description."""
+        return {
+            "name": self.name,
+            "size_m": list(self.size),
+            "center_m": list(self.center),
+            "yaw_deg": self.yaw_deg,
+            "carried_by": self.carried_by,
+        }
+
+
+# --------------------------------------------------------------------------- poses of shapes
+
+
+def _quaternion_z_to(direction: np.ndarray) -> np.ndarray:
+    """Quaternions (x, y, z, w) turning +Z onto each unit ``direction`` ``(..., 3)``."""
+    x, y, z = direction[..., 0], direction[..., 1], direction[..., 2]
+    # q = (z_axis x d, 1 + z_axis . d), normalised; z_axis x d = (-y, x, 0).
+    q = np.stack([-y, x, np.zeros_like(z), 1.0 + z], axis=-1)
+    flipped = (1.0 + z) < 1e-9
+    q[flipped] = (1.0, 0.0, 0.0, 0.0)
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def _matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` -> quaternions (x, y, z, w), vectorised."""
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    candidates = np.stack(
+        [
+            np.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 1, 0] - m[..., 0, 1],
+                    1.0 + trace,
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    1.0 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 2, 1] - m[..., 1, 2],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1.0 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    m[..., 0, 2] - m[..., 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1.0 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
+                    m[..., 1, 0] - m[..., 0, 1],
+                ],
+                -1,
+            ),
+        ],
+        axis=-2,
+    )  # (..., 4, 4): the four classic formulas, each well conditioned in its own region
+    diagonal = np.stack([trace, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], -1)
+    best = np.argmax(diagonal, axis=-1)
+    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)
+
+
+def _yaw_quaternion(yaw: np.ndarray) -> np.ndarray:
+    half = np.asarray(yaw, dtype=np.float64) / 2
+    zero = np.zeros_like(half)
+    return np.stack([zero, np.sin(half), zero, np.cos(half)], axis=-1)
+
+
+def torso_size(joints: np.ndarray) -> tuple[float, float, float]:
+    """Full extents (width, height, depth) of the torso box from a clip ``(T, 20, 3)``."""
+    shoulders = np.linalg.norm(
+        joints[:, _J("ShoulderLeft")] - joints[:, _J("ShoulderRight")], axis=-1
+    )
+    height = np.linalg.norm(joints[:, _J("ShoulderCenter")] - joints[:, _J("HipCenter")], axis=-1)
+    width = float(np.clip(np.median(shoulders) * 0.85, 0.22, 0.42))
+    return width, float(np.median(height)), 2 * TORSO_HALF_DEPTH
+
+
+def body_shape_poses(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Positions ``(T, S, 3)`` and quaternions ``(T, S, 4)`` of the body shapes, all frames.
+
+    Shape order: the limb capsules (:data:`LIMB_BONES`), the head sphere, the torso box.
+    """
+    joints = np.asarray(joints, dtype=np.float64)
+    count = len(joints)
+    parents = joints[:, skeleton.BONES[LIMB_BONES, 0]]
+    children = joints[:, skeleton.BONES[LIMB_BONES, 1]]
+    vectors = children - parents
+    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    directions = np.where(norms > 1e-9, vectors / np.maximum(norms, 1e-9), (0.0, 1.0, 0.0))
+    positions = np.empty((count, NUM_BODY_SHAPES, 3))
+    quaternions = np.empty((count, NUM_BODY_SHAPES, 4))
+    positions[:, : len(LIMB_BONES)] = (parents + children) / 2
+    quaternions[:, : len(LIMB_BONES)] = _quaternion_z_to(directions)
+    positions[:, _HEAD_SHAPE] = joints[:, _J("Head")]
+    quaternions[:, _HEAD_SHAPE] = (0.0, 0.0, 0.0, 1.0)
+    # Torso box: Y along hips -> shoulders, X towards the body's left, Z forward.
+    bottom, top = joints[:, _J("HipCenter")], joints[:, _J("ShoulderCenter")]
+    up = top - bottom
+    up /= np.maximum(np.linalg.norm(up, axis=-1, keepdims=True), 1e-9)
+    left = (joints[:, _J("ShoulderLeft")] - joints[:, _J("ShoulderRight")]) + (
+        joints[:, _J("HipLeft")] - joints[:, _J("HipRight")]
+    )
+    left -= np.sum(left * up, axis=-1, keepdims=True) * up
+    small = np.linalg.norm(left, axis=-1) < 1e-6
+    left[small] = np.cross(up[small], (0.0, 0.0, 1.0)) + 1e-6
+    left /= np.linalg.norm(left, axis=-1, keepdims=True)
+    forward = np.cross(left, up)
+    positions[:, _TORSO_SHAPE] = (bottom + top) / 2
+    quaternions[:, _TORSO_SHAPE] = _matrix_to_quaternion(np.stack([left, up, forward], axis=-1))
+    return positions, quaternions
+
+
+def box_poses(
+    boxes: Sequence[Box], joints: np.ndarray, heading: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Positions ``(T, B, 3)`` and quaternions ``(T, B, 4)`` of the scene boxes, all frames.
+
+    ``heading`` ``(T,)`` is the body's facing yaw in the stage (radians), used by carried boxes.
+    """
+    count = len(joints)
+    positions = np.empty((count, len(boxes), 3))
+    quaternions = np.empty((count, len(boxes), 4))
+    c, s = np.cos(heading), np.sin(heading)
+    for index, box in enumerate(boxes):  # a handful of boxes; vectorised over frames
+        offset = np.asarray(box.center, dtype=np.float64)
+        if box.carried:
+            if box.carried_by == "hands":
+                anchor = (joints[:, _J("HandLeft")] + joints[:, _J("HandRight")]) / 2
+            else:
+                anchor = joints[:, _J(box.carried_by)]
+            # heading frame -> stage: x' = c x + s z, z' = -s x + c z (rotation about +Y)
+            positions[:, index] = anchor + np.stack(
+                [
+                    c * offset[0] + s * offset[2],
+                    np.full(count, offset[1]),
+                    -s * offset[0] + c * offset[2],
+                ],
+                axis=-1,
+            )
+            quaternions[:, index] = _yaw_quaternion(heading + np.radians(box.yaw_deg))
+        else:
+            positions[:, index] = offset
+            quaternions[:, index] = _yaw_quaternion(np.full(count, np.radians(box.yaw_deg)))
+    return positions, quaternions
+
+
+# --------------------------------------------------------------------------- ray casting
+
+
+@dataclass(frozen=True)
+class TraceResult:
+    """Per-frame, per-joint visibility from the camera.
+
+    Attributes
+    ----------
+    visible : ndarray, shape (T, 20), float64
+        Share of the joint's rays that reach the body surface around it, in [0, 1].
+    blocker : ndarray, shape (T, 20), int
+        What stops the joint's central ray: -1 nothing, -2 another body part, k >= 0 scene
+        box k.
+    hit_point : ndarray, shape (T, 20, 3), float64
+        Where the central ray stops, stage coordinates (the target itself when unblocked).
+    """
+
+    visible: np.ndarray
+    blocker: np.ndarray
+    hit_point: np.ndarray
+
+
+class RayCaster:
+    """Body shapes and scene boxes in a pybullet DIRECT client of its own.
+
+    Parameters
+    ----------
+    rays_per_joint : int
+        1 (central ray only) or 5 (centre and four points around it).
+    spread : float
+        Radius in metres of the disc of ray targets around each joint.
+    """
+
+    def __init__(self, rays_per_joint: int = 5, spread: float = 0.04) -> None:
+        if rays_per_joint not in (1, 5):
+            raise ValueError(f"rays_per_joint: expected 1 or 5, got {rays_per_joint}")
+        self.rays_per_joint = rays_per_joint
+        self.spread = float(spread)
+        self._client: int | None = connect_direct()
+        self._uids: list[int] = []
+        self._shape_of_uid = np.zeros(0, dtype=np.intp)
+
+    # -- lifecycle
+    def close(self) -> None:
+        """Disconnect the pybullet client (idempotent)."""
+        if self._client is not None:
+            try:
+                pybullet.disconnect(physicsClientId=self._client)
+            except pybullet.error:  # pragma: no cover - already gone
+                pass
+            self._client = None
+
+    def __enter__(self) -> RayCaster:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    def __del__(self) -> None:  # pragma: no cover - best effort
+        self.close()
+
+    @property
+    def client(self) -> int:
+        if self._client is None:
+            raise RuntimeError("RayCaster is closed")
+        return self._client
+
+    # -- scene
+    def _reset_scene(self) -> None:
+        pybullet.resetSimulation(physicsClientId=self.client)
+        self._uids = []
+
+    def _add(self, shape: int) -> None:
+        uid = pybullet.createMultiBody(
+            baseMass=0.0,
+            baseCollisionShapeIndex=shape,
+            basePosition=[0.0, -100.0, 0.0],
+            physicsClientId=self.client,
+        )
+        self._uids.append(int(uid))
+
+    def build(self, joints: np.ndarray, boxes: Sequence[Box]) -> None:
+        """Create the body shapes (sized from ``joints`` ``(T, 20, 3)``) and the boxes."""
+        self._reset_scene()
+        lengths = np.median(
+            np.linalg.norm(
+                joints[:, skeleton.BONES[LIMB_BONES, 1]] - joints[:, skeleton.BONES[LIMB_BONES, 0]],
+                axis=-1,
+            ),
+            axis=0,
+        )
+        client = self.client
+        for bone, length in zip(LIMB_BONES, lengths, strict=True):
+            radius = LIMB_RADIUS[skeleton.JOINT_NAMES[skeleton.BONES[bone, 1]]]
+            shape = pybullet.createCollisionShape(
+                pybullet.GEOM_CAPSULE,
+                radius=radius,
+                height=max(float(length), 1e-3),
+                physicsClientId=client,
+            )
+            self._add(shape)
+        self._add(
+            pybullet.createCollisionShape(
+                pybullet.GEOM_SPHERE, radius=HEAD_RADIUS, physicsClientId=client
+            )
+        )
+        half = np.asarray(torso_size(joints)) / 2
+        self._add(
+            pybullet.createCollisionShape(
+                pybullet.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=client
+            )
+        )
+        for box in boxes:
+            self._add(
+                pybullet.createCollisionShape(
+                    pybullet.GEOM_BOX,
+                    halfExtents=(np.asarray(box.size) / 2).tolist(),
+                    physicsClientId=client,
+                )
+            )
+        lookup = np.full(max(self._uids) + 1, -1, dtype=np.intp)
+        lookup[self._uids] = np.arange(len(self._uids))
+        self._shape_of_uid = lookup
+
+    def trace(
+        self,
+        camera_position: npt.ArrayLike,
+        joints: np.ndarray,
+        boxes: Sequence[Box],
+        heading: np.ndarray,
+    ) -> TraceResult:
+        """Cast every joint's rays in every frame (one ``rayTestBatch`` per frame).
+
+        Parameters
+        ----------
+        camera_position : array_like, shape (3,)
+            Optical centre in the stage.
+        joints : ndarray, shape (T, 20, 3)
+            True joint positions in the stage.
+        boxes : sequence of Box
+            The scene boxes, as given to :meth:`build`.
+        heading : ndarray, shape (T,)
+            The body's facing yaw per frame (for carried boxes).
+        """
+        joints = np.asarray(joints, dtype=np.float64)
+        count = len(joints)
+        if len(self._uids) != NUM_BODY_SHAPES + len(boxes):
+            raise RuntimeError("RayCaster.trace: call build() with the same boxes first")
+        camera = np.asarray(camera_position, dtype=np.float64)
+        body_pos, body_quat = body_shape_poses(joints)
+        box_pos, box_quat = box_poses(boxes, joints, heading)
+        shape_pos = np.concatenate([body_pos, box_pos], axis=1)
+        shape_quat = np.concatenate([body_quat, box_quat], axis=1)
+        moving = list(range(NUM_BODY_SHAPES)) + [
+            NUM_BODY_SHAPES + i for i, box in enumerate(boxes) if box.carried
+        ]
+        for i, box in enumerate(boxes):  # static boxes are placed once
+            if not box.carried:
+                pybullet.resetBasePositionAndOrientation(
+                    self._uids[NUM_BODY_SHAPES + i],
+                    shape_pos[0, NUM_BODY_SHAPES + i].tolist(),
+                    shape_quat[0, NUM_BODY_SHAPES + i].tolist(),
+                    physicsClientId=self.client,
+                )
+        targets = self._targets(camera, joints)  # (T, 20, K, 3)
+        rays = skeleton.NUM_JOINTS * self.rays_per_joint
+        flat_targets = targets.reshape(count, rays, 3)
+        starts = [camera.tolist()] * rays
+        uids = np.empty((count, rays), dtype=np.intp)
+        hits = np.empty((count, skeleton.NUM_JOINTS, 3))
+        center_rays = np.arange(skeleton.NUM_JOINTS) * self.rays_per_joint
+        client, reset, uid_list = self.client, pybullet.resetBasePositionAndOrientation, self._uids
+        for t in range(count):
+            pos_t, quat_t = shape_pos[t].tolist(), shape_quat[t].tolist()
+            for k in moving:
+                reset(uid_list[k], pos_t[k], quat_t[k], physicsClientId=client)
+            result = pybullet.rayTestBatch(starts, flat_targets[t].tolist(), physicsClientId=client)
+            uids[t] = [r[0] for r in result]
+            hits[t] = [
+                result[i][3] if result[i][0] >= 0 else flat_targets[t, i] for i in center_rays
+            ]
+        shape = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
+        shape = shape.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint)
+        own = np.zeros(shape.shape, dtype=bool)
+        is_body = (shape >= 0) & (shape < NUM_BODY_SHAPES)
+        joint_index = np.arange(skeleton.NUM_JOINTS)[None, :, None]
+        own[is_body] = OWN_SHAPES[
+            np.broadcast_to(joint_index, shape.shape)[is_body], shape[is_body]
+        ]
+        blocked = (shape >= 0) & ~own
+        visible = 1.0 - blocked.mean(axis=-1)
+        center = shape[..., 0]
+        blocker = np.where(
+            ~blocked[..., 0], -1, np.where(center >= NUM_BODY_SHAPES, center - NUM_BODY_SHAPES, -2)
+        )
+        return TraceResult(visible=visible, blocker=blocker, hit_point=hits)
+
+    def _targets(self, camera: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """Ray targets ``(T, 20, K, 3)``: the joint's front surface and a disc around it."""
+        towards = camera - joints
+        distance = np.linalg.norm(towards, axis=-1, keepdims=True)
+        view = towards / np.maximum(distance, 1e-9)
+        front = joints + view * np.minimum(SURFACE_OFFSET[None, :, None], 0.5 * distance)
+        if self.rays_per_joint == 1:
+            return front[:, :, None, :]
+        side = np.cross(view, (0.0, 1.0, 0.0))
+        side_norm = np.linalg.norm(side, axis=-1, keepdims=True)
+        side = np.where(side_norm > 1e-6, side / np.maximum(side_norm, 1e-9), (1.0, 0.0, 0.0))
+        up = np.cross(side, view)
+        offsets = np.stack([np.zeros_like(side), side, -side, up, -up], axis=-2) * self.spread
+        return front[:, :, None, :] + offsets

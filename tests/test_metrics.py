@@ -1,0 +1,117 @@
+"""FPG Eq. 13 error, Err0.2, bone-length variation and jitter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fpg_gym import metrics, poses, skeleton
+
+
+@pytest.fixture
+def clip(rng: np.random.Generator) -> np.ndarray:
+    """Ten frames of a rest pose moving along a random walk (rigidly)."""
+    steps = rng.normal(scale=0.05, size=(10, 1, 3)).cumsum(axis=0)
+    return (poses.rest_pose()[None] + steps).astype(np.float64)
+
+
+def test_frame_error_zero_for_identical_and_rigid_shift(clip: np.ndarray) -> None:
+    assert np.allclose(metrics.frame_error(clip, clip), 0.0)
+    assert np.allclose(metrics.frame_error(clip, clip + np.array([0.3, -0.2, 1.0])), 0.0)
+
+
+def test_frame_error_counts_each_bone_a_joint_belongs_to(clip: np.ndarray) -> None:
+    shift = np.array([0.03, 0.04, 0.0])  # 5 cm
+    leaf = skeleton.joint_index("HandLeft")  # one bone ends there, none starts
+    moved = clip.copy()
+    moved[:, leaf] += shift
+    assert np.allclose(metrics.frame_error(clip, moved), 0.05 / skeleton.NUM_BONES)
+    middle = skeleton.joint_index("ElbowLeft")  # ends one bone and starts another
+    moved = clip.copy()
+    moved[:, middle] += shift
+    assert np.allclose(metrics.frame_error(clip, moved), 2 * 0.05 / skeleton.NUM_BONES)
+    assert metrics.mean_error(clip, moved) == pytest.approx(2 * 0.05 / skeleton.NUM_BONES)
+
+
+def test_frame_error_accepts_a_single_pose() -> None:
+    pose = poses.rest_pose()
+    assert metrics.frame_error(pose, pose).shape == (1,)
+
+
+def test_err_ratio_counts_frames_at_or_above_threshold() -> None:
+    assert metrics.err_ratio([0.1, 0.2, 0.3]) == pytest.approx(2 / 3)
+    assert metrics.err_ratio([0.1, 0.19], threshold=0.2) == 0.0
+    assert metrics.err_ratio([0.5], threshold=0.6) == 0.0
+
+
+def test_bone_length_variation(clip: np.ndarray) -> None:
+    assert np.allclose(metrics.bone_length_variation(clip), 0.0, atol=1e-7)
+    varied = clip.copy()
+    hand = skeleton.joint_index("HandLeft")
+    wrist = skeleton.joint_index("WristLeft")
+    direction = varied[:, hand] - varied[:, wrist]
+    direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    extra = np.where(np.arange(len(clip)) % 2 == 0, 0.01, -0.01)  # +-1 cm: std 1 cm
+    varied[:, hand] += direction * extra[:, None]
+    result = metrics.bone_length_variation(varied)
+    bone = skeleton.BONE_OF_JOINT[hand]
+    assert result[bone] == pytest.approx(0.01, rel=1e-6)
+    assert np.allclose(np.delete(result, bone), 0.0, atol=1e-7)
+
+
+def test_bone_length_variation_uses_only_tracked_frames(clip: np.ndarray) -> None:
+    varied = clip.copy()
+    hand = skeleton.joint_index("HandLeft")
+    varied[:3, hand] += 0.2  # a glitch in three frames
+    states = np.full(varied.shape[:2], 2)
+    states[:3, hand] = 1
+    bone = skeleton.BONE_OF_JOINT[hand]
+    assert metrics.bone_length_variation(varied)[bone] > 0.05
+    assert metrics.bone_length_variation(varied, states)[bone] == pytest.approx(0.0, abs=1e-7)
+    states[:, hand] = 1
+    assert np.isnan(metrics.bone_length_variation(varied, states)[bone])
+
+
+def test_jitter_of_known_motions() -> None:
+    times = np.arange(30) / 30.0
+    pose = poses.rest_pose().astype(np.float64)
+    steady = pose[None] + times[:, None, None] * np.array([1.0, 0.0, 0.0])
+    assert np.allclose(metrics.jitter(steady), 0.0, atol=1e-9)
+    accelerating = pose[None] + 0.5 * 2.0 * times[:, None, None] ** 2 * np.array([0.0, 1.0, 0.0])
+    assert np.allclose(metrics.jitter(accelerating), 2.0)
+    uneven = np.cumsum(np.where(np.arange(30) % 3 == 0, 0.066, 0.033))
+    moving = pose[None] + 0.5 * 2.0 * uneven[:, None, None] ** 2 * np.array([0.0, 0.0, 1.0])
+    assert np.allclose(metrics.jitter(moving, timestamps=uneven), 2.0)
+
+
+def test_jitter_valid_mask_and_short_input() -> None:
+    pose = poses.rest_pose().astype(np.float64)
+    clip = np.repeat(pose[None], 6, axis=0)
+    clip[3] += 1.0  # a spike
+    valid = np.ones(6, dtype=bool)
+    assert metrics.jitter(clip).mean() > 10
+    valid[3] = False
+    assert np.allclose(metrics.jitter(clip, valid=valid), 0.0)
+    assert np.all(np.isnan(metrics.jitter(clip[:2])))
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: metrics.frame_error(np.zeros((3, 19, 3)), np.zeros((3, 19, 3))), "shape"),
+        (lambda: metrics.frame_error(np.zeros((3, 20, 3)), np.zeros((4, 20, 3))), "differ"),
+        (
+            lambda: metrics.frame_error(np.full((2, 20, 3), np.nan), np.zeros((2, 20, 3))),
+            "non-finite",
+        ),
+        (lambda: metrics.err_ratio([]), "empty"),
+        (lambda: metrics.err_ratio([np.nan]), "non-finite"),
+        (lambda: metrics.jitter(np.zeros((5, 20, 3)), timestamps=np.zeros(5)), "increasing"),
+        (lambda: metrics.jitter(np.zeros((5, 20, 3)), timestamps=np.arange(4.0)), "timestamps"),
+        (lambda: metrics.jitter(np.zeros((5, 20, 3)), fps=0), "fps"),
+        (lambda: metrics.bone_length_variation(np.zeros((5, 20, 3)), np.zeros((5, 19))), "states"),
+    ],
+)
+def test_bad_input_gives_clear_errors(call: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        call()  # type: ignore[operator]
