@@ -1,0 +1,300 @@
+"""Tests of the PD ragdoll (fpg_gym.ragdoll) and its body model (fpg_gym.ragdoll_model)."""
+
+from __future__ import annotations
+
+import warnings
+from pathlib import Path
+
+import numpy as np
+import pytest
+from conftest import shared_path
+
+from fpg_gym import poses, skeleton
+from fpg_gym.io import BANDAI_NAMCO_MAP, load_default_clips, read_bvh
+from fpg_gym.ragdoll import PhysicsError, PhysicsWarning, Ragdoll
+from fpg_gym.ragdoll_model import (
+    MASS_FRACTIONS,
+    REFERENCE_BODY_MASS_KG,
+    build_body_model,
+    default_body_mass,
+)
+
+BONE_LENGTH_TOLERANCE_M = 0.005  # acceptance: output bone lengths within 5 mm of the model's
+TRACKING_TOLERANCE_M = 0.03  # acceptance: mean FPG Eq. 13 error under 3 cm on clean mocap
+
+
+@pytest.fixture(scope="module")
+def clips() -> dict[str, np.ndarray]:
+    return {clip.name: clip.positions for clip in load_default_clips()}
+
+
+def _eq13_per_frame(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:
+    """FPG Eq. 13 per frame: mean over bones of the bone-vector difference (metres)."""
+    diff = poses.bone_vectors(np.asarray(reference, np.float64)) - poses.bone_vectors(
+        np.asarray(estimate, np.float64)
+    )
+    return np.linalg.norm(diff, axis=-1).mean(axis=-1)
+
+
+def _run(body: Ragdoll, targets: np.ndarray) -> np.ndarray:
+    body.reset(targets[0])
+    return np.array([body.track(target) for target in targets])
+
+
+def _check_tracking(body: Ragdoll, targets: np.ndarray, name: str) -> None:
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", PhysicsWarning)  # a divergence fails the test
+        out = _run(body, targets)
+    lengths = poses.bone_lengths(out)
+    assert np.max(np.abs(lengths - body.model.bone_lengths)) < BONE_LENGTH_TOLERANCE_M, name
+    errors = _eq13_per_frame(targets, out)
+    assert errors.mean() < TRACKING_TOLERANCE_M, f"{name}: Eq. 13 {errors.mean():.4f} m"
+    # Never falls over: every frame stays close to its target, root included.
+    assert errors.max() < 0.1, f"{name}: worst frame {errors.max():.3f} m"
+    root_error = np.linalg.norm(out[:, skeleton.ROOT] - targets[:, skeleton.ROOT], axis=-1)
+    assert root_error.max() < 0.1, f"{name}: root {root_error.max():.3f} m from its target"
+    assert body.info["divergences"] == 0
+    assert body.info["frames"] == len(targets)
+
+
+# --------------------------------------------------------------------------- body model
+
+
+def test_body_model_masses_follow_de_leva_and_scale_with_size() -> None:
+    assert MASS_FRACTIONS.sum() == pytest.approx(1.0)
+    model = build_body_model()
+    assert model.total_mass == pytest.approx(REFERENCE_BODY_MASS_KG)
+    assert model.masses.sum() == pytest.approx(model.total_mass)
+    thigh = skeleton.BONE_NAMES.index("HipLeft-KneeLeft")
+    hand = skeleton.BONE_NAMES.index("WristLeft-HandLeft")
+    assert model.masses[thigh] == pytest.approx(0.1416 * REFERENCE_BODY_MASS_KG)
+    assert model.masses[hand] == pytest.approx(0.0061 * REFERENCE_BODY_MASS_KG)
+    assert np.all(model.radii > 0.01) and np.all(model.radii < 0.2)
+    assert np.all(model.inertia > 0)
+    # A body 10 % larger weighs 1.1³ as much; an explicit mass wins.
+    big = build_body_model(poses.DEFAULT_BONE_LENGTHS * 1.1)
+    assert big.total_mass == pytest.approx(REFERENCE_BODY_MASS_KG * 1.1**3)
+    assert default_body_mass(poses.DEFAULT_BONE_LENGTHS * 1.1) == pytest.approx(big.total_mass)
+    assert build_body_model(body_mass=60.0).masses.sum() == pytest.approx(60.0)
+
+
+@pytest.mark.parametrize(
+    ("lengths", "mass", "match"),
+    [
+        (np.ones(18), None, "expected shape"),
+        (np.full(19, 0.001), None, "at least"),
+        (np.full(19, np.nan), None, "finite"),
+        (None, -1.0, "body_mass"),
+    ],
+)
+def test_body_model_rejects_bad_input(
+    lengths: np.ndarray | None, mass: float | None, match: str
+) -> None:
+    with pytest.raises(ValueError, match=match):
+        build_body_model(lengths, mass)
+
+
+# --------------------------------------------------------------------------- tracking
+
+
+@pytest.mark.parametrize("name", ["walk", "punch", "kick", "dance_a", "dance_b"])
+def test_tracks_default_clips(clips: dict[str, np.ndarray], name: str) -> None:
+    targets = clips[name]
+    with Ragdoll(poses.bone_lengths(targets[0])) as body:
+        _check_tracking(body, targets, name)
+
+
+@pytest.mark.parametrize(
+    "filename", ["dataset-1_walk_normal_001.bvh", "dataset-1_punch_normal_001.bvh"]
+)
+def test_tracks_bandai_namco_clips(filename: str) -> None:
+    path = shared_path("bandai_namco", "dataset-1", filename)
+    targets = read_bvh(path, BANDAI_NAMCO_MAP).positions
+    with Ragdoll(poses.bone_lengths(targets).mean(axis=0)) as body:
+        _check_tracking(body, targets, Path(filename).stem)
+
+
+def test_output_has_the_models_bone_lengths_not_the_targets(clips: dict[str, np.ndarray]) -> None:
+    targets = clips["kick"]
+    lengths = poses.DEFAULT_BONE_LENGTHS  # a different body from the clip's
+    assert np.max(np.abs(poses.bone_lengths(targets[0]) - lengths)) > 0.02
+    with Ragdoll(lengths) as body:
+        out = _run(body, targets)
+        assert np.max(np.abs(poses.bone_lengths(out) - lengths)) < BONE_LENGTH_TOLERANCE_M
+        # Bone directions still follow the target.
+        direction_error = np.linalg.norm(
+            poses.bone_vectors(poses.retarget(targets, lengths)) - poses.bone_vectors(out), axis=-1
+        )
+        assert direction_error.mean() < TRACKING_TOLERANCE_M
+
+
+def test_reset_places_the_body_on_the_pose(clips: dict[str, np.ndarray]) -> None:
+    target = clips["dance_a"][10]
+    with Ragdoll(poses.bone_lengths(target)) as body:
+        out = body.reset(target)
+        np.testing.assert_allclose(out, target, atol=1e-4)
+        np.testing.assert_allclose(body.joint_positions, target, atol=1e-4)
+        np.testing.assert_allclose(body.joint_velocities, 0.0, atol=1e-6)
+        np.testing.assert_array_equal(body.target, target)
+
+
+def test_joint_velocities_match_the_motion(clips: dict[str, np.ndarray]) -> None:
+    targets = clips["walk"]
+    with Ragdoll(poses.bone_lengths(targets[0])) as body:
+        body.reset(targets[0])
+        for target in targets[:9]:
+            before = body.track(target)
+        body.track(targets[9])
+        velocity = body.joint_velocities
+        after = body.track(targets[10])
+    assert velocity.shape == (skeleton.NUM_JOINTS, 3) and velocity.dtype == np.float32
+    # Walking forward at about 1 m/s: the central difference over the neighbouring frames
+    # agrees to 0.3 m/s.
+    finite_difference = (after - before) * 30.0 / 2.0
+    root_speed = np.linalg.norm(velocity[skeleton.ROOT])
+    assert 0.5 < root_speed < 3.0
+    assert np.max(np.linalg.norm(velocity - finite_difference, axis=-1)) < 0.3
+
+
+def test_smooths_noisy_targets(clips: dict[str, np.ndarray], rng: np.random.Generator) -> None:
+    clean = clips["walk"]
+    noisy = (clean + rng.normal(0.0, 0.02, clean.shape)).astype(np.float32)
+    with Ragdoll(poses.bone_lengths(clean[0])) as body:
+        out = _run(body, noisy)
+
+    def jitter(x: np.ndarray) -> float:  # mean joint acceleration, m/s²
+        return float(np.linalg.norm(np.diff(x, 2, axis=0), axis=-1).mean() * 30.0**2)
+
+    assert jitter(out) < 0.95 * jitter(noisy)
+    assert _eq13_per_frame(clean, out).mean() < 0.8 * _eq13_per_frame(clean, noisy).mean()
+
+
+# --------------------------------------------------------------------------- forces, recovery
+
+
+def test_teleporting_target_keeps_forces_bounded_and_recovers(clips: dict[str, np.ndarray]) -> None:
+    walk = clips["walk"]
+    jump = np.array([1.0, 0.0, 0.0])  # 1 m sideways between frames 14 and 15
+    targets = np.concatenate([walk[:15], walk[15:] + jump, np.repeat(walk[-1:] + jump, 20, axis=0)])
+    with Ragdoll(poses.bone_lengths(walk[0])) as body:
+        body.reset(targets[0])
+        ratios, root_errors, errors = [], [], []
+        for target in targets:
+            out = body.track(target)
+            forces = np.abs(body.tracking_forces).max(axis=1)
+            ratios.append(np.max(forces / body.force_bounds))
+            root_errors.append(np.linalg.norm(out[skeleton.ROOT] - target[skeleton.ROOT]))
+            errors.append(_eq13_per_frame(target, out))
+        info = body.info
+    assert max(ratios) <= 1.0 + 1e-6  # bounded every frame
+    assert max(ratios) > 0.99  # the jump did push a force to its bound
+    assert root_errors[15] > 0.5  # the body did not teleport with the target
+    assert max(root_errors[45:]) < TRACKING_TOLERANCE_M  # recovered within a second
+    assert max(errors[45:]) < TRACKING_TOLERANCE_M
+    assert info["jumps"] == 1 and info["divergences"] == 0
+
+
+def test_weak_body_cannot_hold_a_lifted_target() -> None:
+    # Gravity is -Y and the force bound is real: at half its weight per part the body sinks.
+    with Ragdoll(strength=0.5) as body:
+        pose = body.standing_pose() + np.array([0.0, 0.5, 0.0])
+        body.reset(pose)
+        for _ in range(30):
+            out = body.track(pose)
+    assert out[skeleton.ROOT, 1] < pose[skeleton.ROOT, 1] - 0.3
+    assert out[:, 1].min() > -0.01  # ... and lands on the floor, not through it
+
+
+def test_divergence_resets_counts_and_raises_or_warns(clips: dict[str, np.ndarray]) -> None:
+    targets = clips["run"]
+    with Ragdoll(poses.bone_lengths(targets[0]), max_speed=0.5, on_divergence="raise") as body:
+        body.reset(targets[0])
+        with pytest.raises(PhysicsError, match="max_speed"):
+            for target in targets[1:]:
+                body.track(target)
+        assert body.info["divergences"] == 1
+        assert "max_speed" in body.info["last_divergence"]
+        np.testing.assert_allclose(body.joint_positions, target, atol=1e-3)  # reset to it
+    with Ragdoll(poses.bone_lengths(targets[0]), max_speed=0.5) as body:
+        body.reset(targets[0])
+        with pytest.warns(PhysicsWarning):
+            out = body.track(targets[5])
+        np.testing.assert_allclose(out, targets[5], atol=1e-3)
+        assert body.info["divergences"] == 1
+
+
+# --------------------------------------------------------------------------- instances
+
+
+def test_instances_side_by_side_are_independent_and_deterministic(
+    clips: dict[str, np.ndarray],
+) -> None:
+    a_targets, b_targets = clips["punch"][:20], clips["kick"][:20]
+    with Ragdoll() as a, Ragdoll() as b, Ragdoll() as alone:
+        assert len({a.client, b.client, alone.client}) == 3
+        a.reset(a_targets[0])
+        b.reset(b_targets[0])
+        interleaved = []
+        for ta, tb in zip(a_targets, b_targets, strict=True):
+            interleaved.append(a.track(ta))
+            b.track(tb)
+        np.testing.assert_array_equal(np.array(interleaved), _run(alone, a_targets)[:, :, :])
+
+
+def test_no_floor_and_degenerate_targets() -> None:
+    with Ragdoll(floor_height=None) as body:
+        body.reset(body.standing_pose())
+        collapsed = np.tile(np.array([0.0, 1.0, 0.0], dtype=np.float32), (skeleton.NUM_JOINTS, 1))
+        out = body.track(collapsed)  # every bone degenerate: keeps the last directions
+        assert np.all(np.isfinite(out))
+        assert np.max(np.abs(poses.bone_lengths(out) - body.model.bone_lengths)) < 1e-3
+
+
+# --------------------------------------------------------------------------- API
+
+
+def test_render_png_is_sized_and_not_blank(tmp_path: Path, clips: dict[str, np.ndarray]) -> None:
+    imageio = pytest.importorskip("imageio.v3")
+    with Ragdoll() as body:
+        body.reset(clips["kick"][0])
+        body.track(clips["kick"][1])
+        image = body.render(160, 120)
+    assert image.shape == (120, 160, 3) and image.dtype == np.uint8
+    path = tmp_path / "ragdoll.png"
+    imageio.imwrite(path, image)
+    back = imageio.imread(path)
+    np.testing.assert_array_equal(back, image)
+    # Not blank: sky, floor and the blue/red limbs are all there.
+    assert back.std() > 20
+    blue = (back[..., 2] > 150) & (back[..., 0] < 120)
+    red = (back[..., 0] > 150) & (back[..., 2] < 120)
+    assert blue.sum() > 20 and red.sum() > 20
+
+
+def test_info_api_and_errors() -> None:
+    body = Ragdoll()
+    try:
+        info = body.info
+        assert info["substeps"] >= 8 and info["physics_rate"] >= 240.0
+        assert info["frames"] == 0 and info["divergences"] == 0
+        assert body.joint_names == skeleton.JOINT_NAMES
+        assert body.joint_positions.shape == (skeleton.NUM_JOINTS, 3)
+        assert body.tracking_forces.shape == (skeleton.NUM_BONES, 6)
+        assert body.foot_clearance > 0
+        with pytest.raises(ValueError, match="target_pose"):
+            body.track(np.zeros((19, 3)))
+        with pytest.raises(ValueError, match="width"):
+            body.render(0, 10)
+    finally:
+        body.close()
+    body.close()  # idempotent
+    with pytest.raises(RuntimeError, match="closed"):
+        body.track(np.zeros((skeleton.NUM_JOINTS, 3)))
+    for kwargs in (
+        {"erp": 1.5},
+        {"strength": 0.0},
+        {"on_divergence": "ignore"},
+        {"friction": -1.0},
+    ):
+        with pytest.raises(ValueError):
+            Ragdoll(**kwargs)  # type: ignore[arg-type]
