@@ -15,7 +15,7 @@ from fpg_gym import __version__
 from fpg_gym.errors import FpgGymError
 
 #: Command modules under ``fpg_gym.commands``, in the order ``--help`` lists them.
-COMMAND_MODULES: tuple[str, ...] = ("read",)
+COMMAND_MODULES: tuple[str, ...] = ("read", "build_graph", "simulate", "reconstruct")
 
 
 def build_parser() -> argparse.ArgumentParser:

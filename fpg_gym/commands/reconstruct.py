@@ -1,0 +1,182 @@
+"""``fpg-gym reconstruct``: reconstruct a Kinect recording against a pose graph."""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+NAME = "reconstruct"
+HELP = "reconstruct a Kinect recording (graph or brute-force selection, an optimiser, ragdoll)"
+
+#: Bin edges (metres) of the printed error histogram.
+HISTOGRAM_EDGES: tuple[float, ...] = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Register the command's arguments."""
+    parser.add_argument(
+        "--graph", required=True, metavar="FILE", help="pose graph .npz, or 'default' (embedded)"
+    )
+    parser.add_argument(
+        "--input", required=True, metavar="REC", help="recording (.npz, MSRC-12, Kinect v2, ...)"
+    )
+    parser.add_argument("--out", required=True, metavar="OUT.npz", help="output .npz")
+    parser.add_argument(
+        "--optimizer", default="local-search", help="registered optimiser (default local-search)"
+    )
+    parser.add_argument("--selector", default="graph", choices=["graph", "brute-force"])
+    parser.add_argument("--no-ragdoll", action="store_true", help="skip the ragdoll stage")
+    parser.add_argument("--seed", type=int, default=0, help="optimiser seed (default 0)")
+    parser.add_argument(
+        "--budget", type=int, default=2000, help="energy evaluations per frame (default 2000)"
+    )
+    parser.add_argument("--k", type=int, default=30, help="candidates per frame (default 30)")
+    parser.add_argument("--progress", action="store_true", help="show a progress bar")
+    parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
+
+
+def _load_graph(name: str) -> Any:
+    from fpg_gym.graph import FilteredPoseGraph, default_graph
+
+    if name == "default":
+        return default_graph()
+    return FilteredPoseGraph.load(name)
+
+
+def _histogram(errors: Any) -> list[int]:
+    import numpy as np
+
+    edges = [*HISTOGRAM_EDGES, np.inf]
+    counts, _ = np.histogram(np.asarray(errors), bins=edges)
+    return [int(c) for c in counts]
+
+
+def run(args: argparse.Namespace) -> int:
+    """Reconstruct, write the ``.npz`` and print the summary (errors when ground truth exists)."""
+    import numpy as np
+
+    from fpg_gym import metrics
+    from fpg_gym.commands.output import emit_json
+    from fpg_gym.io import read_recording
+    from fpg_gym.reconstruct import Reconstructor
+    from optimizers import make
+
+    if args.budget < 0:
+        raise ValueError(f"--budget: expected >= 0, got {args.budget}")
+    if args.k < 1:
+        raise ValueError(f"--k: expected >= 1, got {args.k}")
+    optimizer = make(args.optimizer)
+    recording = read_recording(args.input)
+    graph = _load_graph(args.graph)
+    reconstructor = Reconstructor(
+        graph,
+        ragdoll=not args.no_ragdoll,
+        selector=args.selector,
+        k=args.k,
+        max_evaluations=args.budget,
+    )
+    start = time.perf_counter()
+    try:
+        result = reconstructor.reconstruct(
+            recording,
+            optimizer,
+            rng=np.random.default_rng(args.seed),
+            progress=args.progress,
+            stop_on_interrupt=True,
+        )
+    finally:
+        reconstructor.close()
+    seconds = time.perf_counter() - start
+    arrays = result.arrays()
+    frames = result.num_frames
+    total = recording.num_frames
+
+    summary: dict[str, Any] = {
+        "frames": frames,
+        "input_frames": total,
+        "interrupted": result.interrupted,
+        "optimizer": args.optimizer,
+        "selector": args.selector,
+        "ragdoll": not args.no_ragdoll,
+        "seed": args.seed,
+        "budget": args.budget,
+        "raw_mean_error_m": None,
+        "mean_error_m": None,
+        "raw_err02_pct": None,
+        "err02_pct": None,
+        "ms_per_frame_median": float(np.median(arrays["ms_per_frame"])) if frames else None,
+        "ms_per_frame_p95": float(np.percentile(arrays["ms_per_frame"], 95)) if frames else None,
+        "evaluations_mean": float(arrays["evaluations"].mean()) if frames else None,
+        "recoveries": int(arrays["recovered"].sum()),
+        "seconds": round(seconds, 3),
+    }
+    truth = recording.ground_truth
+    if truth is not None and frames:
+        raw_errors = metrics.frame_error(truth[:frames], recording.positions[:frames])
+        errors = metrics.frame_error(truth[:frames], result.poses)
+        arrays["frame_error_raw"] = raw_errors
+        arrays["frame_error"] = errors
+        summary.update(
+            raw_mean_error_m=float(raw_errors.mean()),
+            mean_error_m=float(errors.mean()),
+            raw_err02_pct=100.0 * metrics.err_ratio(raw_errors),
+            err02_pct=100.0 * metrics.err_ratio(errors),
+            histogram_edges_m=list(HISTOGRAM_EDGES),
+            raw_histogram=_histogram(raw_errors),
+            histogram=_histogram(errors),
+        )
+    metadata = {
+        "input": str(args.input),
+        "graph": str(args.graph),
+        **{k: summary[k] for k in ("optimizer", "selector", "ragdoll", "seed", "budget")},
+        "k": args.k,
+        "interrupted": result.interrupted,
+        "frames": frames,
+        "input_frames": total,
+    }
+    arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
+    out = Path(args.out)
+    if out.parent and not out.parent.exists():
+        out.parent.mkdir(parents=True, exist_ok=True)
+    np.savez_compressed(out, **arrays)  # type: ignore[arg-type]
+
+    state = " (interrupted)" if result.interrupted else ""
+    print(f"frames           {frames} of {total}{state}")
+    print(
+        f"optimizer        {args.optimizer}, selector {args.selector}, ragdoll "
+        f"{'off' if args.no_ragdoll else 'on'}, seed {args.seed}, budget {args.budget}"
+    )
+    if frames:
+        print(
+            f"ms per frame     median {summary['ms_per_frame_median']:.2f}, "
+            f"p95 {summary['ms_per_frame_p95']:.2f}"
+        )
+        print(
+            f"evaluations      mean {summary['evaluations_mean']:.0f} per frame, "
+            f"recoveries {summary['recoveries']}"
+        )
+    if summary["mean_error_m"] is not None:
+        print(
+            f"raw input        mean error {summary['raw_mean_error_m']:.4f} m, "
+            f"Err0.2 {summary['raw_err02_pct']:.1f} %"
+        )
+        print(
+            f"reconstruction   mean error {summary['mean_error_m']:.4f} m, "
+            f"Err0.2 {summary['err02_pct']:.1f} %"
+        )
+        labels = [f"{lo:.2f}-{hi:.2f}" for lo, hi in itertools.pairwise(HISTOGRAM_EDGES)] + [
+            f">={HISTOGRAM_EDGES[-1]:.2f}"
+        ]
+        print("error histogram  (m: raw / reconstruction frames)")
+        for label, raw, rec in zip(
+            labels, summary["raw_histogram"], summary["histogram"], strict=True
+        ):
+            print(f"  {label:>10}  {raw:6d} / {rec:6d}")
+    print(f"written          {out}")
+    if args.json:
+        emit_json({**summary, "out": str(out)})
+    return 130 if result.interrupted else 0

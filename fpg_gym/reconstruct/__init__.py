@@ -1,0 +1,86 @@
+"""The online reconstruction core: reliability, candidate selection, natural posture space,
+energy, the per-frame search problem and the :class:`Reconstructor` pipeline.
+
+See :mod:`fpg_gym.reconstruct.reconstructor` for the data flow of one frame and
+``../shared/DESIGN.md`` for the equations.
+"""
+
+from __future__ import annotations
+
+from fpg_gym.reconstruct.energy import (
+    TERM_NAMES,
+    EnergyModel,
+    EnergyWeights,
+    control_energy,
+    kinematic_energy,
+    motion_energy,
+    motion_target,
+    pose_energy_terms,
+    style_energy,
+)
+from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.problem import BudgetExhausted, FrameContext, SearchProblem
+from fpg_gym.reconstruct.reconstructor import (
+    LABELLINGS,
+    STAGES,
+    FrameRecord,
+    ReconstructionResult,
+    Reconstructor,
+    ReconstructorConfig,
+    left_right_costs,
+)
+from fpg_gym.reconstruct.reliability import (
+    ReliabilityConfig,
+    ReliabilityEstimator,
+    ReliabilityTerms,
+    is_neutral_pose,
+    reliability_of_sequence,
+)
+from fpg_gym.reconstruct.selection import (
+    BruteForceSelector,
+    CandidateSelector,
+    GraphSelector,
+    NodeDatabase,
+    Selection,
+    SelectionQuery,
+    fpg_score,
+    make_selector,
+    shum_score,
+)
+
+__all__ = [
+    "LABELLINGS",
+    "STAGES",
+    "TERM_NAMES",
+    "BruteForceSelector",
+    "BudgetExhausted",
+    "CandidateSelector",
+    "EnergyModel",
+    "EnergyWeights",
+    "FrameContext",
+    "FrameRecord",
+    "GraphSelector",
+    "LatentSpace",
+    "NodeDatabase",
+    "ReconstructionResult",
+    "Reconstructor",
+    "ReconstructorConfig",
+    "ReliabilityConfig",
+    "ReliabilityEstimator",
+    "ReliabilityTerms",
+    "SearchProblem",
+    "Selection",
+    "SelectionQuery",
+    "control_energy",
+    "fpg_score",
+    "is_neutral_pose",
+    "kinematic_energy",
+    "left_right_costs",
+    "make_selector",
+    "motion_energy",
+    "motion_target",
+    "pose_energy_terms",
+    "reliability_of_sequence",
+    "shum_score",
+    "style_energy",
+]

@@ -1,0 +1,117 @@
+"""The natural posture space: a whitened local PCA of the K candidate poses (Shum §VI-C).
+
+Each pose is a 60-vector (20 joints x 3). With ``mean`` the candidates' mean, ``basis`` the first
+``d`` principal directions (rows, orthonormal) and ``std`` the spread of the candidates along
+each of them, a whitened latent point ``z`` decodes to
+
+``x = mean + (z * std) @ basis``
+
+and a pose encodes to ``z = ((x - mean) @ basis.T) / std``. Every axis has unit variance over the
+candidates, so every optimiser sees the same scale whatever the motion.
+
+``d = min(max_dim, K - 1)`` (20 by default) so that the dimension depends only on K. Degenerate
+axes (candidates that do not spread along them, e.g. duplicate poses) keep their place but get
+the spread ``min_std`` (1 micrometre): moving along them changes the pose by a negligible amount
+instead of dividing by zero.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fpg_gym import skeleton
+from fpg_gym.poses import as_poses
+
+POSE_SIZE = skeleton.NUM_JOINTS * 3
+
+
+@dataclass(frozen=True)
+class LatentSpace:
+    """A whitened PCA space fitted to a few poses.
+
+    Attributes
+    ----------
+    mean : ndarray, shape (60,)
+        Mean of the fitted poses.
+    basis : ndarray, shape (d, 60)
+        Orthonormal principal directions, strongest first.
+    std : ndarray, shape (d,)
+        Spread (sample standard deviation) of the fitted poses along each direction, floored at
+        ``min_std``.
+    degenerate : ndarray, shape (d,), bool
+        Axes whose spread was below ``min_std``.
+    explained_variance_ratio : float
+        Share of the fitted poses' variance the ``d`` axes keep.
+    """
+
+    mean: np.ndarray
+    basis: np.ndarray
+    std: np.ndarray
+    degenerate: np.ndarray
+    explained_variance_ratio: float
+
+    @property
+    def dim(self) -> int:
+        """Latent dimension ``d``."""
+        return int(self.basis.shape[0])
+
+    @property
+    def components(self) -> np.ndarray:
+        """``(d, 60)``: ``basis`` scaled by ``std`` (decode is ``mean + z @ components``)."""
+        return self.basis * self.std[:, None]
+
+    @classmethod
+    def fit(cls, poses: np.ndarray, max_dim: int = 20, min_std: float = 1e-6) -> LatentSpace:
+        """PCA of ``poses`` ``(K, 20, 3)`` with ``d = min(max_dim, K - 1)`` whitened axes.
+
+        The sign of each direction is fixed (its largest-magnitude entry is positive) so that the
+        same poses always give the same space.
+
+        Raises
+        ------
+        ValueError
+            If ``poses`` is not ``(K, 20, 3)`` with K >= 1, or ``max_dim`` < 0.
+        """
+        data = as_poses(poses, "poses", ndim=3).reshape(-1, POSE_SIZE).astype(np.float64)
+        if len(data) == 0:
+            raise ValueError("poses: expected at least one pose, got 0")
+        if max_dim < 0:
+            raise ValueError(f"max_dim: expected >= 0, got {max_dim}")
+        if min_std <= 0:
+            raise ValueError(f"min_std: expected > 0, got {min_std}")
+        count = len(data)
+        dim = min(max_dim, count - 1, POSE_SIZE)
+        mean = data.mean(axis=0)
+        centred = data - mean
+        if dim == 0:
+            return cls(mean, np.zeros((0, POSE_SIZE)), np.zeros(0), np.zeros(0, bool), 1.0)
+        _, singular, vt = np.linalg.svd(centred, full_matrices=True)
+        basis = vt[:dim].copy()
+        signs = np.sign(basis[np.arange(dim), np.argmax(np.abs(basis), axis=1)])
+        basis *= np.where(signs == 0, 1.0, signs)[:, None]
+        spread = np.zeros(dim)
+        kept = min(dim, len(singular))
+        spread[:kept] = singular[:kept] / np.sqrt(count - 1)
+        degenerate = spread < min_std
+        total = float(np.sum(singular**2))
+        ratio = float(np.sum(singular[:kept] ** 2) / total) if total > 0 else 1.0
+        return cls(mean, basis, np.maximum(spread, min_std), degenerate, ratio)
+
+    def encode(self, poses: np.ndarray) -> np.ndarray:
+        """Whitened coordinates of poses ``(..., 20, 3) -> (..., d)``."""
+        x = np.asarray(poses, dtype=np.float64).reshape(*np.shape(poses)[:-2], POSE_SIZE)
+        return ((x - self.mean) @ self.basis.T) / self.std
+
+    def decode(self, z: np.ndarray) -> np.ndarray:
+        """Poses of whitened coordinates ``(..., d) -> (..., 20, 3)`` float64."""
+        z = np.asarray(z, dtype=np.float64)
+        if z.shape[-1:] != (self.dim,):
+            raise ValueError(f"z: expected shape (..., {self.dim}), got {z.shape}")
+        x = self.mean + (z * self.std) @ self.basis
+        return x.reshape(*z.shape[:-1], skeleton.NUM_JOINTS, 3)
+
+    def project(self, poses: np.ndarray) -> np.ndarray:
+        """The closest poses in the space (encode then decode)."""
+        return self.decode(self.encode(poses))

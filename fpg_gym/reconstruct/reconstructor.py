@@ -1,0 +1,896 @@
+"""The per-frame reconstruction pipeline (Shum 2013, FPG 2016) as one object.
+
+One frame::
+
+    prepare(positions, states, timestamp) -> SearchProblem
+        normalise (root to origin, facing +Z)       poses.normalise
+        reliability R and its terms                  ReliabilityEstimator
+        K candidates (graph or brute force)          selection
+        natural posture space (whitened PCA)         LatentSpace
+        energy, x0                                   EnergyModel, SearchProblem
+    <an optimiser, a policy or the env's action picks z>
+    finish(z) -> (pose in camera space, FrameRecord)
+        back-project, retarget to the user's bone lengths, back to camera space,
+        optional ragdoll
+
+:meth:`Reconstructor.reconstruct_frame` runs both with an optimiser in between and
+:meth:`Reconstructor.reconstruct` runs a whole recording.
+
+Frames of reference
+-------------------
+The sensor pose is normalised with its own root and hip-line heading. Previous reconstructions
+(camera space) enter the current frame *root-relative* (each minus its own root) and rotated by
+the current frame's heading: the continuity prediction ``p_l + v_l dt`` (FPG Eq. 6) and the
+motion target of ``Em`` (Shum Eq. 14) are then in the same frame as the candidates, whose roots
+are at the origin. A heading error of the sensor is thus partly absorbed by the reconstruction.
+
+The output is denormalised with the sensor frame's root and heading. A frame where no joint is
+tracked or inferred (no body) keeps the previous output's root and heading and a zero-velocity
+prediction; a stream restarts (full search, no continuity) on its first frame and after a gap of
+more than ``max_gap_s`` seconds.
+
+Left/right confusions
+---------------------
+A Kinect assumes that the user faces it: a user seen side-on gets arms or legs swapped for a
+while, one seen from behind is reported mirrored (Shum §I). Not in the papers: with
+``left_right_fix`` (default on) each frame's sensor pose is compared, root-relative, with the
+constant-velocity prediction of the previous outputs under four labellings
+(:data:`LABELLINGS`: as reported, mirrored, arms swapped, legs swapped); another labelling is
+used when it is clearly closer (``left_right_margin``) and the frame's record says which.
+
+Ragdoll
+-------
+With ``ragdoll=`` (a factory ``lengths -> Ragdoll`` or ``True`` for :class:`fpg_gym.ragdoll.
+Ragdoll`), the camera-space target is tracked by the ragdoll and its simulated pose is the output.
+The ragdoll runs in camera space shifted down by the floor height, estimated as the lowest joint
+of the targets so far (camera space has no floor); it is rebuilt when the user's reference bone
+lengths move by more than ``ragdoll_rebuild_m``. It runs after denormalisation, not in the
+normalised frame: physics needs one consistent world frame, and the normalised frame jumps with
+the sensor's root and heading every frame.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass, field, fields, replace
+from typing import Any, Protocol
+
+import numpy as np
+
+from fpg_gym import poses as pose_utils
+from fpg_gym import skeleton
+from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights, motion_target
+from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
+from fpg_gym.reconstruct.reliability import (
+    ReliabilityConfig,
+    ReliabilityEstimator,
+    ReliabilityTerms,
+)
+from fpg_gym.reconstruct.selection import (
+    CandidateSelector,
+    NodeDatabase,
+    Selection,
+    SelectionQuery,
+    make_selector,
+)
+
+STAGES: tuple[str, ...] = (
+    "normalise",
+    "reliability",
+    "selection",
+    "latent",
+    "search",
+    "finish",
+    "ragdoll",
+)
+"""Stages timed in :attr:`FrameRecord.ms` (milliseconds)."""
+
+
+def _side_joints(prefixes: tuple[str, ...]) -> np.ndarray:
+    return np.array(
+        [
+            i
+            for i, n in enumerate(skeleton.JOINT_NAMES)
+            if n.startswith(prefixes) and (skeleton.is_left(i) or skeleton.is_right(i))
+        ]
+    )
+
+
+def _swap(joints: np.ndarray) -> np.ndarray:
+    permutation = np.arange(skeleton.NUM_JOINTS)
+    permutation[joints] = skeleton.MIRROR_PERMUTATION[joints]
+    return permutation
+
+
+LABELLINGS: tuple[str, ...] = ("as-reported", "mirrored", "arms-swapped", "legs-swapped")
+"""Left/right labellings the reconstructor considers (see ``left_right_fix``)."""
+
+_LABEL_PERMUTATIONS = np.stack(
+    [
+        np.arange(skeleton.NUM_JOINTS),
+        np.asarray(skeleton.MIRROR_PERMUTATION),
+        _swap(_side_joints(("Shoulder", "Elbow", "Wrist", "Hand"))),
+        _swap(_side_joints(("Hip", "Knee", "Ankle", "Foot"))),
+    ]
+)
+_LABEL_PERMUTATIONS.flags.writeable = False
+
+
+def left_right_costs(
+    positions: np.ndarray, states: np.ndarray, prediction: np.ndarray
+) -> np.ndarray:
+    """How far each labelling of :data:`LABELLINGS` puts the sensor joints from a prediction.
+
+    The mean, over joints weighted by tracking state (tracked 1, inferred 0.5, not tracked 0),
+    of the distance between the relabelled, root-relative sensor pose and the root-relative
+    prediction (camera space). Returns ``(4,)`` metres.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    local = positions - positions[skeleton.ROOT]
+    target = np.asarray(prediction, dtype=np.float64)
+    target = target - target[skeleton.ROOT]
+    weights = np.where(np.asarray(states) >= 2, 1.0, np.where(np.asarray(states) == 1, 0.5, 0.0))
+    relabelled = local[_LABEL_PERMUTATIONS]  # (H, 20, 3)
+    w = weights[_LABEL_PERMUTATIONS]  # (H, 20)
+    dist = np.linalg.norm(relabelled - target, axis=-1)
+    return np.asarray((w * dist).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-9))
+
+
+class RagdollLike(Protocol):
+    """What the reconstructor needs of a ragdoll (:class:`fpg_gym.ragdoll.Ragdoll`)."""
+
+    def reset(self, pose: np.ndarray) -> np.ndarray:
+        """Place the body on ``pose``."""
+        ...
+
+    def track(self, target_pose: np.ndarray) -> np.ndarray:
+        """Advance one frame toward ``target_pose``; return the simulated pose."""
+        ...
+
+    def close(self) -> None:
+        """Release the simulation."""
+        ...
+
+
+RagdollFactory = Callable[[np.ndarray], RagdollLike]
+
+
+@dataclass(frozen=True)
+class ReconstructorConfig:
+    """Settings of the pipeline (defaults from the papers where they give one).
+
+    Attributes
+    ----------
+    k : int
+        Candidates per frame (30, both papers).
+    latent_dim : int
+        Most latent dimensions; ``d = min(latent_dim, K - 1)`` (20).
+    selector : {"graph", "brute-force"}
+        FPG's graph search or Shum's brute force (Eq. 9).
+    brute_force_score : {"shum", "fpg"}
+        Score of the brute-force selector (Eq. 9, or FPG's S over all nodes).
+    weights : EnergyWeights
+        ``Ec, Es, Ek, Em`` weights (1.0, 0.5, 1.5, 0.25).
+    max_evaluations : int or None
+        Evaluation budget per frame (2,000).
+    time_budget_s : float or None
+        Search time budget per frame, from its first evaluation (None).
+    recovery_factor, recovery_min_score : float or None, float
+        Graph selector's recovery rule (see :mod:`fpg_gym.reconstruct.selection`).
+    reliability : ReliabilityConfig
+    reference_lengths : tuple of 19 floats, optional
+        The user's bone lengths, when known; estimated from the stream otherwise.
+    retarget_candidates : bool
+        Give the candidates the user's bone lengths before comparing (True).
+    max_gap_s : float
+        A longer gap between timestamps restarts the stream (0.5 s).
+    frame_dt : float
+        Frame interval assumed on a first frame or without timestamps (1/30 s).
+    ragdoll_rebuild_m : float
+        Rebuild the ragdoll when a reference bone length moved by more than this (0.02 m).
+    energy_dtype : {"float64", "float32"}
+        Arithmetic precision of the energy (see :class:`EnergyModel`).
+    length_prior : {"database", "default"}
+        Proportions of the bone-length fallback before calibration: the database's median
+        bone lengths or :data:`fpg_gym.poses.DEFAULT_BONE_LENGTHS` (see
+        :mod:`fpg_gym.reconstruct.reliability`).
+    left_right_fix : bool
+        Undo the sensor's left/right label confusions by continuity (True; not in the papers,
+        see the module docstring).
+    left_right_margin : float
+        A relabelling is used only when it brings the sensor at least this factor closer to
+        the prediction than the reported labels (0.6), and by more than 3 cm.
+    """
+
+    k: int = 30
+    latent_dim: int = 20
+    selector: str = "graph"
+    brute_force_score: str = "shum"
+    weights: EnergyWeights = field(default_factory=EnergyWeights)
+    max_evaluations: int | None = 2000
+    time_budget_s: float | None = None
+    recovery_factor: float | None = 3.0
+    recovery_min_score: float = 0.05
+    reliability: ReliabilityConfig = field(default_factory=ReliabilityConfig)
+    reference_lengths: tuple[float, ...] | None = None
+    retarget_candidates: bool = True
+    max_gap_s: float = 0.5
+    frame_dt: float = 1.0 / 30.0
+    ragdoll_rebuild_m: float = 0.02
+    energy_dtype: str = "float64"
+    left_right_fix: bool = True
+    length_prior: str = "database"
+    left_right_margin: float = 0.6
+
+    def __post_init__(self) -> None:
+        if self.k < 1:
+            raise ValueError(f"k: expected >= 1, got {self.k}")
+        if self.latent_dim < 0:
+            raise ValueError(f"latent_dim: expected >= 0, got {self.latent_dim}")
+        if self.selector not in ("graph", "brute-force"):
+            raise ValueError(f"selector: expected 'graph' or 'brute-force', got {self.selector!r}")
+        if self.max_gap_s <= 0 or self.frame_dt <= 0:
+            raise ValueError("max_gap_s and frame_dt: expected positive values")
+        if self.length_prior not in ("database", "default"):
+            raise ValueError(
+                f"length_prior: expected 'database' or 'default', got {self.length_prior!r}"
+            )
+        if self.energy_dtype not in ("float64", "float32"):
+            raise ValueError(
+                f"energy_dtype: expected 'float64' or 'float32', got {self.energy_dtype!r}"
+            )
+        if self.reference_lengths is not None and len(self.reference_lengths) != skeleton.NUM_BONES:
+            raise ValueError(
+                f"reference_lengths: expected 19 lengths, got {len(self.reference_lengths)}"
+            )
+
+
+@dataclass(frozen=True)
+class FrameRecord:
+    """What happened in one frame.
+
+    Attributes
+    ----------
+    index, timestamp : int, float
+    reliability, behaviour, kinematic, tracking : ndarray, shape (20,)
+    reference_source : str
+        Where the bone lengths came from (see :mod:`fpg_gym.reconstruct.reliability`).
+    nodes, node_scores : ndarray, shape (K,)
+        Selected nodes (best first) and their selection scores.
+    num_scored : int
+        Nodes scored by the selector.
+    full_search, recovered : bool
+        Whether every node was scored; whether the recovery rule triggered it.
+    first, no_body : bool
+        Stream (re)start; no joint tracked or inferred.
+    energy, energy_x0 : float
+        ``E`` of the chosen point and of ``x0``.
+    terms : dict of str to float
+        ``Ec``, ``Es``, ``Ek``, ``Em`` of the chosen point (unweighted).
+    evaluations : int
+        Energy evaluations spent by the search.
+    ms : dict of str to float
+        Milliseconds per stage (:data:`STAGES`) and ``total``.
+    ragdoll : dict or None
+        The ragdoll's ``info`` after the frame (None without a ragdoll).
+    labelling : str
+        The left/right labelling used (:data:`LABELLINGS`; ``"as-reported"`` unless fixed).
+    """
+
+    index: int
+    timestamp: float
+    reliability: np.ndarray
+    behaviour: np.ndarray
+    kinematic: np.ndarray
+    tracking: np.ndarray
+    reference_source: str
+    nodes: np.ndarray
+    node_scores: np.ndarray
+    num_scored: int
+    full_search: bool
+    recovered: bool
+    first: bool
+    no_body: bool
+    energy: float
+    energy_x0: float
+    terms: dict[str, float]
+    evaluations: int
+    ms: dict[str, float]
+    ragdoll: dict[str, Any] | None = None
+    labelling: str = "as-reported"
+
+
+@dataclass
+class ReconstructionResult:
+    """A reconstructed stream: poses and per-frame records.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (T, 20, 3), float32
+        Reconstructed poses in the input's camera space, frame for frame.
+    records : list of FrameRecord
+    interrupted : bool
+        True when the run stopped early (Ctrl-C); ``poses`` then holds the frames done.
+    """
+
+    poses: np.ndarray
+    records: list[FrameRecord]
+    interrupted: bool = False
+
+    @property
+    def num_frames(self) -> int:
+        """Frames reconstructed."""
+        return len(self.records)
+
+    @property
+    def ms_per_frame(self) -> np.ndarray:
+        """Total milliseconds per frame ``(T,)``."""
+        return np.array([r.ms["total"] for r in self.records])
+
+    def arrays(self) -> dict[str, np.ndarray]:
+        """Everything as arrays (the ``reconstruct`` command's ``.npz`` keys).
+
+        ``poses`` (T,20,3), ``timestamps`` (T,), ``reliability``/``behaviour``/``kinematic``/
+        ``tracking`` (T,20), ``nodes``/``node_scores`` (T,K) (−1 / NaN padded), ``num_scored``,
+        ``evaluations`` (T,), ``energy``, ``energy_x0`` (T,), ``energy_terms`` (T,4) in
+        ``energy_term_names`` order, ``full_search``/``recovered``/``first``/``no_body`` (T,)
+        bool, ``ms_per_frame`` (T,), ``ms_stages`` (T,S) in ``stage_names`` order.
+        """
+        records = self.records
+        t = len(records)
+        k = max((len(r.nodes) for r in records), default=0)
+        nodes = np.full((t, k), -1, dtype=np.int64)
+        scores = np.full((t, k), np.nan)
+        for i, r in enumerate(records):
+            nodes[i, : len(r.nodes)] = r.nodes
+            scores[i, : len(r.nodes)] = r.node_scores
+
+        def stack(name: str, dtype: Any = np.float64) -> np.ndarray:
+            return np.array([getattr(r, name) for r in records], dtype=dtype).reshape(t, -1)
+
+        out: dict[str, np.ndarray] = {
+            "poses": np.asarray(self.poses[:t], dtype=np.float32),
+            "timestamps": np.array([r.timestamp for r in records], dtype=np.float64),
+            "reliability": stack("reliability").astype(np.float32),
+            "behaviour": stack("behaviour").astype(np.float32),
+            "kinematic": stack("kinematic").astype(np.float32),
+            "tracking": stack("tracking").astype(np.float32),
+            "nodes": nodes,
+            "node_scores": scores,
+            "num_scored": np.array([r.num_scored for r in records], dtype=np.int64),
+            "evaluations": np.array([r.evaluations for r in records], dtype=np.int64),
+            "energy": np.array([r.energy for r in records]),
+            "energy_x0": np.array([r.energy_x0 for r in records]),
+            "energy_terms": np.array([[r.terms[n] for n in TERM_NAMES] for r in records]).reshape(
+                t, len(TERM_NAMES)
+            ),
+            "energy_term_names": np.array(TERM_NAMES),
+            "full_search": np.array([r.full_search for r in records], dtype=bool),
+            "recovered": np.array([r.recovered for r in records], dtype=bool),
+            "first": np.array([r.first for r in records], dtype=bool),
+            "no_body": np.array([r.no_body for r in records], dtype=bool),
+            "labelling": np.array([LABELLINGS.index(r.labelling) for r in records], dtype=np.int8),
+            "labelling_names": np.array(LABELLINGS),
+            "ms_per_frame": np.array([r.ms["total"] for r in records]),
+            "ms_stages": np.array([[r.ms[s] for s in STAGES] for r in records]).reshape(
+                t, len(STAGES)
+            ),
+            "stage_names": np.array(STAGES),
+        }
+        return out
+
+
+@dataclass
+class _Pending:
+    """State between prepare() and finish()."""
+
+    problem: SearchProblem
+    placement: pose_utils.Placement
+    terms: ReliabilityTerms
+    selection: Selection
+    first: bool
+    no_body: bool
+    timestamp: float
+    ms: dict[str, float]
+    prepared_at: float
+    labelling: str = "as-reported"
+
+
+def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """A camera-space pose, root-relative and turned by ``-yaw`` (the current frame's heading)."""
+    local = np.asarray(pose, dtype=np.float64) - np.asarray(pose, dtype=np.float64)[skeleton.ROOT]
+    out: np.ndarray = local @ pose_utils.yaw_matrix(yaw)
+    return out
+
+
+class Reconstructor:
+    """Reconstructs Kinect frames against a pose graph, one frame at a time.
+
+    Parameters
+    ----------
+    graph : FilteredPoseGraph-like
+        ``poses`` (N, 20, 3) normalised and the CSR adjacency (``neighbors_of``).
+    config : ReconstructorConfig, optional
+    ragdoll : bool or callable, optional
+        ``True`` uses :class:`fpg_gym.ragdoll.Ragdoll`; a callable ``lengths -> ragdoll`` builds
+        any object with ``reset(pose)``, ``track(target) -> pose`` and ``close()``; None/False:
+        no ragdoll.
+    **overrides
+        Fields of :class:`ReconstructorConfig` (e.g. ``selector="brute-force"``).
+
+    Examples
+    --------
+    >>> rec = Reconstructor(graph, selector="graph")                       # doctest: +SKIP
+    >>> result = rec.reconstruct(recording, "local-search", rng=0)         # doctest: +SKIP
+    >>> problem = rec.prepare(positions, states, timestamp)                # doctest: +SKIP
+    >>> pose, record = rec.finish(problem.x0)                              # doctest: +SKIP
+    """
+
+    def __init__(
+        self,
+        graph: Any,
+        config: ReconstructorConfig | None = None,
+        *,
+        ragdoll: bool | RagdollFactory | None = None,
+        **overrides: Any,
+    ) -> None:
+        config = config or ReconstructorConfig()
+        if overrides:
+            names = {f.name for f in fields(ReconstructorConfig)}
+            unknown = sorted(set(overrides) - names)
+            if unknown:
+                raise TypeError(
+                    f"Reconstructor: unknown setting(s) {unknown}; expected fields of "
+                    "ReconstructorConfig: " + ", ".join(sorted(names))
+                )
+            config = replace(config, **overrides)
+        self.config = config
+        self.graph = graph
+        self.database = NodeDatabase(np.asarray(graph.poses))
+        kwargs: dict[str, Any] = (
+            {
+                "recovery_factor": config.recovery_factor,
+                "recovery_min_score": config.recovery_min_score,
+            }
+            if config.selector == "graph"
+            else {"score": config.brute_force_score}
+        )
+        self.selector: CandidateSelector = make_selector(
+            config.selector, graph, config.k, database=self.database, **kwargs
+        )
+        self.reliability = ReliabilityEstimator(
+            config.reliability,
+            None if config.reference_lengths is None else np.asarray(config.reference_lengths),
+            prior_lengths=(
+                np.median(pose_utils.bone_lengths(self.database.poses), axis=0)
+                if config.length_prior == "database"
+                else None
+            ),
+        )
+        if ragdoll is True:
+            from fpg_gym.ragdoll import Ragdoll
+
+            self._ragdoll_factory: RagdollFactory | None = Ragdoll  # Ragdoll(bone_lengths)
+        elif callable(ragdoll):
+            self._ragdoll_factory = ragdoll
+        else:
+            self._ragdoll_factory = None
+        self._ragdoll: RagdollLike | None = None
+        self._ragdoll_lengths: np.ndarray | None = None
+        self.ragdoll_rebuilds = 0
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+
+    @property
+    def k(self) -> int:
+        """Candidates per frame: ``min(config.k, number of nodes)``."""
+        return min(self.config.k, len(self.database))
+
+    @property
+    def latent_dim(self) -> int:
+        """Latent dimension of every problem: ``min(config.latent_dim, K - 1)``."""
+        return max(0, min(self.config.latent_dim, self.k - 1))
+
+    @property
+    def ragdoll(self) -> RagdollLike | None:
+        """The current ragdoll (None before the first frame or without one)."""
+        return self._ragdoll
+
+    @property
+    def problem(self) -> SearchProblem | None:
+        """The prepared problem waiting for :meth:`finish` (None otherwise)."""
+        return None if self._pending is None else self._pending.problem
+
+    def reset(self) -> None:
+        """Start a new stream: forget the history, bone lengths and previous nodes."""
+        self.reliability.reset()
+        self.selector.reset()
+        self._history: list[tuple[np.ndarray, float]] = []  # camera-space outputs, newest last
+        self._placement: pose_utils.Placement | None = None
+        self._pending: _Pending | None = None
+        self._index = 0
+        self._last_timestamp: float | None = None
+        self._floor: float | None = None
+        self._ragdoll_needs_reset = True
+
+    def close(self) -> None:
+        """Release the ragdoll, if any."""
+        if self._ragdoll is not None:
+            self._ragdoll.close()
+            self._ragdoll = None
+
+    def __getstate__(self) -> dict[str, Any]:
+        """Pickle support: the ragdoll (a pybullet client) is left out and rebuilt on use."""
+        state = self.__dict__.copy()
+        state["_ragdoll"] = None
+        state["_ragdoll_needs_reset"] = True
+        return state
+
+    def __enter__(self) -> Reconstructor:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+    # ------------------------------------------------------------------ prepare
+
+    def prepare(
+        self, positions: np.ndarray, states: np.ndarray, timestamp: float | None = None
+    ) -> SearchProblem:
+        """Everything up to the search for one frame; returns the frame's problem.
+
+        Parameters
+        ----------
+        positions : array_like, shape (20, 3)
+            Sensor joint positions, camera space, metres.
+        states : array_like, shape (20,)
+            2 tracked, 1 inferred, 0 not tracked.
+        timestamp : float, optional
+            Seconds; the previous timestamp plus ``frame_dt`` when omitted.
+
+        Raises
+        ------
+        RuntimeError
+            If the previous problem was not finished.
+        ValueError
+            On a wrong shape or a non-finite position.
+        """
+        if self._pending is not None:
+            raise RuntimeError(
+                "prepare: the previous frame's problem was not finished (call finish)"
+            )
+        t0 = time.perf_counter()
+        positions = pose_utils.as_poses(positions, "positions", ndim=2)
+        states = np.asarray(states)
+        if states.shape != (skeleton.NUM_JOINTS,):
+            raise ValueError(f"states: expected shape (20,), got {states.shape}")
+        cfg = self.config
+        if timestamp is None:
+            timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
+        timestamp = float(timestamp)
+        no_body = not bool(np.any(states > 0))
+
+        # Stream (re)start: first frame, or a long gap since the last reconstruction.
+        if self._history and (timestamp - self._history[-1][1] > cfg.max_gap_s):
+            self._history.clear()
+            self.selector.reset()
+            self.reliability.forget_motion()
+            self._ragdoll_needs_reset = True
+        first = not self._history
+        dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
+
+        # Left/right confusions (a Kinect assumes the user faces it): keep the labelling that
+        # continues the previous reconstructions best.
+        labelling = 0
+        if cfg.left_right_fix and not first and not no_body:
+            last = self._history[-1][0]
+            guess = last
+            if len(self._history) >= 2:
+                before = self._history[-2][0]
+                guess = motion_target(
+                    last - last[skeleton.ROOT],
+                    before - before[skeleton.ROOT],
+                    dt,
+                    self._history[-1][1] - self._history[-2][1],
+                )
+            costs = left_right_costs(positions, states, guess)
+            best = int(np.argmin(costs))
+            if (
+                best != 0
+                and costs[best] < cfg.left_right_margin * costs[0]
+                and costs[0] - costs[best] > 0.03
+            ):
+                labelling = best
+                positions = positions[_LABEL_PERMUTATIONS[best]]
+                states = states[_LABEL_PERMUTATIONS[best]]
+
+        # Normalise (root to origin, facing +Z); without a body keep the last placement.
+        kinect, placement = pose_utils.normalise(positions)
+        if no_body and self._placement is not None:
+            placement = self._placement
+            kinect = np.einsum(
+                "jc,cd->jd",
+                positions.astype(np.float64) - placement.root,
+                pose_utils.yaw_matrix(placement.yaw),
+            ).astype(np.float32)
+        t1 = time.perf_counter()
+
+        terms = self.reliability.update(positions, states)
+        lengths = terms.reference_lengths
+        t2 = time.perf_counter()
+
+        # Previous reconstructions in this frame; continuity prediction (FPG Eq. 6) which is also
+        # the motion target of Em (Shum Eq. 14).
+        previous = prediction = None
+        if self._history:
+            previous = _rotate_into(self._history[-1][0], placement.yaw)
+            if len(self._history) >= 2 and not no_body:
+                before = _rotate_into(self._history[-2][0], placement.yaw)
+                dt_prev = self._history[-1][1] - self._history[-2][1]
+                prediction = motion_target(previous, before, dt, dt_prev)
+            else:
+                prediction = previous.copy()
+        selection = self.selector.select(
+            SelectionQuery(
+                pose=kinect,
+                reliability=terms.reliability,
+                prediction=prediction,
+                lengths=lengths if cfg.retarget_candidates else None,
+            )
+        )
+        t3 = time.perf_counter()
+
+        latent = LatentSpace.fit(selection.poses, max_dim=cfg.latent_dim)
+        energy = EnergyModel(
+            latent,
+            kinect,
+            terms.reliability,
+            selection.poses,
+            lengths,
+            prediction,
+            cfg.weights,
+            dtype=cfg.energy_dtype,
+        )
+        x0 = latent.encode(previous if previous is not None else selection.poses[0])
+        problem = SearchProblem(
+            energy=energy,
+            kinect_pose=kinect,
+            reliability=terms,
+            selection=selection,
+            prediction=prediction,
+            previous=previous,
+            x0=x0,
+            context=FrameContext(index=self._index, timestamp=timestamp, dt=dt, first=first),
+            max_evaluations=cfg.max_evaluations,
+            time_budget_s=cfg.time_budget_s,
+        )
+        t4 = time.perf_counter()
+        ms = {
+            "normalise": 1e3 * (t1 - t0),
+            "reliability": 1e3 * (t2 - t1),
+            "selection": 1e3 * (t3 - t2),
+            "latent": 1e3 * (t4 - t3),
+        }
+        self._pending = _Pending(
+            problem,
+            placement,
+            terms,
+            selection,
+            first,
+            no_body,
+            timestamp,
+            ms,
+            t4,
+            LABELLINGS[labelling],
+        )
+        return problem
+
+    # ------------------------------------------------------------------ finish
+
+    def finish(self, z: np.ndarray | None = None) -> tuple[np.ndarray, FrameRecord]:
+        """Reconstruct the prepared frame from latent point ``z``.
+
+        Parameters
+        ----------
+        z : array_like, shape (d,), optional
+            The chosen latent point; ``problem.solution()`` (best evaluated, else ``x0``) when
+            omitted.
+
+        Returns
+        -------
+        pose : ndarray, shape (20, 3), float32
+            The reconstruction in camera space.
+        record : FrameRecord
+
+        Raises
+        ------
+        RuntimeError
+            If no frame was prepared.
+        """
+        pending = self._pending
+        if pending is None:
+            raise RuntimeError("finish: no prepared frame (call prepare first)")
+        t0 = time.perf_counter()
+        problem = pending.problem
+        z = problem.solution() if z is None else np.asarray(z, dtype=np.float64).reshape(-1)
+        if z.shape != (problem.dim,) or not np.all(np.isfinite(z)):
+            raise ValueError(f"z: expected {problem.dim} finite values, got shape {z.shape}")
+        chosen = problem.evaluate_terms(np.stack([z, problem.x0]), count=False)
+        local = problem.decode(z[None])[0]
+        local = pose_utils.retarget(local, problem.lengths)
+        pose = pose_utils.denormalise(local, pending.placement)
+        t1 = time.perf_counter()
+        ragdoll_info = None
+        if self._ragdoll_factory is not None:
+            pose, ragdoll_info = self._track(pose, problem.lengths)
+        t2 = time.perf_counter()
+
+        self._history.append((pose.astype(np.float64), pending.timestamp))
+        del self._history[:-2]
+        self._placement = pending.placement
+        self._last_timestamp = pending.timestamp
+        ms = dict(pending.ms)
+        ms["search"] = 1e3 * (t0 - pending.prepared_at)
+        ms["finish"] = 1e3 * (t1 - t0)
+        ms["ragdoll"] = 1e3 * (t2 - t1)
+        ms["total"] = sum(ms[s] for s in STAGES)
+        terms = pending.terms
+        selection = pending.selection
+        record = FrameRecord(
+            index=self._index,
+            timestamp=pending.timestamp,
+            reliability=terms.reliability,
+            behaviour=terms.behaviour,
+            kinematic=terms.kinematic,
+            tracking=terms.tracking,
+            reference_source=terms.reference_source,
+            nodes=selection.nodes,
+            node_scores=selection.scores,
+            num_scored=selection.num_scored,
+            full_search=selection.full_search,
+            recovered=selection.recovered,
+            first=pending.first,
+            no_body=pending.no_body,
+            energy=float(chosen["E"][0]),
+            energy_x0=float(chosen["E"][1]),
+            terms={name: float(chosen[name][0]) for name in TERM_NAMES},
+            evaluations=problem.evaluations,
+            ms=ms,
+            ragdoll=ragdoll_info,
+            labelling=pending.labelling,
+        )
+        self._pending = None
+        self._index += 1
+        return pose.astype(np.float32), record
+
+    def _track(self, target: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
+        """Send a camera-space target through the ragdoll (floor shifted to y = 0)."""
+        assert self._ragdoll_factory is not None
+        if self._ragdoll is None or (
+            self._ragdoll_lengths is not None
+            and np.max(np.abs(self._ragdoll_lengths - lengths)) > self.config.ragdoll_rebuild_m
+        ):
+            if self._ragdoll is not None:
+                self._ragdoll.close()
+                self.ragdoll_rebuilds += 1
+            self._ragdoll = self._ragdoll_factory(np.asarray(lengths, dtype=np.float64))
+            self._ragdoll_lengths = np.asarray(lengths, dtype=np.float64).copy()
+            self._ragdoll_needs_reset = True
+        lowest = float(target[:, 1].min())
+        self._floor = lowest if self._floor is None else min(self._floor, lowest)
+        shift = np.array([0.0, self._floor, 0.0])
+        world = np.asarray(target, dtype=np.float64) - shift
+        if self._ragdoll_needs_reset:
+            out = self._ragdoll.reset(world)
+            self._ragdoll_needs_reset = False
+        else:
+            out = self._ragdoll.track(world)
+        info = dict(getattr(self._ragdoll, "info", {}) or {})
+        info["rebuilds"] = self.ragdoll_rebuilds
+        info["floor_y"] = self._floor
+        return (np.asarray(out, dtype=np.float64) + shift).astype(np.float32), info
+
+    # ------------------------------------------------------------------ drivers
+
+    def reconstruct_frame(
+        self,
+        positions: np.ndarray,
+        states: np.ndarray,
+        timestamp: float | None = None,
+        optimizer: Any = "local-search",
+        rng: np.random.Generator | int | None = None,
+    ) -> tuple[np.ndarray, FrameRecord]:
+        """``prepare``, run ``optimizer`` (a registered name or an object), ``finish``."""
+        from optimizers import make, run_optimizer
+
+        opt = make(optimizer)
+        generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        problem = self.prepare(positions, states, timestamp)
+        try:
+            z = run_optimizer(problem, opt, generator)
+        except BaseException:
+            self._pending = None
+            raise
+        return self.finish(z)
+
+    def iter_frames(
+        self,
+        recording: Any,
+        optimizer: Any = "local-search",
+        rng: np.random.Generator | int | None = None,
+    ) -> Iterator[tuple[np.ndarray, FrameRecord]]:
+        """Reconstruct a recording frame by frame (a generator; starts with :meth:`reset`).
+
+        ``recording`` needs ``positions`` (T,20,3), ``states`` (T,20) and optionally
+        ``timestamps`` (T,).
+        """
+        from optimizers import make
+
+        positions = pose_utils.as_poses(recording.positions, "recording.positions", ndim=3)
+        states = np.asarray(recording.states)
+        if states.shape != positions.shape[:2]:
+            raise ValueError(
+                f"recording.states: expected shape {positions.shape[:2]}, got {states.shape}"
+            )
+        stamps = getattr(recording, "timestamps", None)
+        timestamps = (
+            np.arange(len(positions)) * self.config.frame_dt
+            if stamps is None
+            else np.asarray(stamps, dtype=np.float64)
+        )
+        opt = make(optimizer)
+        generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.reset()
+        for i in range(len(positions)):
+            yield self.reconstruct_frame(positions[i], states[i], timestamps[i], opt, generator)
+
+    def reconstruct(
+        self,
+        recording: Any,
+        optimizer: Any = "local-search",
+        rng: np.random.Generator | int | None = None,
+        *,
+        progress: bool = False,
+        stop_on_interrupt: bool = False,
+    ) -> ReconstructionResult:
+        """Reconstruct a whole recording.
+
+        Parameters
+        ----------
+        recording : Recording-like
+            ``positions`` (T,20,3), ``states`` (T,20), optional ``timestamps`` (T,).
+        optimizer : str or Optimizer
+            A registered name (``optimizers.available()``) or an optimiser object.
+        rng : numpy.random.Generator or int, optional
+            Seed or generator for the optimiser (same seed, same output); None: unseeded.
+        progress : bool
+            Show a tqdm progress bar on stderr.
+        stop_on_interrupt : bool
+            On Ctrl-C return the frames done (``interrupted=True``) instead of raising.
+        """
+        total = len(recording.positions)
+        poses = np.zeros((total, skeleton.NUM_JOINTS, 3), dtype=np.float32)
+        records: list[FrameRecord] = []
+        bar = None
+        if progress:
+            from tqdm import tqdm
+
+            bar = tqdm(total=total, unit="frame", desc="reconstruct", leave=False)
+        interrupted = False
+        try:
+            for i, (pose, record) in enumerate(self.iter_frames(recording, optimizer, rng)):
+                poses[i] = pose
+                records.append(record)
+                if bar is not None:
+                    bar.update(1)
+        except KeyboardInterrupt:
+            if not stop_on_interrupt:
+                raise
+            interrupted = True
+        finally:
+            if bar is not None:
+                bar.close()
+        return ReconstructionResult(poses[: len(records)], records, interrupted)

@@ -1,0 +1,496 @@
+"""Per-joint reliability of a Kinect stream (Shum 2013 §IV, FPG 2016 §5).
+
+Three terms per joint and frame, each in ``[0, 1]`` (1 = reliable):
+
+* **behaviour** ``Rb``: a joint that vibrates reverses its direction of motion from frame to
+  frame. With ``theta`` the angle between successive displacement vectors (0 when either is
+  shorter than ``d_min`` = 3 cm), ``Rb = 1 - clamp(mean_{last f_b frames}(theta) - theta_floor,
+  0, theta_roof - theta_floor) / (theta_roof - theta_floor)`` with ``f_b = 3``,
+  ``theta_floor = 90 deg``, ``theta_roof = 135 deg``. Displacements are measured relative to the
+  root (HipCenter), so that walking across the room does not hide a vibrating hand; the root
+  itself uses its camera-space displacement.
+* **kinematic** ``Rk``: ``1 - mean over the bones at the joint of min(|l - l_ref| / l_ref, 1)``,
+  where ``l_ref`` are the user's reference bone lengths.
+* **tracking** ``Rt``: 1 when the sensor reports the joint as tracked (state 2), else 0
+  (inferred or not tracked).
+
+The reliability is ``R = sum_{f=0..5} w(f) * min(Rb, Rk, Rt)(t - f)`` with Gaussian weights
+``w(f) ~ exp(-f^2 / (2 sigma^2))`` over the last 6 frames, newest heaviest, normalised to sum to 1
+over the frames available so far (``sigma = 2`` frames by default). A frame in which no joint is
+tracked or inferred (no body in view) has ``R = 0`` everywhere and restarts the behaviour term.
+
+Reference bone lengths
+----------------------
+Shum calibrates the bone lengths on frames where the user stands in a T-pose or a neutral pose
+with every joint tracked, and keeps refining them while such frames occur. Here every frame whose
+20 joints are all tracked and whose torso, arm and leg bones point within
+``neutral_tolerance_deg`` of the neutral standing pose (arms down) or of a T-pose (arms out) is a
+*calibration frame*; the reference is the per-bone **median over the most recent
+``max_reference_frames`` calibration frames** (robust to the odd spike). Until the first
+calibration frame a documented fallback is used (``config.fallback``):
+
+1. ``"scaled-prior"`` (default): the prior proportions (``prior_lengths``: the reconstructor
+   passes its database's median bone lengths; :data:`fpg_gym.poses.DEFAULT_BONE_LENGTHS`
+   otherwise) times one size factor, the median ratio of every recent tracked bone sample (both
+   joints tracked) to its prior length. Kinect bone lengths of a moving, partly occluded user
+   are biased and noisy per bone (2-3 cm on the simulator's ``*-many`` streams even after
+   hundreds of frames); one pooled factor is far steadier.
+2. ``"tracked-median"``: per bone, the median length over the recent frames in which both of
+   its joints were tracked (bones never seen: the scaled prior).
+
+Before any tracked bone, the prior is scaled by the current frame's height (vertical extent)
+over the prior rest pose's height, clamped to ``[0.5, 1.5]`` (``"prior-height"``).
+:attr:`ReliabilityEstimator.reference_source` says which one is in use (``"neutral"`` once
+calibrated). Fixed lengths can be given instead (``reference_lengths=``, ``"given"``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from fpg_gym import poses as pose_utils
+from fpg_gym import skeleton
+
+TRACKED = 2
+"""Kinect tracking state of a tracked joint (1 = inferred, 0 = not tracked)."""
+
+# (20, 19) incidence matrix, rows normalised: Rk(j) = 1 - INCIDENCE @ deviation (mean over bones).
+_INCIDENCE = np.zeros((skeleton.NUM_JOINTS, skeleton.NUM_BONES))
+_INCIDENCE[skeleton.BONES[:, 0], np.arange(skeleton.NUM_BONES)] = 1.0
+_INCIDENCE[skeleton.BONES[:, 1], np.arange(skeleton.NUM_BONES)] = 1.0
+_INCIDENCE /= _INCIDENCE.sum(axis=1, keepdims=True)
+_INCIDENCE.flags.writeable = False
+
+_ARM_CHAIN_NAMES = {
+    "left": ("ElbowLeft", "WristLeft"),
+    "right": ("ElbowRight", "WristRight"),
+}
+# Bones checked against the rest pose whatever the arms do: spine, neck, head, shoulders, hips,
+# thighs and shins (hands and feet are too noisy on a Kinect to be informative).
+_BODY_CHECK_JOINTS = (
+    "Spine",
+    "ShoulderCenter",
+    "Head",
+    "ShoulderLeft",
+    "ShoulderRight",
+    "HipLeft",
+    "HipRight",
+    "KneeLeft",
+    "AnkleLeft",
+    "KneeRight",
+    "AnkleRight",
+)
+_BODY_BONES = np.array(
+    [skeleton.BONE_OF_JOINT[skeleton.joint_index(n)] for n in _BODY_CHECK_JOINTS]
+)
+_LEFT_ARM_BONES = np.array(
+    [skeleton.BONE_OF_JOINT[skeleton.joint_index(n)] for n in _ARM_CHAIN_NAMES["left"]]
+)
+_RIGHT_ARM_BONES = np.array(
+    [skeleton.BONE_OF_JOINT[skeleton.joint_index(n)] for n in _ARM_CHAIN_NAMES["right"]]
+)
+# T-pose: the arm bones point sideways (the body's left is +X when facing +Z).
+_T_LEFT = np.array([1.0, 0.0, 0.0])
+_T_RIGHT = np.array([-1.0, 0.0, 0.0])
+
+
+@dataclass(frozen=True)
+class ReliabilityConfig:
+    """Parameters of the reliability estimate (defaults from Shum §IV and FPG §5).
+
+    Attributes
+    ----------
+    behaviour_frames : int
+        ``f_b``: frames over which the direction-change angle is averaged (3).
+    min_displacement_m : float
+        ``d_min``: displacements shorter than this give ``theta = 0`` (0.03 m).
+    theta_floor_deg, theta_roof_deg : float
+        Angles where ``Rb`` starts to fall and reaches 0 (90 and 135 degrees).
+    smoothing_frames : int
+        Frames of the Gaussian temporal filter on ``min(Rb, Rk, Rt)`` (6).
+    smoothing_sigma : float
+        Standard deviation of the Gaussian weights, in frames (2).
+    neutral_tolerance_deg : float
+        Largest angle between a bone and its neutral / T-pose direction in a calibration frame.
+    max_reference_frames : int
+        How many recent calibration (or tracked) frames the reference median uses.
+    fallback : {"scaled-prior", "tracked-median"}
+        Reference lengths before the first calibration frame (see the module docstring).
+    """
+
+    behaviour_frames: int = 3
+    min_displacement_m: float = 0.03
+    theta_floor_deg: float = 90.0
+    theta_roof_deg: float = 135.0
+    smoothing_frames: int = 6
+    smoothing_sigma: float = 2.0
+    neutral_tolerance_deg: float = 30.0
+    max_reference_frames: int = 300
+    fallback: str = "scaled-prior"
+
+    def __post_init__(self) -> None:
+        if self.fallback not in ("scaled-prior", "tracked-median"):
+            raise ValueError(
+                f"fallback: expected 'scaled-prior' or 'tracked-median', got {self.fallback!r}"
+            )
+        if self.behaviour_frames < 1:
+            raise ValueError(f"behaviour_frames: expected >= 1, got {self.behaviour_frames}")
+        if self.smoothing_frames < 1:
+            raise ValueError(f"smoothing_frames: expected >= 1, got {self.smoothing_frames}")
+        if not 0.0 <= self.theta_floor_deg < self.theta_roof_deg <= 180.0:
+            raise ValueError(
+                "theta_floor_deg/theta_roof_deg: expected 0 <= floor < roof <= 180, got "
+                f"{self.theta_floor_deg}, {self.theta_roof_deg}"
+            )
+        if self.smoothing_sigma <= 0:
+            raise ValueError(f"smoothing_sigma: expected > 0, got {self.smoothing_sigma}")
+        if self.max_reference_frames < 1:
+            raise ValueError(
+                f"max_reference_frames: expected >= 1, got {self.max_reference_frames}"
+            )
+
+    def weights(self) -> np.ndarray:
+        """Gaussian weights ``w(f)``, ``f = 0`` (newest) first, summing to 1."""
+        f = np.arange(self.smoothing_frames, dtype=np.float64)
+        w = np.exp(-(f**2) / (2.0 * self.smoothing_sigma**2))
+        return w / w.sum()
+
+
+@dataclass(frozen=True)
+class ReliabilityTerms:
+    """The reliability of one frame and each of its terms, all ``(20,)`` in ``[0, 1]``.
+
+    Attributes
+    ----------
+    reliability : ndarray
+        ``R``: the temporally smoothed minimum of the three terms (what the pipeline uses).
+    behaviour, kinematic, tracking : ndarray
+        ``Rb``, ``Rk`` and ``Rt`` of this frame.
+    minimum : ndarray
+        ``min(Rb, Rk, Rt)`` of this frame, before smoothing.
+    reference_lengths : ndarray, shape (19,)
+        The reference bone lengths ``Rk`` was computed with.
+    reference_source : str
+        ``"given"``, ``"neutral"``, ``"scaled-prior"``, ``"tracked-median"`` or
+        ``"prior-height"``.
+    calibration_frame : bool
+        Whether this frame was used as a calibration frame.
+    """
+
+    reliability: np.ndarray
+    behaviour: np.ndarray
+    kinematic: np.ndarray
+    tracking: np.ndarray
+    minimum: np.ndarray
+    reference_lengths: np.ndarray
+    reference_source: str
+    calibration_frame: bool = False
+
+
+def behaviour_angles(
+    displacement: np.ndarray, previous: np.ndarray, min_length: float
+) -> np.ndarray:
+    """Angle in radians between two displacement vectors per joint, 0 when either is short.
+
+    Parameters
+    ----------
+    displacement, previous : ndarray, shape (..., 3)
+        ``p(t) - p(t-1)`` and ``p(t-1) - p(t-2)``.
+    min_length : float
+        ``d_min``: vectors shorter than this give an angle of 0.
+    """
+    a = np.asarray(displacement, dtype=np.float64)
+    b = np.asarray(previous, dtype=np.float64)
+    na = np.linalg.norm(a, axis=-1)
+    nb = np.linalg.norm(b, axis=-1)
+    ok = (na >= min_length) & (nb >= min_length)
+    cos = np.einsum("...c,...c->...", a, b) / np.where(ok, na * nb, 1.0)
+    return np.where(ok, np.arccos(np.clip(cos, -1.0, 1.0)), 0.0)
+
+
+def behaviour_reliability(mean_angle: np.ndarray, config: ReliabilityConfig) -> np.ndarray:
+    """``Rb`` from the mean direction-change angle (radians) over the last ``f_b`` frames."""
+    floor = np.deg2rad(config.theta_floor_deg)
+    span = np.deg2rad(config.theta_roof_deg) - floor
+    return 1.0 - np.clip(np.asarray(mean_angle) - floor, 0.0, span) / span
+
+
+def kinematic_reliability(lengths: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``Rk`` per joint: 1 minus the mean relative length error of the bones at the joint.
+
+    Parameters
+    ----------
+    lengths : ndarray, shape (..., 19)
+        Bone lengths of the frame(s).
+    reference : ndarray, shape (19,)
+        Reference bone lengths (positive).
+    """
+    reference = np.asarray(reference, dtype=np.float64)
+    deviation = np.minimum(
+        np.abs(np.asarray(lengths) - reference) / np.maximum(reference, 1e-6), 1.0
+    )
+    return 1.0 - deviation @ _INCIDENCE.T
+
+
+def tracking_reliability(states: np.ndarray) -> np.ndarray:
+    """``Rt``: 1 for tracked joints (state 2), 0 for inferred or not-tracked ones."""
+    return (np.asarray(states) >= TRACKED).astype(np.float64)
+
+
+def is_neutral_pose(pose: np.ndarray, tolerance_deg: float = 30.0) -> bool:
+    """Whether a pose is near the neutral standing pose (arms down) or a T-pose.
+
+    Torso, shoulder, hip and leg bones must point within ``tolerance_deg`` of
+    :data:`fpg_gym.poses.REST_DIRECTIONS` (after normalisation); each arm's upper arm and forearm
+    must point within the tolerance either straight down (neutral) or sideways (T-pose).
+    """
+    normalised, _ = pose_utils.normalise(np.asarray(pose, dtype=np.float64))
+    vectors = pose_utils.bone_vectors(normalised.astype(np.float64))
+    norms = np.linalg.norm(vectors, axis=-1)
+    if np.any(norms < 1e-6):
+        return False
+    directions = vectors / norms[:, None]
+    cos_tol = np.cos(np.deg2rad(tolerance_deg))
+    rest = pose_utils.REST_DIRECTIONS
+    if np.any(np.einsum("bc,bc->b", directions[_BODY_BONES], rest[_BODY_BONES]) < cos_tol):
+        return False
+    for bones, sideways in ((_LEFT_ARM_BONES, _T_LEFT), (_RIGHT_ARM_BONES, _T_RIGHT)):
+        down = np.einsum("bc,bc->b", directions[bones], rest[bones]) >= cos_tol
+        out = directions[bones] @ sideways >= cos_tol
+        if not (np.all(down) or np.all(out)):
+            return False
+    return True
+
+
+@dataclass
+class _History:
+    """Mutable per-stream state of :class:`ReliabilityEstimator`."""
+
+    positions: list[np.ndarray] = field(default_factory=list)  # last two frames, (20, 3) each
+    angles: list[np.ndarray] = field(default_factory=list)  # last f_b angle vectors
+    minima: list[np.ndarray] = field(default_factory=list)  # last smoothing_frames minima
+
+
+class ReliabilityEstimator:
+    """Online per-joint reliability of a Kinect stream, one frame at a time.
+
+    Parameters
+    ----------
+    config : ReliabilityConfig, optional
+    reference_lengths : array_like, shape (19,), optional
+        Fixed reference bone lengths; when omitted they are estimated from the stream (see the
+        module docstring).
+    prior_lengths : array_like, shape (19,), optional
+        Body proportions of the fallback (:data:`fpg_gym.poses.DEFAULT_BONE_LENGTHS` by
+        default; the reconstructor passes its database's median bone lengths).
+
+    Examples
+    --------
+    >>> est = ReliabilityEstimator()
+    >>> terms = est.update(positions, states)   # doctest: +SKIP
+    >>> terms.reliability.shape
+    (20,)
+    """
+
+    def __init__(
+        self,
+        config: ReliabilityConfig | None = None,
+        reference_lengths: np.ndarray | None = None,
+        prior_lengths: np.ndarray | None = None,
+    ) -> None:
+        self.config = config or ReliabilityConfig()
+        self._weights = self.config.weights()
+        prior = pose_utils.DEFAULT_BONE_LENGTHS if prior_lengths is None else prior_lengths
+        self._prior = np.asarray(prior, dtype=np.float64).copy()
+        if self._prior.shape != (skeleton.NUM_BONES,) or not np.all(self._prior > 0):
+            raise ValueError(
+                f"prior_lengths: expected 19 positive lengths, got shape {self._prior.shape}"
+            )
+        self._prior_height = float(pose_utils.height(pose_utils.rest_pose(self._prior)))
+        if reference_lengths is not None:
+            fixed = np.asarray(reference_lengths, dtype=np.float64)
+            if fixed.shape != (skeleton.NUM_BONES,) or not np.all(fixed > 0):
+                raise ValueError(
+                    f"reference_lengths: expected 19 positive lengths, got shape {fixed.shape}"
+                )
+            self._fixed: np.ndarray | None = fixed
+        else:
+            self._fixed = None
+        self.reset()
+
+    # ------------------------------------------------------------------ state
+
+    def reset(self, *, keep_reference: bool = False) -> None:
+        """Forget the stream; with ``keep_reference`` keep the calibrated bone lengths."""
+        self._history = _History()
+        if not keep_reference:
+            cap = self.config.max_reference_frames
+            self._neutral = np.empty((cap, skeleton.NUM_BONES))
+            self._neutral_count = 0
+            self._tracked = np.full((cap, skeleton.NUM_BONES), np.nan)
+            self._tracked_count = 0
+            self._reference: np.ndarray | None = None
+            self._source = "given" if self._fixed is not None else "prior-height"
+
+    def forget_motion(self) -> None:
+        """Drop the motion history (after a gap in the stream) but keep the bone lengths."""
+        self.reset(keep_reference=True)
+
+    @property
+    def reference_lengths(self) -> np.ndarray | None:
+        """Current reference bone lengths ``(19,)`` (None before the first frame)."""
+        if self._fixed is not None:
+            return self._fixed.copy()
+        return None if self._reference is None else self._reference.copy()
+
+    @property
+    def reference_source(self) -> str:
+        """Where the reference lengths come from: see the module docstring."""
+        return self._source
+
+    @property
+    def calibration_frames(self) -> int:
+        """Calibration frames seen so far (capped at ``max_reference_frames``)."""
+        return min(self._neutral_count, self.config.max_reference_frames)
+
+    # ------------------------------------------------------------------ update
+
+    def _update_reference(self, positions: np.ndarray, states: np.ndarray) -> bool:
+        if self._fixed is not None:
+            self._reference = self._fixed
+            self._source = "given"
+            return False
+        cap = self.config.max_reference_frames
+        lengths = pose_utils.bone_lengths(positions)
+        tracked = states >= TRACKED
+        calibration = bool(tracked.all()) and is_neutral_pose(
+            positions, self.config.neutral_tolerance_deg
+        )
+        if calibration:
+            self._neutral[self._neutral_count % cap] = lengths
+            self._neutral_count += 1
+        both = tracked[skeleton.BONES[:, 0]] & tracked[skeleton.BONES[:, 1]] & (lengths > 1e-6)
+        if both.any():
+            self._tracked[self._tracked_count % cap] = np.where(both, lengths, np.nan)
+            self._tracked_count += 1
+        if self._neutral_count:
+            self._reference = np.median(self._neutral[: min(self._neutral_count, cap)], axis=0)
+            self._source = "neutral"
+            return calibration
+        prior = self._prior
+        if self._tracked_count:
+            rows = self._tracked[: min(self._tracked_count, cap)]
+            seen = np.any(np.isfinite(rows), axis=0)
+            # One size factor for the whole body: the median ratio of every tracked bone sample
+            # to the prior (robust to a minority of wrong samples, needs no bone seen often).
+            scale = float(np.nanmedian(rows[:, seen] / prior[seen]))
+            if self.config.fallback == "tracked-median":
+                median = np.full(skeleton.NUM_BONES, np.nan)
+                median[seen] = np.nanmedian(rows[:, seen], axis=0)
+                self._reference = np.where(seen, median, prior * scale)
+                self._source = "tracked-median"
+            else:
+                self._reference = prior * scale
+                self._source = "scaled-prior"
+        else:
+            scale = float(pose_utils.height(positions)) / self._prior_height
+            scale = float(np.clip(scale, 0.5, 1.5)) if scale > 1e-3 else 1.0
+            self._reference = prior * scale
+            self._source = "prior-height"
+        return False
+
+    def update(self, positions: np.ndarray, states: np.ndarray) -> ReliabilityTerms:
+        """Reliability of the next frame.
+
+        Parameters
+        ----------
+        positions : array_like, shape (20, 3)
+            The frame's joint positions in camera space (metres).
+        states : array_like, shape (20,)
+            Tracking states: 2 tracked, 1 inferred, 0 not tracked.
+
+        Returns
+        -------
+        ReliabilityTerms
+        """
+        positions = np.asarray(positions, dtype=np.float64)
+        states = np.asarray(states)
+        if positions.shape != (skeleton.NUM_JOINTS, 3):
+            raise ValueError(f"positions: expected shape (20, 3), got {positions.shape}")
+        if states.shape != (skeleton.NUM_JOINTS,):
+            raise ValueError(f"states: expected shape (20,), got {states.shape}")
+        cfg = self.config
+        history = self._history
+        calibration = self._update_reference(positions, states)
+        assert self._reference is not None
+
+        # Behaviour (Shum §IV-A): root-relative displacements, the root's own in camera space.
+        local = positions - positions[skeleton.ROOT]
+        local[skeleton.ROOT] = positions[skeleton.ROOT]
+        if len(history.positions) == 2:
+            angle = behaviour_angles(
+                local - history.positions[-1],
+                history.positions[-1] - history.positions[-2],
+                cfg.min_displacement_m,
+            )
+            history.angles.append(angle)
+            del history.angles[: -cfg.behaviour_frames]
+        history.positions.append(local)
+        del history.positions[:-2]
+        mean_angle = (
+            np.mean(history.angles, axis=0) if history.angles else np.zeros(skeleton.NUM_JOINTS)
+        )
+        behaviour = behaviour_reliability(mean_angle, cfg)
+
+        # Kinematic (Shum §IV-B) and tracking state (FPG §5).
+        kinematic = kinematic_reliability(pose_utils.bone_lengths(positions), self._reference)
+        tracking = tracking_reliability(states)
+        minimum = np.minimum(np.minimum(behaviour, kinematic), tracking)
+
+        # Gaussian temporal filter over the last 6 frames, newest heaviest.
+        history.minima.insert(0, minimum)
+        del history.minima[cfg.smoothing_frames :]
+        w = self._weights[: len(history.minima)]
+        reliability = (w / w.sum()) @ np.asarray(history.minima)
+        if not np.any(states > 0):
+            # No body in view: nothing the sensor says is reliable, whatever the filter holds,
+            # and the positions must not enter the motion history.
+            reliability = np.zeros(skeleton.NUM_JOINTS)
+            history.positions.clear()
+            history.angles.clear()
+        return ReliabilityTerms(
+            reliability=reliability,
+            behaviour=behaviour,
+            kinematic=kinematic,
+            tracking=tracking,
+            minimum=minimum,
+            reference_lengths=self._reference.copy(),
+            reference_source=self._source,
+            calibration_frame=calibration,
+        )
+
+
+def reliability_of_sequence(
+    positions: np.ndarray,
+    states: np.ndarray,
+    config: ReliabilityConfig | None = None,
+    reference_lengths: np.ndarray | None = None,
+) -> dict[str, np.ndarray]:
+    """Run :class:`ReliabilityEstimator` over a whole stream.
+
+    Returns
+    -------
+    dict
+        ``reliability``, ``behaviour``, ``kinematic``, ``tracking``, ``minimum`` as ``(T, 20)``
+        arrays and ``reference_lengths`` as ``(T, 19)``.
+    """
+    positions = pose_utils.as_poses(positions, "positions", ndim=3)
+    states = np.asarray(states)
+    if states.shape != positions.shape[:2]:
+        raise ValueError(f"states: expected shape {positions.shape[:2]}, got {states.shape}")
+    estimator = ReliabilityEstimator(config, reference_lengths)
+    frames = [estimator.update(p, s) for p, s in zip(positions, states, strict=True)]
+    keys = ("reliability", "behaviour", "kinematic", "tracking", "minimum", "reference_lengths")
+    return {k: np.stack([getattr(f, k) for f in frames]) for k in keys}

@@ -1,0 +1,396 @@
+"""Candidate selection: the K database poses the latent space is built from.
+
+Two implementations behind one interface (:class:`CandidateSelector`):
+
+* :class:`BruteForceSelector` (Shum 2013, Eq. 9): scores every node with
+  ``D = sum_j R(j) ||p_k(j) - p_d(j)||^2`` and keeps the K best. Linear in the database size.
+* :class:`GraphSelector` (FPG 2016 §6.2): scores only the previous frame's K nodes and their
+  graph neighbours with ``S = Ss + Sc``, where
+  ``Ss = mean_j R(j) ||p_k(j) - p_d(j)||`` (FPG Eq. 5) and
+  ``Sc = mean_j (1 - R(j)) ||p_l(j) + v_l(j) dt - p_d(j)||`` (FPG Eq. 6; the paper writes a vector
+  inside the mean, the evident intent is the joint's distance), ``p_l`` the last reconstruction;
+  ``Ss`` alone and a full search on the first frame. Flat in the database size.
+
+Recovery (not in the paper): under a long occlusion the previous nodes can drift into a part of
+the graph from which no neighbour matches the sensor any more. When the best graph candidate's
+score exceeds ``recovery_factor`` times the running (exponential) average of the best scores of
+recent frames, and also ``recovery_min_score`` metres, the graph selector falls back to a full
+search over all nodes with the same score ``S`` and records ``recovered=True``.
+``recovery_factor=None`` disables the rule (the paper's behaviour).
+
+All candidate poses are *normalised* (root at the origin, facing +Z) and, when reference bone
+lengths are given, retargeted to them, so that the sensor pose is compared with database poses of
+the user's proportions (:class:`NodeDatabase`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from fpg_gym import skeleton
+from fpg_gym.poses import REST_DIRECTIONS, as_poses
+
+# --------------------------------------------------------------------------- scores
+
+
+def shum_score(pose: np.ndarray, reliability: np.ndarray, candidates: np.ndarray) -> np.ndarray:
+    """Shum Eq. 9: ``D = sum_j R(j) ||p_k(j) - p_d(j)||^2`` for each candidate.
+
+    Parameters
+    ----------
+    pose : ndarray, shape (20, 3)
+        Normalised sensor pose ``p_k``.
+    reliability : ndarray, shape (20,)
+    candidates : ndarray, shape (M, 20, 3)
+
+    Returns
+    -------
+    ndarray, shape (M,)
+    """
+    diff = np.asarray(candidates) - np.asarray(pose)
+    return np.einsum("mjc,mjc->mj", diff, diff) @ np.asarray(reliability, dtype=diff.dtype)
+
+
+def fpg_score(
+    pose: np.ndarray,
+    reliability: np.ndarray,
+    candidates: np.ndarray,
+    prediction: np.ndarray | None = None,
+) -> np.ndarray:
+    """FPG Eq. 5-7: ``S = Ss + Sc`` for each candidate (``Ss`` alone without a prediction).
+
+    Parameters
+    ----------
+    pose : ndarray, shape (20, 3)
+        Normalised sensor pose ``p_k``.
+    reliability : ndarray, shape (20,)
+    candidates : ndarray, shape (M, 20, 3)
+    prediction : ndarray, shape (20, 3), optional
+        Continuity prediction ``p_l + v_l dt`` in the same frame as ``pose``.
+
+    Returns
+    -------
+    ndarray, shape (M,)
+    """
+    candidates = np.asarray(candidates)
+    reliability = np.asarray(reliability, dtype=candidates.dtype)
+    diff = candidates - np.asarray(pose)
+    joints = skeleton.NUM_JOINTS
+    score = np.sqrt(np.einsum("mjc,mjc->mj", diff, diff)) @ (reliability / joints)  # Ss, Eq. 5
+    if prediction is not None:
+        diff = candidates - np.asarray(prediction)
+        score = score + np.sqrt(np.einsum("mjc,mjc->mj", diff, diff)) @ (
+            (1.0 - reliability) / joints
+        )  # Sc, Eq. 6
+    return score
+
+
+def _best_k(scores: np.ndarray, k: int) -> np.ndarray:
+    """Indices of the ``k`` smallest scores, sorted by (score, index) for determinism."""
+    k = min(k, len(scores))
+    if k < len(scores):
+        part = np.argpartition(scores, k - 1)[:k]
+    else:
+        part = np.arange(len(scores))
+    return part[np.lexsort((part, scores[part]))]
+
+
+# --------------------------------------------------------------------------- database
+
+
+class NodeDatabase:
+    """The graph's node poses, retargetable to the user's bone lengths.
+
+    Stores each node's root and unit bone directions so that a subset of nodes can be given any
+    bone lengths with one matrix product (:data:`fpg_gym.skeleton.PATH_MATRIX`).
+
+    Parameters
+    ----------
+    poses : array_like, shape (N, 20, 3)
+        Normalised node poses.
+    refresh_tolerance_m : float
+        :meth:`all_poses` recomputes its cached retargeted copy of the whole database when a
+        bone length moved by more than this since the cache was made.
+    """
+
+    def __init__(self, poses: np.ndarray, refresh_tolerance_m: float = 0.005) -> None:
+        self.poses = as_poses(poses, "poses", ndim=3)
+        if len(self.poses) == 0:
+            raise ValueError("poses: the database is empty (0 nodes)")
+        vectors = self.poses[:, skeleton.BONES[:, 1]] - self.poses[:, skeleton.BONES[:, 0]]
+        norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
+        safe = norms > 1e-9
+        self._directions = np.where(safe, vectors / np.where(safe, norms, 1.0), REST_DIRECTIONS)
+        self._directions = self._directions.astype(np.float32)
+        self._roots = self.poses[:, skeleton.ROOT].copy()
+        self._path = skeleton.PATH_MATRIX.astype(np.float32)
+        self.refresh_tolerance_m = refresh_tolerance_m
+        self._cache_lengths: np.ndarray | None = None
+        self._cache: np.ndarray | None = None
+        self.refreshes = 0
+
+    def __len__(self) -> int:
+        return len(self.poses)
+
+    def poses_for(self, nodes: np.ndarray, lengths: np.ndarray | None) -> np.ndarray:
+        """Poses of ``nodes`` ``(M, 20, 3)`` float32, retargeted to ``lengths`` when given."""
+        nodes = np.asarray(nodes, dtype=np.intp)
+        if lengths is None:
+            return self.poses[nodes]
+        vectors = self._directions[nodes] * np.asarray(lengths, dtype=np.float32)[:, None]
+        # joint = root + PATH_MATRIX @ bone vectors, as one GEMM ((M*3, 19) x (19, 20)).
+        joints = np.tensordot(vectors, self._path, axes=([1], [1])).transpose(0, 2, 1)
+        out: np.ndarray = joints + self._roots[nodes, None, :]
+        return out
+
+    def all_poses(self, lengths: np.ndarray | None) -> np.ndarray:
+        """Every node's pose, retargeted to ``lengths`` (cached; see ``refresh_tolerance_m``)."""
+        if lengths is None:
+            return self.poses
+        lengths = np.asarray(lengths, dtype=np.float64)
+        if (
+            self._cache is None
+            or self._cache_lengths is None
+            or np.max(np.abs(self._cache_lengths - lengths)) > self.refresh_tolerance_m
+        ):
+            self._cache = self.poses_for(np.arange(len(self)), lengths)
+            self._cache_lengths = lengths.copy()
+            self.refreshes += 1
+        return self._cache
+
+
+# --------------------------------------------------------------------------- interface
+
+
+@dataclass(frozen=True)
+class SelectionQuery:
+    """What a selector needs for one frame.
+
+    Attributes
+    ----------
+    pose : ndarray, shape (20, 3)
+        Normalised sensor pose ``p_k``.
+    reliability : ndarray, shape (20,)
+    prediction : ndarray, shape (20, 3) or None
+        Continuity prediction ``p_l + v_l dt`` (None on the first frame or after a gap).
+    lengths : ndarray, shape (19,) or None
+        Bone lengths to retarget the candidates to (None keeps the database's).
+    """
+
+    pose: np.ndarray
+    reliability: np.ndarray
+    prediction: np.ndarray | None = None
+    lengths: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class Selection:
+    """The K candidates of one frame, best first.
+
+    Attributes
+    ----------
+    nodes : ndarray, shape (K,), int64
+        Node ids, sorted by score (best first).
+    poses : ndarray, shape (K, 20, 3), float32
+        Their poses (normalised, retargeted).
+    scores : ndarray, shape (K,)
+        Their scores (lower is better; Eq. 9 or FPG's S).
+    num_scored : int
+        How many nodes were scored this frame.
+    full_search : bool
+        Whether every node was scored.
+    recovered : bool
+        Whether the recovery rule triggered the full search.
+    """
+
+    nodes: np.ndarray
+    poses: np.ndarray
+    scores: np.ndarray
+    num_scored: int
+    full_search: bool
+    recovered: bool = False
+
+
+@runtime_checkable
+class CandidateSelector(Protocol):
+    """Picks the K candidate poses of a frame. ``reset()`` starts a new stream."""
+
+    k: int
+    database: NodeDatabase
+
+    def select(self, query: SelectionQuery) -> Selection:
+        """The K best candidates for ``query``."""
+        ...
+
+    def reset(self) -> None:
+        """Forget the previous frame (the next call is a first frame)."""
+        ...
+
+
+class BruteForceSelector:
+    """Shum 2013 §V: score every node with Eq. 9 and keep the K best.
+
+    Parameters
+    ----------
+    database : NodeDatabase or array_like (N, 20, 3)
+    k : int
+        Candidates per frame (30 in both papers).
+    score : {"shum", "fpg"}
+        ``"shum"`` is Eq. 9 (the paper); ``"fpg"`` uses FPG's ``S = Ss + Sc`` over all nodes (for
+        ablations that separate the score from the graph).
+    """
+
+    def __init__(self, database: NodeDatabase | np.ndarray, k: int = 30, score: str = "shum"):
+        self.database = database if isinstance(database, NodeDatabase) else NodeDatabase(database)
+        if k < 1:
+            raise ValueError(f"k: expected >= 1, got {k}")
+        if score not in ("shum", "fpg"):
+            raise ValueError(f"score: expected 'shum' or 'fpg', got {score!r}")
+        self.k = k
+        self.score = score
+
+    def reset(self) -> None:
+        """Nothing to forget: every frame is a full search."""
+
+    def select(self, query: SelectionQuery) -> Selection:
+        """Score all nodes and return the K best."""
+        candidates = self.database.all_poses(query.lengths)
+        if self.score == "shum":
+            scores = shum_score(query.pose, query.reliability, candidates)
+        else:
+            scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
+        best = _best_k(scores, self.k)
+        return Selection(
+            nodes=best.astype(np.int64),
+            poses=candidates[best],
+            scores=scores[best].astype(np.float64),
+            num_scored=len(candidates),
+            full_search=True,
+        )
+
+
+class GraphSelector:
+    """FPG 2016 §6.2: search the graph from the previous frame's K nodes.
+
+    Parameters
+    ----------
+    graph : FilteredPoseGraph-like
+        Needs ``poses`` (N, 20, 3) and ``neighbors_of(nodes) -> ndarray`` (or CSR ``indptr`` /
+        ``indices``).
+    k : int
+        Candidates per frame (30).
+    recovery_factor : float or None
+        Full search when the best score exceeds this multiple of the running average of the best
+        scores (3.0); None disables recovery.
+    recovery_min_score : float
+        ... and exceeds this absolute score in metres (0.05).
+    recovery_smoothing : float
+        Weight of the newest frame in the running average (0.1).
+    database : NodeDatabase, optional
+        Share one database between selectors.
+    """
+
+    def __init__(
+        self,
+        graph: object,
+        k: int = 30,
+        *,
+        recovery_factor: float | None = 3.0,
+        recovery_min_score: float = 0.05,
+        recovery_smoothing: float = 0.1,
+        database: NodeDatabase | None = None,
+    ) -> None:
+        if k < 1:
+            raise ValueError(f"k: expected >= 1, got {k}")
+        if recovery_factor is not None and recovery_factor <= 1.0:
+            raise ValueError(f"recovery_factor: expected > 1 or None, got {recovery_factor}")
+        if not 0.0 < recovery_smoothing <= 1.0:
+            raise ValueError(f"recovery_smoothing: expected in (0, 1], got {recovery_smoothing}")
+        self.graph = graph
+        self.database = database or NodeDatabase(np.asarray(graph.poses))  # type: ignore[attr-defined]
+        self.k = k
+        self.recovery_factor = recovery_factor
+        self.recovery_min_score = recovery_min_score
+        self.recovery_smoothing = recovery_smoothing
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the previous nodes: the next frame is a full search."""
+        self._previous: np.ndarray | None = None
+        self._average: float | None = None
+        self.recoveries = 0
+
+    def neighbourhood(self, nodes: np.ndarray) -> np.ndarray:
+        """``nodes`` and all their graph neighbours, sorted and unique."""
+        nodes = np.asarray(nodes, dtype=np.int64)
+        graph = self.graph
+        if hasattr(graph, "neighbors_of"):
+            neighbours = np.asarray(graph.neighbors_of(nodes), dtype=np.int64)
+        else:  # plain CSR arrays
+            indptr = np.asarray(graph.indptr)  # type: ignore[attr-defined]
+            indices = np.asarray(graph.indices)  # type: ignore[attr-defined]
+            starts, counts = indptr[nodes], indptr[nodes + 1] - indptr[nodes]
+            offsets = np.repeat(starts - np.cumsum(counts) + counts, counts)
+            neighbours = indices[offsets + np.arange(counts.sum())].astype(np.int64)
+        return np.union1d(nodes, neighbours)
+
+    def _full(self, query: SelectionQuery) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        candidates = self.database.all_poses(query.lengths)
+        scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
+        best = _best_k(scores, self.k)
+        return best.astype(np.int64), candidates[best], scores[best].astype(np.float64)
+
+    def select(self, query: SelectionQuery) -> Selection:
+        """The K best of the previous nodes' neighbourhood (full search on the first frame)."""
+        recovered = False
+        if self._previous is None:
+            nodes, poses, scores = self._full(query)
+            full, scored = True, len(self.database)
+        else:
+            pool = self.neighbourhood(self._previous)
+            candidates = self.database.poses_for(pool, query.lengths)
+            all_scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
+            best = _best_k(all_scores, self.k)
+            nodes, poses, scores = pool[best], candidates[best], all_scores[best].astype(np.float64)
+            full, scored = False, len(pool)
+            if (
+                self.recovery_factor is not None
+                and self._average is not None
+                and scores[0] > self.recovery_min_score
+                and scores[0] > self.recovery_factor * self._average
+            ):
+                nodes, poses, scores = self._full(query)
+                full, recovered, scored = True, True, scored + len(self.database)
+                self.recoveries += 1
+        self._previous = nodes
+        a = self.recovery_smoothing
+        best_score = float(scores[0])
+        self._average = (
+            best_score if self._average is None else (1 - a) * self._average + a * best_score
+        )
+        return Selection(
+            nodes=nodes,
+            poses=np.asarray(poses, dtype=np.float32),
+            scores=scores,
+            num_scored=scored,
+            full_search=full,
+            recovered=recovered,
+        )
+
+
+def make_selector(
+    name: str, graph: object, k: int = 30, database: NodeDatabase | None = None, **kwargs: object
+) -> CandidateSelector:
+    """Build a selector by name: ``"graph"`` or ``"brute-force"``.
+
+    Extra keyword arguments go to the selector's constructor.
+    """
+    database = database or NodeDatabase(np.asarray(graph.poses))  # type: ignore[attr-defined]
+    if name == "graph":
+        return GraphSelector(graph, k, database=database, **kwargs)  # type: ignore[arg-type]
+    if name in ("brute-force", "brute_force", "brute"):
+        return BruteForceSelector(database, k, **kwargs)  # type: ignore[arg-type]
+    raise ValueError(f"selector: expected 'graph' or 'brute-force', got {name!r}")

@@ -1,0 +1,309 @@
+"""Accuracy and speed of the reconstruction pipeline on held-out Bandai Namco takes.
+
+What it measures (issue 5's acceptance):
+
+1. **Accuracy.** The Bandai Namco ``dataset-1`` takes (whole files) are split with a fixed seed:
+   ``--holdout`` of them (20 %) are held out, the graph is built from the others
+   (``thres1 = 0.2``; ``--with-dataset2`` adds all of ``dataset-2`` to the graph). ``--clips``
+   held-out takes (the first ones of the shuffled held-out list, each cut to ``--frames``
+   frames) are simulated in every ``*-many`` scenario (seed = ``--seed`` + clip number) and
+   reconstructed by several configurations (selector x optimiser, no ragdoll). The table gives
+   FPG Eq. 13 mean error and Err0.2 of the raw stream and of each reconstruction.
+2. **Speed.** Median / p95 frame time and median selection time of graph and brute-force
+   selection on graphs of three sizes (``thres1`` 0.2, 0.1, 0.06 on the same training takes).
+3. **Determinism.** The main configuration twice with the same seed: identical output.
+
+BLAS threads are limited to one (``OPENBLAS_NUM_THREADS=1`` unless set): the per-frame matrices
+are tiny and multi-threaded BLAS only adds contention.
+
+Usage::
+
+    python scripts/bench_reconstruct.py                      # default subset (~3 min on 2 cores)
+    python scripts/bench_reconstruct.py --clips 16 --frames 0 --json out.json   # larger
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+REPO = Path(__file__).resolve().parents[1]
+DEFAULT_DATA = REPO.parent / "shared" / "data"
+SCENARIOS = ("front-many", "left45-many", "right45-many")
+CONFIGS: dict[str, tuple[str, str, dict[str, Any]]] = {
+    "graph + local-search": ("graph", "local-search", {}),
+    "brute-force + local-search": ("brute-force", "local-search", {}),
+    "graph + none": ("graph", "none", {}),
+    "graph + random-search": ("graph", "random-search", {}),
+    "graph + local-search (generic length prior)": (
+        "graph",
+        "local-search",
+        {"length_prior": "default"},
+    ),
+    "graph + local-search (no left/right fix)": (
+        "graph",
+        "local-search",
+        {"left_right_fix": False},
+    ),
+    "graph + local-search (no recovery)": ("graph", "local-search", {"recovery_factor": None}),
+    "graph + local-search (paper's strict stop)": ("graph", "local-search-strict", {}),
+}
+
+
+def split_takes(files: list[Path], holdout: float, seed: int) -> tuple[list[Path], list[Path]]:
+    """Shuffle the sorted take files with ``seed``; the first ``holdout`` share is held out."""
+    order = np.random.default_rng(seed).permutation(len(files))
+    count = max(1, round(holdout * len(files)))
+    held = [files[i] for i in order[:count]]
+    train = sorted(files[i] for i in order[count:])
+    return train, held
+
+
+def make_optimizer(name: str) -> Any:
+    """A registered optimiser; ``local-search-strict`` is local search with Shum's stop rule."""
+    import optimizers
+
+    if name == "local-search-strict":
+        return optimizers.make("local-search", shrink=None)
+    return optimizers.make(name)
+
+
+def summarise(truth: np.ndarray, estimate: np.ndarray) -> tuple[float, float]:
+    from fpg_gym import metrics
+
+    errors = metrics.frame_error(truth, estimate)
+    return float(errors.mean()), 100.0 * metrics.err_ratio(errors)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--holdout", type=float, default=0.2)
+    parser.add_argument("--split-seed", type=int, default=2016)
+    parser.add_argument("--clips", type=int, default=8, help="held-out takes evaluated")
+    parser.add_argument("--frames", type=int, default=240, help="frames per take (0: all)")
+    parser.add_argument("--seed", type=int, default=0, help="simulator / optimiser seed")
+    parser.add_argument("--with-dataset2", action="store_true", help="add dataset-2 to the graph")
+    parser.add_argument("--mirror", action="store_true", help="mirrored graph augmentation")
+    parser.add_argument("--configs", default=",".join(CONFIGS), help="comma-separated subset")
+    parser.add_argument("--skip-speed", action="store_true")
+    parser.add_argument("--json", type=Path, help="write all figures as JSON")
+    args = parser.parse_args(argv)
+
+    from tqdm import tqdm
+
+    from fpg_gym import metrics
+    from fpg_gym.graph import FilteredPoseGraph
+    from fpg_gym.io import load_clips
+    from fpg_gym.reconstruct import Reconstructor
+    from fpg_gym.simulate import simulate
+
+    folder = args.data / "bandai_namco" / "dataset-1"
+    if not folder.is_dir():
+        print(
+            f"bench_reconstruct: {folder} is absent (see ../shared/data/README.md)", file=sys.stderr
+        )
+        return 2
+    files = sorted(folder.glob("*.bvh"))
+    train_files, held_files = split_takes(files, args.holdout, args.split_seed)
+    eval_files = held_files[: args.clips]
+    print(
+        f"takes: {len(files)} in dataset-1, {len(train_files)} for the graph, "
+        f"{len(held_files)} held out (split seed {args.split_seed}), {len(eval_files)} evaluated"
+    )
+    print("evaluated takes: " + ", ".join(f.name for f in eval_files))
+    graph_inputs: list[Path] = list(train_files)
+    if args.with_dataset2:
+        graph_inputs += sorted((args.data / "bandai_namco" / "dataset-2").glob("*.bvh.gz"))
+    train_clips = load_clips(graph_inputs, progress=True)
+    eval_clips = load_clips(eval_files, progress=False)
+    start = time.perf_counter()
+    graph = FilteredPoseGraph.build(train_clips, thres1=0.2, mirror=args.mirror, progress=False)
+    print(
+        f"graph: {graph} from {sum(c.num_frames for c in train_clips)} poses "
+        f"in {time.perf_counter() - start:.1f} s"
+    )
+
+    recordings = []
+    for i, clip in enumerate(eval_clips):
+        positions = clip.positions if args.frames <= 0 else clip.positions[: args.frames]
+        for scenario in SCENARIOS:
+            rec = simulate(positions, scenario, seed=args.seed + i)
+            recordings.append((clip.name, scenario, rec))
+    frames = sum(r.num_frames for _, _, r in recordings)
+    print(f"recordings: {len(recordings)} ({frames} frames)")
+
+    report: dict[str, Any] = {
+        "graph": {"nodes": graph.num_nodes, "edges": graph.num_edges, "thres2": graph.thres2},
+        "evaluated_takes": [f.name for f in eval_files],
+        "frames": frames,
+        "accuracy": {},
+    }
+    truth = np.concatenate([r.ground_truth for _, _, r in recordings])
+    raw = np.concatenate([r.positions for _, _, r in recordings])
+    raw_mean, raw_err = summarise(truth, raw)
+    rows = [("raw Kinect (simulated)", raw_mean, raw_err, None, None, None, None)]
+    per_scenario: dict[str, dict[str, list[np.ndarray]]] = {}
+    selected = [c.strip() for c in args.configs.split(",") if c.strip()]
+    outputs: dict[str, np.ndarray] = {}
+    for name in selected:
+        selector, optimizer, overrides = CONFIGS[name]
+        reconstructor = Reconstructor(graph, selector=selector, **overrides)
+        poses, ms, selection_ms = [], [], []
+        recoveries = relabelled = 0
+        evaluations: list[np.ndarray] = []
+        for _clip_name, scenario, rec in tqdm(recordings, desc=name, leave=False):
+            result = reconstructor.reconstruct(rec, make_optimizer(optimizer), rng=args.seed)
+            poses.append(result.poses)
+            arrays = result.arrays()
+            ms.append(arrays["ms_per_frame"])
+            selection_ms.append(
+                arrays["ms_stages"][:, list(arrays["stage_names"]).index("selection")]
+            )
+            recoveries += int(arrays["recovered"].sum())
+            evaluations.append(arrays["evaluations"])
+            relabelled += int(np.count_nonzero(arrays["labelling"]))
+            per_scenario.setdefault(scenario, {}).setdefault(name, []).append(
+                metrics.frame_error(rec.ground_truth, result.poses)
+            )
+        out = np.concatenate(poses)
+        outputs[name] = out
+        mean, err = summarise(truth, out)
+        all_ms = np.concatenate(ms)
+        sel_ms = float(np.median(np.concatenate(selection_ms)))
+        rows.append(
+            (
+                name,
+                mean,
+                err,
+                float(np.median(all_ms)),
+                float(np.percentile(all_ms, 95)),
+                sel_ms,
+                None,
+            )
+        )
+        report["accuracy"][name] = {
+            "mean_error_m": mean,
+            "err02_pct": err,
+            "mean_error_reduction_pct": 100.0 * (1 - mean / raw_mean),
+            "err02_reduction_pct": 100.0 * (1 - err / raw_err) if raw_err > 0 else None,
+            "ms_per_frame_median": float(np.median(all_ms)),
+            "ms_per_frame_p95": float(np.percentile(all_ms, 95)),
+            "selection_ms_median": sel_ms,
+            "recoveries": recoveries,
+            "evaluations_mean": float(np.concatenate(evaluations).mean()),
+            "relabelled_frames": relabelled,
+        }
+    report["raw"] = {"mean_error_m": raw_mean, "err02_pct": raw_err}
+    per_raw = {}
+    per_mean: dict[str, dict[str, float]] = {}
+    for scenario in SCENARIOS:
+        t = np.concatenate([r.ground_truth for _, s, r in recordings if s == scenario])
+        p = np.concatenate([r.positions for _, s, r in recordings if s == scenario])
+        per_raw[scenario] = summarise(t, p)[0]
+        per_mean[scenario] = {
+            n: float(np.concatenate(per_scenario[scenario][n]).mean()) for n in selected
+        }
+    report["per_scenario_mean_error_m"] = {"raw": per_raw, **per_mean}
+
+    print()
+    print(
+        "| configuration (no ragdoll) | mean error (m) | Err0.2 (%) | mean error cut | "
+        "Err0.2 cut | ms/frame median | ms/frame p95 | selection ms |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for name, mean, err, med, p95, sel, _ in rows:
+        if med is None:
+            print(f"| {name} | {mean:.4f} | {err:.1f} | | | | | |")
+        else:
+            cut = 100 * (1 - mean / raw_mean)
+            ecut = f"{100 * (1 - err / raw_err):.0f} %" if raw_err > 0 else "n/a"
+            print(
+                f"| {name} | {mean:.4f} | {err:.1f} | {cut:.0f} % | {ecut} | {med:.2f} | "
+                f"{p95:.2f} | {sel:.3f} |"
+            )
+    print()
+    for name in selected:
+        acc = report["accuracy"][name]
+        print(
+            f"{name}: {acc['evaluations_mean']:.0f} evaluations per frame, "
+            f"{acc['recoveries']} recoveries, {acc['relabelled_frames']} relabelled "
+            f"frames of {frames}"
+        )
+    print()
+    print("| scenario | raw | " + " | ".join(selected) + " |")
+    print("| --- | --- | " + " | ".join("---" for _ in selected) + " |")
+    for scenario in SCENARIOS:
+        cells = " | ".join(f"{per_mean[scenario][n]:.4f}" for n in selected)
+        print(f"| {scenario} | {per_raw[scenario]:.4f} | {cells} |")
+
+    # Determinism: the main configuration again with the same seed.
+    main_name = selected[0]
+    selector, optimizer, overrides = CONFIGS[main_name]
+    _, _, rec = recordings[0]
+    again = Reconstructor(graph, selector=selector, **overrides).reconstruct(
+        rec, make_optimizer(optimizer), rng=args.seed
+    )
+    identical = bool(np.array_equal(again.poses, outputs[main_name][: rec.num_frames]))
+    report["deterministic"] = identical
+    print(f"\ndeterminism: {main_name}, same seed twice -> identical output: {identical}")
+
+    if not args.skip_speed:
+        print(
+            "\n| graph thres1 | nodes | mean degree | selector | nodes scored | "
+            "selection ms (median) | ms/frame median | ms/frame p95 |"
+        )
+        print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+        speed = []
+        recs = [r for _, s, r in recordings if s == SCENARIOS[0]][:3]
+        for thres1 in (0.2, 0.1, 0.06):
+            g = FilteredPoseGraph.build(
+                train_clips, thres1=thres1, mirror=args.mirror, progress=False
+            )
+            for selector in ("graph", "brute-force"):
+                reconstructor = Reconstructor(g, selector=selector)
+                ms, sel, scored = [], [], []
+                for rec in recs:
+                    arrays = reconstructor.reconstruct(rec, "local-search", rng=args.seed).arrays()
+                    ms.append(arrays["ms_per_frame"])
+                    sel.append(
+                        arrays["ms_stages"][:, list(arrays["stage_names"]).index("selection")]
+                    )
+                    scored.append(arrays["num_scored"])
+                m, s = np.concatenate(ms), np.concatenate(sel)
+                row = {
+                    "thres1": thres1,
+                    "nodes": g.num_nodes,
+                    "mean_degree": 2 * g.num_edges / g.num_nodes,
+                    "selector": selector,
+                    "nodes_scored_median": float(np.median(np.concatenate(scored))),
+                    "selection_ms_median": float(np.median(s)),
+                    "ms_per_frame_median": float(np.median(m)),
+                    "ms_per_frame_p95": float(np.percentile(m, 95)),
+                }
+                speed.append(row)
+                print(
+                    f"| {thres1} | {g.num_nodes} | {row['mean_degree']:.1f} | {selector} | "
+                    f"{row['nodes_scored_median']:.0f} | {row['selection_ms_median']:.3f} | "
+                    f"{row['ms_per_frame_median']:.2f} | {row['ms_per_frame_p95']:.2f} |"
+                )
+        report["speed"] = speed
+    if args.json:
+        args.json.write_text(json.dumps(report, indent=2))
+        print(f"\nwritten {args.json}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,167 @@
+"""The ask/tell protocol, the registry, the built-in optimisers and the problem's budget."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import optimizers
+from fpg_gym import poses, skeleton
+from fpg_gym.reconstruct.energy import EnergyModel
+from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.problem import BudgetExhausted, FrameContext, SearchProblem
+from fpg_gym.reconstruct.reliability import ReliabilityTerms
+from fpg_gym.reconstruct.selection import Selection
+
+
+def make_problem(
+    seed: int = 0, max_evaluations: int | None = 2000, time_budget_s: float | None = None
+) -> SearchProblem:
+    rng = np.random.default_rng(seed)
+    base = poses.rest_pose().astype(np.float64)
+    k = 30
+    neighbours = base[None] + rng.normal(0.0, 0.05, (k, skeleton.NUM_JOINTS, 3))
+    sensor = neighbours[0] + rng.normal(0.0, 0.03, (skeleton.NUM_JOINTS, 3))
+    r = rng.uniform(0.3, 1.0, skeleton.NUM_JOINTS)
+    lengths = poses.bone_lengths(neighbours).mean(axis=0)
+    previous = neighbours[1]
+    latent = LatentSpace.fit(neighbours)
+    ones = np.ones(skeleton.NUM_JOINTS)
+    terms = ReliabilityTerms(r, ones, ones, ones, r, lengths, "given")
+    selection = Selection(np.arange(k), neighbours.astype(np.float32), np.zeros(k), k, True)
+    return SearchProblem(
+        energy=EnergyModel(latent, sensor, r, neighbours, lengths, previous),
+        kinect_pose=sensor,
+        reliability=terms,
+        selection=selection,
+        prediction=previous,
+        previous=previous,
+        x0=latent.encode(previous),
+        context=FrameContext(0, 0.0, 1 / 30, False),
+        max_evaluations=max_evaluations,
+        time_budget_s=time_budget_s,
+    )
+
+
+def test_registry_lists_the_builtins_and_makes_them() -> None:
+    names = optimizers.available()
+    for name in ("local-search", "random-search", "cma-es", "none"):
+        assert name in names
+        opt = optimizers.make(name)
+        assert isinstance(opt, optimizers.Optimizer)
+    assert optimizers.make("local-search", samples=10).samples == 10  # type: ignore[attr-defined]
+    with pytest.raises(optimizers.OptimizerNotFound, match=r"available: .*local-search"):
+        optimizers.make("gradient-descent")
+    with pytest.raises(TypeError):
+        optimizers.make("local-search", no_such_argument=1)
+
+
+def test_a_third_party_toy_optimizer_runs_through_the_protocol() -> None:
+    calls: list[str] = []
+
+    class Toy(optimizers.BaseOptimizer):
+        """Asks the start point and its negation, twice."""
+
+        def reset(self, problem, rng):
+            super().reset(problem, rng)
+            self.rounds = 0
+            calls.append("reset")
+
+        def ask(self):
+            if self.rounds == 2:
+                return None
+            self.rounds += 1
+            calls.append("ask")
+            return np.stack([self.problem.x0, -self.problem.x0])
+
+        def tell(self, z, energies):
+            calls.append(f"tell{len(energies)}")
+
+    name = "toy-for-test"
+    optimizers.register(name, Toy, overwrite=True)
+    assert name in optimizers.available()
+    with pytest.raises(ValueError, match="already registered"):
+        optimizers.register(name, Toy)
+    problem = make_problem()
+    z = optimizers.run_optimizer(problem, name, rng=0)
+    assert calls == ["reset", "ask", "tell2", "ask", "tell2"]
+    assert problem.evaluations == 4
+    energies = problem.evaluate_terms(np.stack([problem.x0, -problem.x0]), count=False)["E"]
+    assert np.allclose(z, [problem.x0, -problem.x0][int(np.argmin(energies))])
+    assert problem.best_energy == pytest.approx(energies.min())
+
+
+def test_local_search_improves_on_x0_within_the_paper_budget() -> None:
+    problem = make_problem()
+    e0 = problem.evaluate_terms(problem.x0, count=False)["E"][0]
+    z = optimizers.run_optimizer(problem, optimizers.make("local-search"), rng=1)
+    assert problem.evaluations <= 2000
+    assert problem.evaluations % 100 == 0
+    assert problem.best_energy < e0
+    assert problem.evaluate_terms(z, count=False)["E"][0] == pytest.approx(problem.best_energy)
+
+
+def test_local_search_beats_random_search_and_none_keeps_x0() -> None:
+    energies = {}
+    for name in ("local-search", "random-search", "none"):
+        problem = make_problem(seed=3)
+        z = optimizers.run_optimizer(problem, name, rng=2)
+        energies[name] = problem.evaluate_terms(z, count=False)["E"][0]
+        if name == "none":
+            assert problem.evaluations == 0 and np.array_equal(z, problem.x0)
+        if name == "random-search":
+            assert problem.evaluations == 2000
+    assert energies["local-search"] < energies["random-search"]
+    assert energies["local-search"] < energies["none"]
+
+
+def test_cma_es_warm_starts_at_x0_and_respects_the_budget() -> None:
+    pytest.importorskip("cmaes")
+    problem = make_problem(seed=4, max_evaluations=600)
+    e0 = problem.evaluate_terms(problem.x0, count=False)["E"][0]
+    optimizers.run_optimizer(problem, "cma-es", rng=5)
+    assert problem.evaluations == 600
+    assert problem.best_energy < e0
+
+
+def test_same_seed_same_result_different_seed_different_path() -> None:
+    runs = []
+    for seed in (7, 7, 8):
+        problem = make_problem()
+        runs.append(optimizers.run_optimizer(problem, "local-search", rng=seed))
+    assert np.array_equal(runs[0], runs[1])
+    assert not np.array_equal(runs[0], runs[2])
+
+
+def test_budget_clips_a_batch_then_raises() -> None:
+    problem = make_problem(max_evaluations=150)
+    z = np.zeros((100, problem.dim))
+    assert np.all(np.isfinite(problem.evaluate(z)))
+    assert problem.remaining == 50
+    out = problem.evaluate(np.ones((100, problem.dim)))
+    assert np.all(np.isfinite(out[:50])) and np.all(np.isinf(out[50:]))
+    assert problem.evaluations == 150 and problem.exhausted
+    with pytest.raises(BudgetExhausted, match="evaluation budget 150"):
+        problem.evaluate(z[:1])
+    # Uncounted diagnostics still work.
+    assert problem.evaluate_terms(z[:2], count=False)["Ec"].shape == (2,)
+    with pytest.raises(ValueError, match="Z"):
+        problem.evaluate(np.zeros((3, problem.dim + 1)))
+
+
+def test_time_budget_stops_the_search() -> None:
+    problem = make_problem(max_evaluations=None, time_budget_s=1e-9)
+    problem.evaluate(np.zeros((1, problem.dim)))
+    assert problem.remaining == 0
+    with pytest.raises(BudgetExhausted, match="time budget"):
+        problem.evaluate(np.zeros((1, problem.dim)))
+    problem = make_problem(max_evaluations=None, time_budget_s=1e-9)
+    optimizers.run_optimizer(problem, "random-search", rng=0)
+    assert problem.evaluations == 100  # one batch, then the clock ran out
+
+
+def test_unlimited_budget_with_a_stopping_optimizer() -> None:
+    problem = make_problem(max_evaluations=None)
+    assert problem.remaining is None
+    optimizers.run_optimizer(problem, optimizers.make("random-search", iterations=3), rng=0)
+    assert problem.evaluations == 300

@@ -1,0 +1,207 @@
+"""Reliability terms (Shum §IV, FPG §5) on hand-made trajectories."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from fpg_gym import poses, skeleton
+from fpg_gym.reconstruct.reliability import (
+    ReliabilityConfig,
+    ReliabilityEstimator,
+    behaviour_angles,
+    is_neutral_pose,
+    kinematic_reliability,
+    reliability_of_sequence,
+)
+
+HAND = skeleton.joint_index("HandLeft")
+ELBOW = skeleton.joint_index("ElbowLeft")
+WRIST = skeleton.joint_index("WristLeft")
+KNEE = skeleton.joint_index("KneeRight")
+
+
+def standing(frames: int, speed: float = 0.0) -> np.ndarray:
+    """A rest pose translated along +X by ``speed`` metres per frame, 1 m in front of a camera."""
+    base = poses.rest_pose() + np.array([0.0, 1.0, 2.5], dtype=np.float32)
+    steps = np.arange(frames, dtype=np.float32)[:, None, None] * np.array([speed, 0, 0], np.float32)
+    return (base[None] + steps).astype(np.float32)
+
+
+def tracked(frames: int) -> np.ndarray:
+    return np.full((frames, skeleton.NUM_JOINTS), 2, dtype=np.int8)
+
+
+def t_pose() -> np.ndarray:
+    pose = poses.rest_pose().astype(np.float64)
+    for side, sign in (("Left", 1.0), ("Right", -1.0)):
+        shoulder = skeleton.joint_index(f"Shoulder{side}")
+        for j, dist in ((f"Elbow{side}", 0.28), (f"Wrist{side}", 0.53), (f"Hand{side}", 0.61)):
+            pose[skeleton.joint_index(j)] = pose[shoulder] + [sign * dist, 0.0, 0.0]
+    return pose.astype(np.float32)
+
+
+def test_weights_are_gaussian_newest_heaviest() -> None:
+    w = ReliabilityConfig().weights()
+    assert w.shape == (6,)
+    assert np.isclose(w.sum(), 1.0)
+    assert np.all(np.diff(w) < 0)
+
+
+def test_behaviour_angle_definition() -> None:
+    a = np.array([[0.1, 0, 0], [0.1, 0, 0], [0.01, 0, 0]])
+    b = np.array([[0.1, 0, 0], [-0.1, 0, 0], [-0.1, 0, 0]])
+    angles = behaviour_angles(a, b, 0.03)
+    assert np.allclose(angles, [0.0, np.pi, 0.0])  # the last is below d_min
+
+
+def test_vibrating_joint_loses_behaviour_reliability_while_walking() -> None:
+    frames = 20
+    clip = standing(frames, speed=0.05)  # walking sideways 1.5 m/s
+    clip[:, HAND, 1] += 0.05 * (-1.0) ** np.arange(frames)  # +/- 5 cm every frame
+    terms = reliability_of_sequence(clip, tracked(frames))
+    late = slice(10, None)
+    assert np.all(terms["behaviour"][late, HAND] == 0.0)  # 180 deg reversals -> 0
+    others = np.delete(np.arange(skeleton.NUM_JOINTS), HAND)
+    assert np.all(terms["behaviour"][late][:, others] == 1.0)
+    assert np.all(terms["reliability"][late, HAND] < 0.05)
+    # The wrist shares the vibrating hand's bone, so only its kinematic term drops.
+    far = np.delete(np.arange(skeleton.NUM_JOINTS), [HAND, WRIST])
+    assert np.all(terms["reliability"][late][:, far] > 0.99)
+
+
+def test_stretching_bone_lowers_kinematic_reliability_of_its_joints() -> None:
+    frames = 30
+    clip = standing(frames)
+    stretch = np.linspace(0.0, 0.3, frames, dtype=np.float32)
+    clip[:, HAND, 1] -= stretch  # the wrist-hand bone grows from 8 cm to 38 cm
+    lengths = poses.DEFAULT_BONE_LENGTHS
+    terms = reliability_of_sequence(clip, tracked(frames), reference_lengths=lengths)
+    kin = terms["kinematic"]
+    assert kin[0, HAND] == pytest.approx(1.0)
+    assert kin[-1, HAND] == pytest.approx(0.0)  # relative error clamps at 1
+    # The wrist has two bones; one is fully wrong, so Rk = 1 - (1 + 0) / 2.
+    assert kin[-1, WRIST] == pytest.approx(0.5)
+    assert np.all(np.diff(kin[:, HAND]) <= 1e-12)
+    assert np.allclose(np.delete(kin[-1], [HAND, WRIST]), 1.0)
+
+
+def test_kinematic_reliability_matches_naive_loop(rng: np.random.Generator) -> None:
+    lengths = rng.uniform(0.05, 0.5, skeleton.NUM_BONES)
+    reference = rng.uniform(0.05, 0.5, skeleton.NUM_BONES)
+    got = kinematic_reliability(lengths, reference)
+    for j in range(skeleton.NUM_JOINTS):
+        bones = [b for b, (p, c) in enumerate(skeleton.BONES) if j in (p, c)]
+        dev = [min(abs(lengths[b] - reference[b]) / reference[b], 1.0) for b in bones]
+        assert got[j] == pytest.approx(1.0 - np.mean(dev))
+
+
+def test_inferred_joint_fades_out_with_the_gaussian_filter() -> None:
+    frames = 14
+    clip = standing(frames)
+    states = tracked(frames)
+    states[6:, KNEE] = 1  # inferred from frame 6 (the filter window is full by then)
+    terms = reliability_of_sequence(clip, states)
+    assert np.all(terms["tracking"][6:, KNEE] == 0.0)
+    assert np.all(terms["tracking"][:6, KNEE] == 1.0)
+    r = terms["reliability"][:, KNEE]
+    w = ReliabilityConfig().weights()
+    assert r[5] == pytest.approx(1.0)
+    assert r[6] == pytest.approx(1.0 - w[0])  # the newest frame has weight w(0)
+    assert r[7] == pytest.approx(1.0 - w[0] - w[1])
+    assert np.all(r[11:] == 0.0)  # six inferred frames: nothing left
+    assert np.all(np.diff(r[5:12]) < 0)
+    # Before the window fills, the weights are renormalised over the frames seen.
+    states[2:, KNEE] = 1
+    r = reliability_of_sequence(clip, states)["reliability"][:, KNEE]
+    assert r[2] == pytest.approx(1.0 - w[0] / w[:3].sum())
+
+
+def test_neutral_and_t_pose_detection() -> None:
+    assert is_neutral_pose(poses.rest_pose())
+    assert is_neutral_pose(t_pose())
+    bent = poses.rest_pose().copy()
+    bent[KNEE] += np.array([0.0, 0.2, 0.35], dtype=np.float32)  # knee raised forward
+    assert not is_neutral_pose(bent)
+    yawed = poses.denormalise(t_pose(), poses.Placement(np.zeros(3), np.array(1.2)))
+    assert is_neutral_pose(yawed)  # heading does not matter
+
+
+def test_reference_lengths_come_from_neutral_frames_with_documented_fallbacks() -> None:
+    scale = 1.1
+    user = poses.DEFAULT_BONE_LENGTHS * scale
+    pose = poses.rest_pose(user) + np.array([0.0, 1.0, 2.5], dtype=np.float32)
+    est = ReliabilityEstimator()
+    states = np.full(skeleton.NUM_JOINTS, 1, dtype=np.int8)  # nothing tracked yet
+    terms = est.update(pose, states)
+    assert terms.reference_source == "prior-height"
+    assert np.allclose(terms.reference_lengths, user, rtol=0.02)  # prior x height ratio
+    # A crouching, partly tracked frame: one size factor times the prior proportions.
+    crouch = pose.copy()
+    crouch[KNEE] += np.array([0.0, 0.1, 0.3], dtype=np.float32)  # two bones change length
+    partial = np.full(skeleton.NUM_JOINTS, 2, dtype=np.int8)
+    partial[HAND] = 1
+    terms = est.update(crouch, partial)
+    assert terms.reference_source == "scaled-prior"
+    assert np.allclose(terms.reference_lengths, user, rtol=1e-6)  # the median ratio is 1.1
+    assert not terms.calibration_frame
+    # The per-bone alternative takes the tracked bones as measured.
+    other = ReliabilityEstimator(ReliabilityConfig(fallback="tracked-median"))
+    terms = other.update(crouch, partial)
+    assert terms.reference_source == "tracked-median"
+    measured = poses.bone_lengths(crouch)
+    hand_bone = skeleton.BONE_OF_JOINT[HAND]
+    others = np.delete(np.arange(skeleton.NUM_BONES), hand_bone)
+    assert np.allclose(terms.reference_lengths[others], measured[others])
+    assert terms.reference_lengths[hand_bone] == pytest.approx(user[hand_bone], rel=0.05)
+    # A given prior sets the proportions.
+    prior = np.linspace(0.1, 0.3, skeleton.NUM_BONES)
+    terms = ReliabilityEstimator(prior_lengths=prior).update(crouch, partial)
+    ratio = terms.reference_lengths / prior
+    assert np.allclose(ratio, ratio[0])
+    # A fully tracked T-pose calibrates.
+    calib = poses.retarget(t_pose(), user) + np.array([0.2, 1.0, 2.0], dtype=np.float32)
+    terms = est.update(calib, tracked(1)[0])
+    assert terms.calibration_frame
+    assert terms.reference_source == "neutral"
+    assert np.allclose(terms.reference_lengths, user, atol=1e-5)
+    # Later non-neutral frames do not move it.
+    terms = est.update(crouch * 1.3, tracked(1)[0])
+    assert np.allclose(terms.reference_lengths, user, atol=1e-5)
+    assert est.calibration_frames == 1
+
+
+def test_given_reference_lengths_are_used_as_is() -> None:
+    fixed = np.full(skeleton.NUM_BONES, 0.2)
+    est = ReliabilityEstimator(reference_lengths=fixed)
+    terms = est.update(standing(1)[0], tracked(1)[0])
+    assert terms.reference_source == "given"
+    assert np.array_equal(terms.reference_lengths, fixed)
+    with pytest.raises(ValueError, match="reference_lengths"):
+        ReliabilityEstimator(reference_lengths=np.ones(3))
+
+
+def test_bad_input_shapes_are_reported() -> None:
+    est = ReliabilityEstimator()
+    with pytest.raises(ValueError, match="positions"):
+        est.update(np.zeros((19, 3)), np.zeros(20))
+    with pytest.raises(ValueError, match="states"):
+        est.update(np.zeros((20, 3)), np.zeros(19))
+    with pytest.raises(ValueError, match="theta"):
+        ReliabilityConfig(theta_floor_deg=140.0)
+    with pytest.raises(ValueError, match="fallback"):
+        ReliabilityConfig(fallback="guess")
+    with pytest.raises(ValueError, match="prior_lengths"):
+        ReliabilityEstimator(prior_lengths=np.zeros(19))
+
+
+def test_no_body_frame_is_unreliable_everywhere_and_restarts_behaviour() -> None:
+    frames = 10
+    clip = standing(frames)
+    states = tracked(frames)
+    clip[5] = 0.0
+    states[5] = 0
+    terms = reliability_of_sequence(clip, states)
+    assert np.all(terms["reliability"][5] == 0.0)
+    # The jump to (0, 0, 0) and back is not taken for vibration once the body is back.
+    assert np.all(terms["behaviour"][6:] == 1.0)
