@@ -15,7 +15,15 @@ from fpg_gym import __version__
 from fpg_gym.errors import FpgGymError
 
 #: Command modules under ``fpg_gym.commands``, in the order ``--help`` lists them.
-COMMAND_MODULES: tuple[str, ...] = ("read", "build_graph", "simulate", "reconstruct")
+COMMAND_MODULES: tuple[str, ...] = (
+    "read",
+    "build_graph",
+    "reconstruct",
+    "simulate",
+    "compare",
+    "demo",
+    "bench",
+)
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -23,7 +31,9 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="fpg-gym",
         description="Kinect pose reconstruction with the Filtered Pose Graph (Plantard, Shum & "
-        "Multon 2016) and Shum et al. 2013, as a Gymnasium environment.",
+        "Multon 2016) and Shum et al. 2013, as a Gymnasium environment. An argument @FILE "
+        "is replaced by the lines of FILE, one argument per line (e.g. lists of takes).",
+        fromfile_prefix_chars="@",
     )
     parser.add_argument("--version", action="version", version=f"fpg-gym {__version__}")
     subparsers = parser.add_subparsers(dest="command", metavar="COMMAND")

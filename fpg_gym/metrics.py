@@ -11,6 +11,13 @@ metres (any space, as long as reference and estimate share it).
 * :func:`bone_length_variation` — standard deviation over time of each bone's length: a clean
   skeleton has none, the Kinect has some because it estimates every joint independently.
 * :func:`jitter` — mean acceleration magnitude per joint, from second differences.
+* :func:`error_histogram` / :func:`band_shares` — frames per error band of FPG §8
+  (:data:`ERROR_BAND_EDGES`: 0–5, 5–10, 10–15, 15–20, 20–30, ≥ 30 cm).
+* :func:`frames_above` — the share of frames whose error is at least each threshold, the
+  cumulative curve of FPG Fig. 7 (:func:`err_ratio` is its value at 0.2 m).
+* :func:`per_joint_error` — the Eq. 13 summand of each joint (its bone to the parent), averaged
+  over frames.
+* :func:`time_summary` — median, p95, mean and max of per-frame computation times.
 
 Examples
 --------
@@ -29,16 +36,26 @@ import numpy.typing as npt
 from fpg_gym import skeleton
 
 __all__ = [
+    "ERROR_BAND_EDGES",
     "ERR_THRESHOLD_M",
+    "band_shares",
     "bone_length_variation",
     "err_ratio",
+    "error_histogram",
     "frame_error",
+    "frames_above",
     "jitter",
     "mean_error",
+    "per_joint_error",
+    "time_summary",
 ]
 
 #: The threshold of Err0.2 (FPG Table 2), metres.
 ERR_THRESHOLD_M = 0.2
+
+#: Edges of the error bands of the FPG §8 histograms, metres: 0–0.05, 0.05–0.1, 0.1–0.15,
+#: 0.15–0.2, 0.2–0.3 and ≥ 0.3 (the last band is open).
+ERROR_BAND_EDGES: tuple[float, ...] = (0.0, 0.05, 0.10, 0.15, 0.20, 0.30, float("inf"))
 
 
 def _clip_array(value: object, name: str) -> np.ndarray:
@@ -211,3 +228,116 @@ def _states_array(states: npt.ArrayLike, count: int) -> np.ndarray:
     if st.shape != (count, skeleton.NUM_JOINTS):
         raise ValueError(f"states: expected shape ({count}, 20), got {st.shape}")
     return st
+
+
+def _errors_array(errors: npt.ArrayLike, name: str = "errors") -> np.ndarray:
+    values = np.asarray(errors, dtype=np.float64).reshape(-1)
+    if values.size == 0:
+        raise ValueError(f"{name}: empty")
+    if not np.all(np.isfinite(values)):
+        raise ValueError(f"{name}: non-finite value")
+    return values
+
+
+def _edges_array(edges: npt.ArrayLike) -> np.ndarray:
+    array = np.asarray(edges, dtype=np.float64).reshape(-1)
+    if len(array) < 2 or np.isnan(array).any() or not np.all(np.diff(array) > 0):
+        raise ValueError(
+            f"edges: expected at least two strictly increasing values, got {array.tolist()}"
+        )
+    return array
+
+
+def error_histogram(errors: npt.ArrayLike, edges: npt.ArrayLike = ERROR_BAND_EDGES) -> np.ndarray:
+    """Number of frames in each error band (FPG §8 histograms).
+
+    Band ``i`` holds the errors ``e`` with ``edges[i] <= e < edges[i + 1]``; the last edge may be
+    ``inf`` (an open band). Errors outside ``[edges[0], edges[-1])`` are not counted.
+
+    Parameters
+    ----------
+    errors : array_like, shape (T,)
+        Per-frame errors in metres (e.g. :func:`frame_error`).
+    edges : array_like, shape (B + 1,)
+        Band edges in metres, strictly increasing; :data:`ERROR_BAND_EDGES` by default.
+
+    Returns
+    -------
+    ndarray, shape (B,), int64
+    """
+    values = _errors_array(errors)
+    bounds = _edges_array(edges)
+    # Half-open bands [low, high): searchsorted "right" puts an error equal to an edge in the
+    # band that starts there, as "0.2 m or more" counts for Err0.2.
+    band = np.searchsorted(bounds, values, side="right") - 1
+    inside = (band >= 0) & (band < len(bounds) - 1)
+    return np.bincount(band[inside], minlength=len(bounds) - 1).astype(np.int64)
+
+
+def band_shares(errors: npt.ArrayLike, edges: npt.ArrayLike = ERROR_BAND_EDGES) -> np.ndarray:
+    """Share of frames (in [0, 1]) in each band of :func:`error_histogram`, ``(B,)``."""
+    values = _errors_array(errors)
+    return error_histogram(values, edges) / len(values)
+
+
+def frames_above(errors: npt.ArrayLike, thresholds: npt.ArrayLike) -> np.ndarray:
+    """Share of frames whose error is at least each threshold (FPG Fig. 7).
+
+    A non-increasing curve from 1 (threshold 0) to 0; its value at 0.2 m is
+    :func:`err_ratio`.
+
+    Parameters
+    ----------
+    errors : array_like, shape (T,)
+        Per-frame errors in metres.
+    thresholds : array_like, shape (N,)
+        Thresholds in metres.
+
+    Returns
+    -------
+    ndarray, shape (N,), float64
+        Shares in [0, 1].
+    """
+    values = np.sort(_errors_array(errors))
+    limits = np.asarray(thresholds, dtype=np.float64).reshape(-1)
+    if np.isnan(limits).any():
+        raise ValueError("thresholds: NaN value")
+    below = np.searchsorted(values, limits, side="left")  # errors < threshold
+    return 1.0 - below / len(values)
+
+
+def per_joint_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarray:
+    """Mean over frames of each joint's Eq. 13 summand, metres, ``(20,)``.
+
+    Joint ``j``'s entry is the mean over frames of ``||(r(j) - r(pa j)) - (x(j) - x(pa j))||``,
+    the error of the bone that ends at ``j``; the root has no parent and gets NaN. The mean of
+    the 19 finite entries is :func:`mean_error`.
+    """
+    ref = _clip_array(reference, "reference")
+    est = _clip_array(estimate, "estimate")
+    if ref.shape != est.shape:
+        raise ValueError(f"reference {ref.shape} and estimate {est.shape} differ in shape")
+    parents, children = skeleton.BONES[:, 0], skeleton.BONES[:, 1]
+    diff = (ref[:, children] - ref[:, parents]) - (est[:, children] - est[:, parents])
+    result = np.full(skeleton.NUM_JOINTS, np.nan)
+    result[children] = np.sqrt(np.einsum("tbc,tbc->tb", diff, diff)).mean(axis=0)
+    return result
+
+
+def time_summary(milliseconds: npt.ArrayLike) -> dict[str, float]:
+    """Summary of per-frame computation times: ``median``, ``p95``, ``mean``, ``max`` (ms).
+
+    Raises
+    ------
+    ValueError
+        If ``milliseconds`` is empty, not finite or negative.
+    """
+    values = _errors_array(milliseconds, "milliseconds")
+    if (values < 0).any():
+        raise ValueError("milliseconds: negative value")
+    return {
+        "median": float(np.median(values)),
+        "p95": float(np.percentile(values, 95)),
+        "mean": float(values.mean()),
+        "max": float(values.max()),
+    }

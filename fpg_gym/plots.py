@@ -9,18 +9,41 @@ from __future__ import annotations
 import itertools
 from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from fpg_gym import skeleton
+from fpg_gym import metrics, skeleton
+from fpg_gym.metrics import ERROR_BAND_EDGES
 
-#: Upper edges of the error bands of the FPG §8 histograms, metres (the last band is open).
-ERROR_BAND_EDGES: tuple[float, ...] = (0.0, 0.05, 0.10, 0.15, 0.20, 0.30, np.inf)
+__all__ = [
+    "ERROR_BAND_EDGES",
+    "METHOD_COLOURS",
+    "STATE_COLOURS",
+    "band_labels",
+    "method_colours",
+    "plot_cumulative",
+    "plot_error_histogram",
+    "plot_error_over_time",
+    "plot_frame_times",
+    "save_gif",
+    "save_png",
+    "skeleton_animation",
+]
 
 STATE_COLOURS = {2: "#2a9d4b", 1: "#f4a020", 0: "#d62828"}  # tracked, inferred, not tracked
 _PANEL_COLOURS = ("#3d5a80", "#e07a5f", "#2a9d8f", "#6d597a", "#bc4749")
+#: Colours of the methods in the metric plots (matplotlib's tab10 then the light tab20 tones):
+#: twenty distinct colours before any repeats.
+METHOD_COLOURS: tuple[str, ...] = (
+    "#1f77b4", "#ff7f0e", "#2ca02c", "#d62728", "#9467bd",
+    "#8c564b", "#e377c2", "#7f7f7f", "#bcbd22", "#17becf",
+    "#aec7e8", "#ffbb78", "#98df8a", "#ff9896", "#c5b0d5",
+    "#c49c94", "#f7b6d2", "#c7c7c7", "#dbdb8d", "#9edae5",
+)  # fmt: skip
+_LINE_STYLES = ("-", "--", "-.", ":")
 
 
 def band_labels(edges: Sequence[float] = ERROR_BAND_EDGES) -> list[str]:
@@ -29,6 +52,11 @@ def band_labels(edges: Sequence[float] = ERROR_BAND_EDGES) -> list[str]:
     for low, high in itertools.pairwise(edges):
         labels.append(f"≥{100 * low:g}" if np.isinf(high) else f"{100 * low:g}-{100 * high:g}")
     return labels
+
+
+def method_colours(names: Sequence[str]) -> dict[str, str]:
+    """A colour per name, in order (pass the full method list so that subsets keep theirs)."""
+    return {name: METHOD_COLOURS[i % len(METHOD_COLOURS)] for i, name in enumerate(names)}
 
 
 def _save(figure: Figure, path: str | Path) -> Path:
@@ -43,12 +71,36 @@ def _colour(index: int) -> str:
     return _PANEL_COLOURS[index % len(_PANEL_COLOURS)]
 
 
+def _colours_for(names: Sequence[str], colours: Mapping[str, str] | None) -> dict[str, str]:
+    chosen = method_colours(names)
+    if colours:
+        chosen.update({k: v for k, v in colours.items() if k in chosen})
+    return chosen
+
+
+def _figure(width: float, height: float, entries: int) -> tuple[Figure, Any, bool]:
+    """A figure whose legend goes to the right of the axes when it has many entries."""
+    outside = entries > 4
+    figure = Figure(figsize=(width + (2.6 if outside else 0.0), height))
+    return figure, figure.add_subplot(), outside
+
+
+def _legend(axes: Any, outside: bool, **kwargs: Any) -> None:
+    if outside:
+        axes.legend(
+            frameon=False, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=8, **kwargs
+        )
+    else:
+        axes.legend(frameon=False, **kwargs)
+
+
 def plot_error_histogram(
     errors: Mapping[str, np.ndarray],
     path: str | Path,
     *,
     edges: Sequence[float] = ERROR_BAND_EDGES,
     title: str = "Per-frame error (FPG Eq. 13) by band",
+    colours: Mapping[str, str] | None = None,
 ) -> Path:
     """Grouped bars: share of frames (%) in each error band, one bar per method.
 
@@ -58,27 +110,31 @@ def plot_error_histogram(
         Method name -> per-frame errors in metres (all episodes concatenated).
     path : str or Path
         PNG to write.
+    edges : sequence of float
+        Band edges in metres (:data:`ERROR_BAND_EDGES`).
+    colours : mapping, optional
+        Method name -> colour (default :func:`method_colours` in the given order).
     """
-    figure = Figure(figsize=(8, 4.2))
-    axes = figure.add_subplot()
+    names = list(errors)
+    palette = _colours_for(names, colours)
+    figure, axes, outside = _figure(8, 4.2, len(names))
     labels = band_labels(edges)
     positions = np.arange(len(labels))
-    width = 0.8 / max(1, len(errors))
-    for index, (name, values) in enumerate(errors.items()):
-        counts, _ = np.histogram(np.asarray(values), bins=np.asarray(edges))
-        share = 100.0 * counts / max(1, len(values))
+    width = 0.8 / max(1, len(names))
+    for index, name in enumerate(names):
+        share = 100.0 * metrics.band_shares(errors[name], edges)
         axes.bar(
-            positions + (index - (len(errors) - 1) / 2) * width,
+            positions + (index - (len(names) - 1) / 2) * width,
             share,
             width,
             label=name,
-            color=_colour(index),
+            color=palette[name],
         )
     axes.set_xticks(positions, labels)
-    axes.set_xlabel("error band (cm)")
+    axes.set_xlabel("per-frame error band (cm)")
     axes.set_ylabel("frames (%)")
     axes.set_title(title)
-    axes.legend(frameon=False)
+    _legend(axes, outside)
     axes.grid(axis="y", alpha=0.3)
     figure.tight_layout()
     return _save(figure, path)
@@ -90,23 +146,31 @@ def plot_cumulative(
     *,
     max_threshold: float = 0.4,
     title: str = "Frames with error above threshold (FPG Fig. 7)",
+    colours: Mapping[str, str] | None = None,
 ) -> Path:
     """Share of frames (%) whose error is at least each threshold, one curve per method."""
+    names = list(errors)
+    palette = _colours_for(names, colours)
     thresholds = np.linspace(0.0, max_threshold, 161)
-    figure = Figure(figsize=(7, 4.2))
-    axes = figure.add_subplot()
-    for index, (name, values) in enumerate(errors.items()):
-        values = np.sort(np.asarray(values))
-        above = 100.0 * (
-            1.0 - np.searchsorted(values, thresholds, side="left") / max(1, len(values))
+    figure, axes, outside = _figure(7, 4.2, len(names))
+    for index, name in enumerate(names):
+        above = 100.0 * metrics.frames_above(errors[name], thresholds)
+        axes.plot(
+            100 * thresholds,
+            above,
+            label=name,
+            color=palette[name],
+            lw=1.8,
+            ls=_LINE_STYLES[(index // 10) % len(_LINE_STYLES)],
         )
-        axes.plot(100 * thresholds, above, label=name, color=_colour(index), lw=2)
     axes.axvline(20, color="grey", ls=":", lw=1)
+    axes.text(20.5, 96, "Err0.2", color="grey", fontsize=8, va="top")
     axes.set_xlabel("error threshold (cm)")
     axes.set_ylabel("frames with error ≥ threshold (%)")
+    axes.set_xlim(0, 100 * max_threshold)
     axes.set_ylim(0, 100)
     axes.set_title(title)
-    axes.legend(frameon=False)
+    _legend(axes, outside)
     axes.grid(alpha=0.3)
     figure.tight_layout()
     return _save(figure, path)
@@ -118,20 +182,26 @@ def plot_error_over_time(
     *,
     fps: float = 30.0,
     title: str = "Per-frame error over one episode",
+    colours: Mapping[str, str] | None = None,
 ) -> Path:
     """Per-frame error (cm) against time (s), one line per method, for one episode."""
-    figure = Figure(figsize=(9, 3.8))
-    axes = figure.add_subplot()
-    for index, (name, values) in enumerate(errors.items()):
-        values = np.asarray(values)
+    names = list(errors)
+    palette = _colours_for(names, colours)
+    figure, axes, outside = _figure(9, 3.8, len(names) + 1)
+    for name in names:
+        values = np.asarray(errors[name])
         axes.plot(
-            np.arange(len(values)) / fps, 100 * values, label=name, color=_colour(index), lw=1.4
+            np.arange(len(values)) / fps, 100 * values, label=name, color=palette[name], lw=1.4
         )
-    axes.axhline(20, color="grey", ls=":", lw=1, label="0.2 m")
+    axes.axhline(20, color="grey", ls=":", lw=1, label="0.2 m (Err0.2)")
     axes.set_xlabel("time (s)")
     axes.set_ylabel("error (cm)")
+    axes.set_ylim(bottom=0)
     axes.set_title(title)
-    axes.legend(frameon=False, ncols=min(5, len(errors) + 1))
+    if outside:
+        _legend(axes, outside)
+    else:
+        axes.legend(frameon=False, ncols=min(5, len(names) + 1))
     axes.grid(alpha=0.3)
     figure.tight_layout()
     return _save(figure, path)
@@ -141,16 +211,34 @@ def plot_frame_times(
     milliseconds: Mapping[str, np.ndarray],
     path: str | Path,
     *,
-    title: str = "Frame time per method",
+    title: str = "Computation time per frame",
+    colours: Mapping[str, str] | None = None,
 ) -> Path:
-    """Distribution of per-frame computation time (ms) per method, as box plots on a log axis."""
-    figure = Figure(figsize=(7, 4.2))
-    axes = figure.add_subplot()
+    """Distribution of per-frame computation time (ms) per method, as box plots on a log axis.
+
+    Boxes span the quartiles, whiskers 1.5 IQR; outliers are not drawn.
+    """
     names = list(milliseconds)
+    palette = _colours_for(names, colours)
+    figure = Figure(figsize=(max(7.0, 0.75 * len(names) + 2.0), 4.6))
+    axes = figure.add_subplot()
     data = [np.maximum(np.asarray(milliseconds[name], dtype=float), 1e-3) for name in names]
-    axes.boxplot(data, tick_labels=names, showfliers=False)
+    boxes = axes.boxplot(data, tick_labels=names, showfliers=False, patch_artist=True)
+    for patch, name in zip(boxes["boxes"], names, strict=True):
+        patch.set_facecolor(palette[name])
+        patch.set_alpha(0.6)
+    for median in boxes["medians"]:
+        median.set_color("black")
     axes.set_yscale("log")
+    from matplotlib.ticker import FuncFormatter
+
+    axes.yaxis.set_major_formatter(FuncFormatter(lambda value, _: f"{value:g}"))
     axes.set_ylabel("time per frame (ms, log scale)")
+    axes.set_xlabel("method")
+    if len(names) > 4 or max((len(n) for n in names), default=0) > 12:
+        axes.tick_params(axis="x", labelrotation=30)
+        for label in axes.get_xticklabels():
+            label.set_horizontalalignment("right")
     axes.set_title(title)
     axes.grid(axis="y", alpha=0.3, which="both")
     figure.tight_layout()

@@ -115,3 +115,78 @@ def test_jitter_valid_mask_and_short_input() -> None:
 def test_bad_input_gives_clear_errors(call: object, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         call()  # type: ignore[operator]
+
+
+# --------------------------------------------------------------------------- bands, curves, joints
+
+
+def test_error_band_edges_are_the_papers_and_shared_with_plots() -> None:
+    from fpg_gym import plots
+
+    assert metrics.ERROR_BAND_EDGES[:-1] == (0.0, 0.05, 0.10, 0.15, 0.20, 0.30)
+    assert np.isinf(metrics.ERROR_BAND_EDGES[-1])
+    assert plots.ERROR_BAND_EDGES is metrics.ERROR_BAND_EDGES
+
+
+def test_error_histogram_puts_edges_in_the_upper_band() -> None:
+    errors = [0.0, 0.049, 0.05, 0.12, 0.2, 0.25, 0.3, 1.5]
+    counts = metrics.error_histogram(errors)
+    assert counts.tolist() == [2, 1, 1, 0, 2, 2]
+    shares = metrics.band_shares(errors)
+    assert shares.sum() == pytest.approx(1.0)
+    assert shares[0] == pytest.approx(2 / 8)
+    # Closed edges: errors beyond the last edge are not counted.
+    assert metrics.error_histogram([0.1, 0.5], edges=[0.0, 0.2, 0.4]).tolist() == [1, 0]
+
+
+def test_error_histogram_matches_err_ratio(rng: np.random.Generator) -> None:
+    errors = np.abs(rng.normal(0.15, 0.08, 500))
+    counts = metrics.error_histogram(errors)
+    above = counts[list(metrics.ERROR_BAND_EDGES).index(0.2) :].sum() / len(errors)
+    assert above == pytest.approx(metrics.err_ratio(errors))
+
+
+def test_frames_above_is_the_cumulative_curve(rng: np.random.Generator) -> None:
+    errors = np.abs(rng.normal(0.12, 0.06, 400))
+    thresholds = np.linspace(0.0, 0.5, 51)
+    curve = metrics.frames_above(errors, thresholds)
+    assert curve[0] == pytest.approx(1.0)
+    assert np.all(np.diff(curve) <= 0)
+    assert curve[20] == pytest.approx(metrics.err_ratio(errors, threshold=thresholds[20]))
+    assert metrics.frames_above([0.1, 0.2, 0.3], [0.2]).tolist() == pytest.approx([2 / 3])
+
+
+def test_per_joint_error_isolates_the_moved_bone(clip: np.ndarray) -> None:
+    hand = skeleton.joint_index("HandRight")
+    moved = clip.copy()
+    moved[:, hand] += np.array([0.0, 0.03, 0.04])  # 5 cm, a leaf: only its bone changes
+    result = metrics.per_joint_error(clip, moved)
+    assert np.isnan(result[skeleton.ROOT])
+    assert result[hand] == pytest.approx(0.05)
+    others = np.delete(np.arange(skeleton.NUM_JOINTS), [skeleton.ROOT, hand])
+    assert np.allclose(result[others], 0.0)
+    assert np.nanmean(result) == pytest.approx(metrics.mean_error(clip, moved))
+
+
+def test_time_summary() -> None:
+    summary = metrics.time_summary(np.arange(1.0, 101.0))
+    assert summary["median"] == pytest.approx(50.5)
+    assert summary["p95"] == pytest.approx(np.percentile(np.arange(1.0, 101.0), 95))
+    assert summary["mean"] == pytest.approx(50.5)
+    assert summary["max"] == 100.0
+
+
+@pytest.mark.parametrize(
+    ("call", "message"),
+    [
+        (lambda: metrics.error_histogram([]), "empty"),
+        (lambda: metrics.error_histogram([0.1], edges=[0.2, 0.1]), "increasing"),
+        (lambda: metrics.frames_above([np.inf], [0.1]), "non-finite"),
+        (lambda: metrics.frames_above([0.1], [np.nan]), "NaN"),
+        (lambda: metrics.time_summary([-1.0]), "negative"),
+        (lambda: metrics.per_joint_error(np.zeros((2, 20, 3)), np.zeros((3, 20, 3))), "differ"),
+    ],
+)
+def test_new_metrics_reject_bad_input(call: object, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        call()  # type: ignore[operator]

@@ -1,0 +1,490 @@
+"""``fpg-gym bench``: where the time goes.
+
+Sections (each a list of rows, see :func:`run_bench`):
+
+``stages``
+    Milliseconds per frame of each stage of :class:`~fpg_gym.reconstruct.Reconstructor`
+    (normalise, reliability, selection, latent = PCA, search, finish, ragdoll), median and
+    95th percentile, for graph and brute-force selection with the papers' local search and the
+    ragdoll, on simulated episodes of held-out clips.
+``selection``
+    Median selection time per frame against graph size (graphs built with several ``thres1``)
+    for both selectors (FPG §8: graph selection scores a neighbourhood, brute force every node).
+``build``
+    Graph build time (FPG Alg. 1–4) against the number of input poses.
+``env``
+    Environment steps per second (``fpg_gym/KinectPose-v0`` with random actions), through the
+    measuring function of :mod:`fpg_gym.episodes` when it provides one (:data:`ENV_HOOKS`).
+``read``
+    Mocap read speed (frames per second).
+
+By default everything uses the embedded DeepMimic clips (no files needed); ``mocap=`` paths
+(e.g. ``../shared/data/bandai_namco/dataset-1``) use those takes instead: 20 % of the files are
+held out for the episodes with the split of ``scripts/holdout_split.py`` (seed 2016), the others
+build the graphs.
+
+Timings are wall-clock on the machine that runs the bench, one process, BLAS as configured;
+they are noisy on a shared machine (each figure is a median over frames or repeats).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime, timezone
+from typing import Any
+
+import numpy as np
+
+__all__ = ["ENV_HOOKS", "BenchSettings", "format_bench", "run_bench"]
+
+#: Names of a throughput function in :mod:`fpg_gym.episodes` that the bench calls when present
+#: (the first found): ``f(steps=N, ragdoll=bool, seed=S) -> dict`` with ``steps_per_second``.
+ENV_HOOKS: tuple[str, ...] = ("measure_env_throughput", "measure_throughput")
+
+
+#: Hold-out split of ``mocap`` takes (as ``scripts/holdout_split.py``).
+HOLDOUT_SEED = 2016
+HOLDOUT_SHARE = 0.2
+
+
+@dataclass
+class BenchSettings:
+    """What :func:`run_bench` measures (``quick=True`` gives the reduced set used by tests).
+
+    Attributes
+    ----------
+    quick : bool
+    mocap : list of str
+        Mocap files/folders to use instead of the embedded clips.
+    episodes : int
+        Simulated episodes for the stage timing.
+    max_frames : int
+        Frames per episode.
+    thresholds : tuple of float
+        ``thres1`` of the graphs for the selection-vs-size rows (metres).
+    env_steps : int
+        Env steps timed.
+    sections : tuple of str
+        Which sections to run.
+    """
+
+    quick: bool = False
+    mocap: list[str] = field(default_factory=list)
+    episodes: int = 3
+    max_frames: int = 90
+    thresholds: tuple[float, ...] = (0.2, 0.1, 0.06, 0.04)
+    env_steps: int = 200
+    sections: tuple[str, ...] = ("stages", "selection", "build", "env", "read")
+
+    @classmethod
+    def make(cls, quick: bool = False, mocap: Sequence[str] = ()) -> BenchSettings:
+        """Defaults for the embedded data or for ``mocap`` paths, full or quick."""
+        settings = cls(quick=quick, mocap=list(mocap))
+        if mocap:
+            settings.thresholds = (0.4, 0.3, 0.2, 0.15)
+            settings.max_frames = 150
+        if quick:
+            settings.episodes = 1
+            settings.max_frames = 20
+            settings.thresholds = settings.thresholds[:2]
+            settings.env_steps = 20
+        return settings
+
+
+# --------------------------------------------------------------------------- data
+
+
+@dataclass
+class _Data:
+    graph_clips: list[Any]
+    episode_clips: list[Any]
+    source: str
+    read_seconds: float
+    read_frames: int
+
+
+def _load_data(settings: BenchSettings, progress: bool) -> _Data:
+    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.io import load_clips, load_default_clips
+
+    start = time.perf_counter()
+    if settings.mocap:
+        clips = load_clips(settings.mocap, progress=progress)
+        seconds = time.perf_counter() - start
+        # The split of scripts/holdout_split.py: shuffle with seed 2016, hold out 20 %.
+        order = np.random.default_rng(HOLDOUT_SEED).permutation(len(clips))
+        count = max(1, round(HOLDOUT_SHARE * len(clips))) if len(clips) > 1 else 0
+        held = [clips[i] for i in order[:count]] or clips[-1:]
+        graph = [clips[i] for i in sorted(order[count:])] or clips
+        source = f"{len(clips)} mocap clips from {', '.join(settings.mocap)}"
+    else:
+        clips = load_default_clips()
+        seconds = time.perf_counter() - start
+        held = [c for c in clips if c.name in DEFAULT_HOLDOUT_CLIPS]
+        graph = [c for c in clips if c.name not in DEFAULT_HOLDOUT_CLIPS]
+        source = "embedded DeepMimic clips"
+    frames = sum(c.num_frames for c in clips)
+    return _Data(graph, held, source, seconds, frames)
+
+
+def _episodes(data: _Data, settings: BenchSettings) -> list[Any]:
+    from fpg_gym.compare import _cap
+    from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
+    from fpg_gym.simulate import simulate
+
+    recordings = []
+    for i in range(settings.episodes):
+        clip = data.episode_clips[i % len(data.episode_clips)]
+        scenario = DEFAULT_EPISODE_SCENARIOS[i % len(DEFAULT_EPISODE_SCENARIOS)]
+        recordings.append(_cap(simulate(clip, scenario, seed=i), settings.max_frames))
+    return recordings
+
+
+def _build(clips: list[Any], thres1: float, mirror: bool) -> tuple[Any, float]:
+    from fpg_gym.graph import FilteredPoseGraph
+
+    start = time.perf_counter()
+    graph = FilteredPoseGraph.build(clips, thres1=thres1, mirror=mirror, progress=False)
+    return graph, time.perf_counter() - start
+
+
+# --------------------------------------------------------------------------- sections
+
+
+def _stages(graph: Any, recordings: list[Any]) -> list[dict[str, Any]]:
+    from fpg_gym.reconstruct import STAGES, Reconstructor
+
+    rows = []
+    per: dict[str, dict[str, np.ndarray]] = {}
+    for selector in ("graph", "brute-force"):
+        stages: dict[str, list[float]] = {s: [] for s in (*STAGES, "total")}
+        with Reconstructor(graph, selector=selector, ragdoll=True) as reconstructor:
+            for i, recording in enumerate(recordings):
+                result = reconstructor.reconstruct(recording, "local-search", rng=i)
+                for record in result.records:
+                    for stage in stages:
+                        stages[stage].append(float(record.ms.get(stage, 0.0)))
+        per[selector] = {s: np.asarray(v) for s, v in stages.items()}
+    for stage in (*STAGES, "total"):
+        row: dict[str, Any] = {"stage": stage}
+        for selector, values in per.items():
+            row[f"{selector}_median_ms"] = float(np.median(values[stage]))
+            row[f"{selector}_p95_ms"] = float(np.percentile(values[stage], 95))
+        rows.append(row)
+    return rows
+
+
+def _selection(
+    data: _Data, recordings: list[Any], settings: BenchSettings, mirror: bool
+) -> list[dict[str, Any]]:
+    from fpg_gym.reconstruct import Reconstructor
+
+    rows = []
+    for thres1 in settings.thresholds:
+        graph, seconds = _build(data.graph_clips, thres1, mirror)
+        row: dict[str, Any] = {
+            "thres1": thres1,
+            "nodes": graph.num_nodes,
+            "mean_degree": 2 * graph.num_edges / max(1, graph.num_nodes),
+            "build_s": seconds,
+        }
+        for selector in ("graph", "brute-force"):
+            ms: list[np.ndarray] = []
+            scored: list[np.ndarray] = []
+            reconstructor = Reconstructor(graph, selector=selector)
+            for i, recording in enumerate(recordings):
+                arrays = reconstructor.reconstruct(recording, "none", rng=i).arrays()
+                names = [str(n) for n in arrays["stage_names"]]
+                ms.append(arrays["ms_stages"][:, names.index("selection")])
+                scored.append(arrays["num_scored"])
+            row[f"{selector}_selection_ms"] = float(np.median(np.concatenate(ms)))
+            row[f"{selector}_scored"] = float(np.median(np.concatenate(scored)))
+        rows.append(row)
+    return rows
+
+
+def _build_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
+    clips = data.graph_clips
+    thres1 = 0.2 if settings.mocap else 0.1
+    fractions = (0.5, 1.0) if settings.quick else (0.25, 0.5, 1.0)
+    rows = []
+    for mirror in (False, True):
+        for fraction in fractions:
+            count = max(1, round(fraction * len(clips)))
+            subset = clips[:count]
+            graph, seconds = _build(subset, thres1, mirror)
+            poses = sum(c.num_frames for c in subset) * (2 if mirror else 1)
+            rows.append(
+                {
+                    "clips": count,
+                    "mirror": mirror,
+                    "poses": poses,
+                    "nodes": graph.num_nodes,
+                    "edges": graph.num_edges,
+                    "thres1": thres1,
+                    "seconds": seconds,
+                    "poses_per_second": poses / max(seconds, 1e-9),
+                }
+            )
+    return rows
+
+
+def _env_rows(settings: BenchSettings) -> list[dict[str, Any]]:
+    """Env steps per second: the :mod:`fpg_gym.episodes` hook if any, else a direct loop."""
+    import importlib
+
+    try:
+        episodes: Any = importlib.import_module("fpg_gym.episodes")
+    except ImportError:
+        episodes = None
+    if episodes is not None:
+        for name in ENV_HOOKS:
+            hook: Callable[..., Any] | None = getattr(episodes, name, None)
+            if callable(hook):
+                rows = []
+                for ragdoll in (True, False):
+                    result = hook(steps=settings.env_steps, ragdoll=ragdoll, seed=0)
+                    values = (
+                        dict(result) if isinstance(result, dict) else {"steps_per_second": result}
+                    )
+                    source = f"fpg_gym.episodes.{name}, random actions, ragdoll "
+                    rows.append({"source": source + ("on" if ragdoll else "off"), **values})
+                return rows
+    try:
+        from fpg_gym.env import KinectPoseEnv
+    except ImportError as error:
+        return [{"source": f"n/a ({error})", "steps_per_second": None}]
+    env = KinectPoseEnv()
+    try:
+        env.reset(seed=0)
+        env.action_space.seed(0)
+        steps = 0
+        start = time.perf_counter()
+        while steps < settings.env_steps:
+            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
+            steps += 1
+            if terminated or truncated:
+                env.reset()
+        seconds = time.perf_counter() - start
+    finally:
+        env.close()
+    return [
+        {
+            "source": "KinectPoseEnv() default settings, random actions (resets included)",
+            "steps": steps,
+            "seconds": seconds,
+            "steps_per_second": steps / max(seconds, 1e-9),
+        }
+    ]
+
+
+def _read_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
+    rows = [
+        {
+            "source": data.source,
+            "frames": data.read_frames,
+            "seconds": data.read_seconds,
+            "frames_per_second": data.read_frames / max(data.read_seconds, 1e-9),
+        }
+    ]
+    if not settings.mocap:  # a second read: the first includes imports and file caching
+        from fpg_gym.io import load_default_clips
+
+        start = time.perf_counter()
+        frames = sum(c.num_frames for c in load_default_clips())
+        seconds = time.perf_counter() - start
+        rows.append(
+            {
+                "source": "embedded DeepMimic clips (again, warm)",
+                "frames": frames,
+                "seconds": seconds,
+                "frames_per_second": frames / max(seconds, 1e-9),
+            }
+        )
+    return rows
+
+
+def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -> dict[str, Any]:
+    """Run the bench; returns ``{"date", "settings", "machine", SECTION: rows, "seconds"}``.
+
+    Ctrl-C stops it; the sections finished so far are returned (``"interrupted": True``).
+    """
+    import os
+    import platform
+
+    from tqdm.auto import tqdm
+
+    settings = settings or BenchSettings.make()
+    started = time.perf_counter()
+    report: dict[str, Any] = {
+        "date": datetime.now(timezone.utc).date().isoformat(),
+        "machine": f"{platform.machine()}, {os.cpu_count()} CPU(s), Python "
+        f"{platform.python_version()}, numpy {np.__version__}",
+        "settings": {
+            "quick": settings.quick,
+            "mocap": settings.mocap,
+            "episodes": settings.episodes,
+            "max_frames": settings.max_frames,
+            "thresholds": list(settings.thresholds),
+            "env_steps": settings.env_steps,
+        },
+        "interrupted": False,
+    }
+    bar = tqdm(total=len(settings.sections) + 1, desc="bench", unit="part", disable=not progress)
+    try:
+        bar.set_postfix_str("reading")
+        data = _load_data(settings, progress)
+        mirror = not settings.mocap
+        recordings = _episodes(data, settings)
+        bar.update()
+        report["data"] = data.source
+        for section in settings.sections:
+            bar.set_postfix_str(section)
+            if section == "stages":
+                graph, _ = _build(data.graph_clips, 0.2 if settings.mocap else 0.1, mirror)
+                report["stages_graph"] = repr(graph)
+                report["stages"] = _stages(graph, recordings)
+            elif section == "selection":
+                report["selection"] = _selection(data, recordings, settings, mirror)
+            elif section == "build":
+                report["build"] = _build_rows(data, settings)
+            elif section == "env":
+                report["env"] = _env_rows(settings)
+            elif section == "read":
+                report["read"] = _read_rows(data, settings)
+            else:
+                raise ValueError(f"sections: unknown section {section!r}")
+            bar.update()
+    except KeyboardInterrupt:
+        report["interrupted"] = True
+    finally:
+        bar.close()
+    report["seconds"] = time.perf_counter() - started
+    return report
+
+
+# --------------------------------------------------------------------------- printing
+
+
+def _table(columns: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(columns) + " |", "|" + "|".join(" --- " for _ in columns) + "|"]
+    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
+
+
+def format_bench(report: dict[str, Any]) -> str:
+    """The bench report as markdown tables (what ``fpg-gym bench`` prints)."""
+    out = [
+        f"fpg-gym bench, {report['date']}, {report['machine']}; data: {report.get('data', '?')}",
+        "",
+    ]
+    if "stages" in report:
+        out += [
+            f"Frame time per stage (ms; local search, ragdoll; {report['settings']['episodes']} "
+            f"episode(s) of <= {report['settings']['max_frames']} frames; "
+            f"{report['stages_graph']})",
+            "",
+            _table(
+                ["stage", "graph median", "graph p95", "brute-force median", "brute-force p95"],
+                [
+                    [
+                        r["stage"],
+                        f"{r['graph_median_ms']:.3f}",
+                        f"{r['graph_p95_ms']:.3f}",
+                        f"{r['brute-force_median_ms']:.3f}",
+                        f"{r['brute-force_p95_ms']:.3f}",
+                    ]
+                    for r in report["stages"]
+                ],
+            ),
+            "",
+        ]
+    if "selection" in report:
+        out += [
+            "Selection time per frame against graph size (median ms; nodes scored per frame)",
+            "",
+            _table(
+                [
+                    "thres1 (m)",
+                    "nodes",
+                    "mean degree",
+                    "graph ms",
+                    "graph scored",
+                    "brute-force ms",
+                    "brute-force scored",
+                ],
+                [
+                    [
+                        f"{r['thres1']:g}",
+                        str(r["nodes"]),
+                        f"{r['mean_degree']:.1f}",
+                        f"{r['graph_selection_ms']:.3f}",
+                        f"{r['graph_scored']:.0f}",
+                        f"{r['brute-force_selection_ms']:.3f}",
+                        f"{r['brute-force_scored']:.0f}",
+                    ]
+                    for r in report["selection"]
+                ],
+            ),
+            "",
+        ]
+    if "build" in report:
+        out += [
+            "Graph build time (FPG Alg. 1-4) against input size",
+            "",
+            _table(
+                ["clips", "mirror", "poses", "nodes", "edges", "seconds", "poses/s"],
+                [
+                    [
+                        str(r["clips"]),
+                        "yes" if r["mirror"] else "no",
+                        str(r["poses"]),
+                        str(r["nodes"]),
+                        str(r["edges"]),
+                        f"{r['seconds']:.3f}",
+                        f"{r['poses_per_second']:.0f}",
+                    ]
+                    for r in report["build"]
+                ],
+            ),
+            "",
+        ]
+    if "env" in report:
+        rows = []
+        for r in report["env"]:
+            sps, only = r.get("steps_per_second"), r.get("step_only_per_second")
+            rows.append(
+                [
+                    str(r["source"]),
+                    "–" if sps is None else f"{sps:.1f}",
+                    "–" if only is None else f"{only:.1f}",
+                ]
+            )
+        out += [
+            "Environment throughput (resets included / step calls only)",
+            "",
+            _table(["measured by", "steps/s", "step-only steps/s"], rows),
+            "",
+        ]
+    if "read" in report:
+        out += [
+            "Mocap read speed",
+            "",
+            _table(
+                ["source", "frames", "seconds", "frames/s"],
+                [
+                    [
+                        r["source"],
+                        str(r["frames"]),
+                        f"{r['seconds']:.3f}",
+                        f"{r['frames_per_second']:.0f}",
+                    ]
+                    for r in report["read"]
+                ],
+            ),
+            "",
+        ]
+    state = " (interrupted)" if report.get("interrupted") else ""
+    out.append(f"bench time {report['seconds']:.1f} s{state}")
+    return "\n".join(out)

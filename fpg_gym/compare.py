@@ -1,0 +1,1286 @@
+"""Compare reconstruction methods on many episodes: ``fpg-gym compare`` and ``fpg-gym demo``.
+
+An *episode* is one Kinect stream with ground truth: a mocap clip simulated in one scenario with
+one seed (:func:`plan_episodes`), or a recording file. Every (episode, method) pair is a task;
+tasks run in parallel worker processes (each loads the pose graph once) and each finished task
+appends one row to ``results.csv`` (flushed at once) and writes its per-frame arrays to
+``frames/<episode>/<method>.npz``. Ctrl-C keeps every finished row; the report is then written
+from them, and a rerun with the same ``--out`` skips the finished rows.
+
+Output folder::
+
+    config.json       the run's settings (a rerun must match them to resume)
+    results.csv       one row per episode and method (see :data:`CSV_FIELDS`)
+    episodes/*.npz    the simulated recordings (``fpg_gym.io.load_recording``)
+    frames/E/M.npz    per-frame error, ms, stage ms, evaluations, energy and output poses
+    summary.json      per-method aggregates, the paired tests, the settings
+    report.md         the tables (FPG §8 style) and the plots
+    *.png             error histogram, cumulative curve, error over time, frame times
+
+Hold-out rule: the graph must not contain the evaluated takes. ``--graph default`` builds the
+embedded graph without the evaluated embedded clips; for a graph file, build it from other takes
+(``scripts/holdout_split.py``); the report warns when an evaluated clip's name is a graph clip.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+import re
+import shutil
+import signal
+import sys
+import time
+import warnings
+import zlib
+from collections.abc import Callable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import asdict, dataclass, field
+from datetime import datetime, timezone
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fpg_gym import metrics, skeleton
+from fpg_gym.methods import BASELINE, Method, MethodRunner, parse_method
+
+__all__ = [
+    "CSV_FIELDS",
+    "TABLE_COLUMNS",
+    "CompareConfig",
+    "EpisodeSpec",
+    "format_table",
+    "load_graph",
+    "plan_episodes",
+    "resolve_clips",
+    "run_compare",
+    "summarise",
+    "write_report",
+]
+
+#: Columns of ``results.csv`` (one row per episode and method).
+CSV_FIELDS: tuple[str, ...] = (
+    "episode",
+    "clip",
+    "scenario",
+    "seed",
+    "method",
+    "base",
+    "selector",
+    "optimizer",
+    "ragdoll",
+    "budget",
+    "frames",
+    "input_frames",
+    "interrupted",
+    "mean_error_m",
+    "std_error_m",
+    "median_error_m",
+    "p95_error_m",
+    "err02_pct",
+    "input_mean_error_m",
+    "bone_length_spread_mm",
+    "jitter_ms2",
+    "truth_jitter_ms2",
+    "ms_median",
+    "ms_p95",
+    "ms_mean",
+    "evaluations_mean",
+    "energy_mean",
+    "recoveries",
+    "ragdoll_divergences",
+    "seconds",
+)
+
+#: Columns of the main table of ``report.md`` (and of what ``compare``/``demo`` print).
+TABLE_COLUMNS: tuple[str, ...] = (
+    "method",
+    "episodes",
+    "mean error (m) ± std",
+    "Err0.2 (%) min / mean / max",
+    "bone-length spread (mm)",
+    "jitter (m/s²)",
+    "ms/frame median / p95",
+    "evaluations/frame",
+    "mean energy",
+)
+
+#: Columns of the paired-test table.
+TEST_COLUMNS: tuple[str, ...] = (
+    "method",
+    "paired episodes",
+    "mean error − baseline (m)",
+    "lower error in",
+    "Wilcoxon p",
+)
+
+_SAFE = re.compile(r"[^A-Za-z0-9._+-]+")
+
+
+def _safe(text: str) -> str:
+    """A file-name-safe form of ``text`` (``:`` and spaces become ``_``)."""
+    return _SAFE.sub("_", text).strip("_") or "x"
+
+
+# --------------------------------------------------------------------------- settings
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One episode: a clip simulated in a scenario with a seed, or a recording file.
+
+    Attributes
+    ----------
+    id : str
+        Unique, file-name safe (``clip__scenario__s0``).
+    clip : str
+        Clip name (or the recording's file stem).
+    scenario : str
+        Simulator scenario (``""`` for a recording file).
+    seed : int
+        The user's seed (``--seeds``).
+    sim_seed : int
+        Seed of the simulator and of the optimisers on this episode (every method gets the
+        same one: paired comparisons); derived from ``seed``, the clip and the scenario names.
+    recording : str
+        Recording file of an input episode (``""`` for simulated ones).
+    """
+
+    id: str
+    clip: str
+    scenario: str
+    seed: int
+    sim_seed: int
+    recording: str = ""
+
+
+@dataclass
+class CompareConfig:
+    """Everything ``fpg-gym compare`` needs (the CLI fills it from its arguments).
+
+    Attributes
+    ----------
+    out : str
+        Output folder.
+    methods : list of str
+        Method names (:mod:`fpg_gym.methods`); canonicalised.
+    graph : str
+        ``"default"`` (the embedded graph without the evaluated embedded clips) or a ``.npz``.
+    clips : list of str
+        Mocap files/folders, ``"default"`` (the embedded held-out clips
+        :data:`fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`), embedded clip names (``walk`` or
+        ``default:walk``).
+    inputs : list of str
+        Recording files (``.npz`` with ground truth for errors; other formats give timing and
+        smoothness only).
+    scenarios : list of str
+        Simulator scenarios for ``clips``.
+    seeds : list of int
+    budget : int
+        Energy evaluations per frame (2,000).
+    k : int
+        Candidates per frame (30).
+    max_frames : int or None
+        Cap on frames per episode (the first ones).
+    workers : int
+        Processes; 1 runs in this process.
+    baseline : str
+        Method the others are tested against (:data:`fpg_gym.methods.BASELINE`).
+    units : str
+        BVH units for ``clips``.
+    """
+
+    out: str
+    methods: list[str]
+    graph: str = "default"
+    clips: list[str] = field(default_factory=list)
+    inputs: list[str] = field(default_factory=list)
+    scenarios: list[str] = field(default_factory=list)
+    seeds: list[int] = field(default_factory=lambda: [0])
+    budget: int = 2000
+    k: int = 30
+    max_frames: int | None = None
+    workers: int = 1
+    baseline: str = BASELINE.name
+    units: str = "auto"
+
+    def __post_init__(self) -> None:
+        self.methods = [parse_method(m).name for m in self.methods]
+        if not self.methods:
+            raise ValueError("methods: no method to run")
+        self.baseline = parse_method(self.baseline).name
+        if self.budget < 0:
+            raise ValueError(f"budget: expected >= 0 evaluations per frame, got {self.budget}")
+        if self.k < 1:
+            raise ValueError(f"k: expected >= 1 candidates, got {self.k}")
+        if self.max_frames is not None and self.max_frames < 3:
+            raise ValueError(f"max_frames: expected at least 3 frames, got {self.max_frames}")
+        if not self.clips and not self.inputs:
+            raise ValueError("give --clips (with --scenarios) and/or --inputs")
+        if self.clips and not self.scenarios:
+            from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
+
+            self.scenarios = list(DEFAULT_EPISODE_SCENARIOS)
+        if not self.seeds:
+            raise ValueError("seeds: at least one seed")
+        if any(s < 0 for s in self.seeds):
+            raise ValueError(f"seeds: expected non-negative integers, got {self.seeds}")
+
+    def resume_key(self) -> dict[str, Any]:
+        """Settings that must match for a rerun to reuse finished rows."""
+        return {
+            "graph": self.graph,
+            "budget": self.budget,
+            "k": self.k,
+            "max_frames": self.max_frames,
+            "units": self.units,
+        }
+
+
+# --------------------------------------------------------------------------- episodes
+
+
+def resolve_clips(
+    items: Sequence[str], units: str = "auto", progress: bool = False
+) -> tuple[list[Any], list[str]]:
+    """Read the clips named by ``--clips`` (see :class:`CompareConfig`), in order.
+
+    ``default`` means the embedded held-out clips; ``walk`` / ``default:walk`` an embedded clip;
+    anything else a mocap file or folder.
+
+    Returns
+    -------
+    clips : list of Clip
+    embedded : list of str
+        Names of the embedded clips among them (the default graph leaves these out).
+    """
+    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.io import DEFAULT_CLIP_NAMES, load_clips, load_default_clips
+
+    clips: list[Any] = []
+    embedded: list[str] = []
+    files: list[str] = []
+
+    def flush_files() -> None:
+        if files:
+            clips.extend(load_clips(list(files), units=units, progress=progress))
+            files.clear()
+
+    for item in items:
+        text = str(item)
+        name = text.removeprefix("default:")
+        if text == "default":
+            flush_files()
+            clips.extend(load_default_clips(list(DEFAULT_HOLDOUT_CLIPS)))
+            embedded.extend(DEFAULT_HOLDOUT_CLIPS)
+        elif name in DEFAULT_CLIP_NAMES and not Path(text).exists():
+            flush_files()
+            clips.extend(load_default_clips([name]))
+            embedded.append(name)
+        elif text.startswith("default:"):
+            raise ValueError(
+                f"--clips: unknown embedded clip {name!r}; expected one of "
+                + ", ".join(DEFAULT_CLIP_NAMES)
+            )
+        else:
+            files.append(text)
+    flush_files()
+    return clips, sorted(set(embedded))
+
+
+def _derived_seed(seed: int, *names: str) -> int:
+    """A seed from the user's seed and names (stable whatever the order of the lists)."""
+    words = [int(seed)] + [zlib.crc32(n.encode()) for n in names]
+    return int(np.random.SeedSequence(words).generate_state(1)[0])
+
+
+def plan_episodes(
+    clip_names: Sequence[str],
+    scenarios: Sequence[str],
+    seeds: Sequence[int],
+    recordings: Sequence[str] = (),
+) -> list[EpisodeSpec]:
+    """Every clip x scenario x seed, then every recording x seed (ids made unique)."""
+    episodes: list[EpisodeSpec] = []
+    used: set[str] = set()
+
+    def unique(base: str) -> str:
+        name, n = base, 2
+        while name in used:
+            name, n = f"{base}-{n}", n + 1
+        used.add(name)
+        return name
+
+    for seed in seeds:
+        for clip in clip_names:
+            for scenario in scenarios:
+                episodes.append(
+                    EpisodeSpec(
+                        id=unique(_safe(f"{clip}__{scenario}__s{seed}")),
+                        clip=clip,
+                        scenario=scenario,
+                        seed=int(seed),
+                        sim_seed=_derived_seed(seed, clip, scenario),
+                    )
+                )
+        for path in recordings:
+            stem = Path(path).name.removesuffix(".npz")
+            episodes.append(
+                EpisodeSpec(
+                    id=unique(_safe(f"{stem}__s{seed}")),
+                    clip=stem,
+                    scenario="",
+                    seed=int(seed),
+                    sim_seed=_derived_seed(seed, stem),
+                    recording=str(path),
+                )
+            )
+    return episodes
+
+
+def _cap(recording: Any, max_frames: int | None) -> Any:
+    from fpg_gym.io import Recording
+
+    if max_frames is None or recording.num_frames <= max_frames:
+        return recording
+    truth = recording.ground_truth
+    return Recording(
+        positions=recording.positions[:max_frames],
+        states=recording.states[:max_frames],
+        timestamps=recording.timestamps[:max_frames],
+        ground_truth=None if truth is None else truth[:max_frames],
+        metadata={**recording.metadata, "cut_to_frames": int(max_frames)},
+    )
+
+
+def _prepare_episodes(
+    config: CompareConfig, folder: Path, progress: bool
+) -> tuple[list[EpisodeSpec], list[str]]:
+    """Plan the episodes and write their recordings (reusing ones already written)."""
+    from tqdm.auto import tqdm
+
+    from fpg_gym.io import DEFAULT_CLIP_NAMES, read_recording, write_recording
+    from fpg_gym.simulate import KinectSimulator, get_scenario
+
+    for scenario in config.scenarios:
+        get_scenario(scenario)  # unknown names fail here, before any work
+    for name in config.inputs:
+        if not Path(name).is_file():
+            raise FileNotFoundError(f"--inputs: {name}: no such file")
+    clips, embedded = (
+        resolve_clips(config.clips, config.units, progress=progress) if config.clips else ([], [])
+    )
+    by_name: dict[str, Any] = {}
+    for clip in clips:
+        by_name.setdefault(clip.name, clip)
+    episodes = plan_episodes(list(by_name), config.scenarios, config.seeds, config.inputs)
+    folder.mkdir(parents=True, exist_ok=True)
+    simulators: dict[str, Any] = {}
+    bar = tqdm(episodes, desc="episodes", unit="episode", disable=not progress, leave=False)
+    try:
+        for episode in bar:
+            target = folder / f"{episode.id}.npz"
+            if target.is_file():
+                continue
+            if episode.recording:
+                recording = read_recording(episode.recording)
+            else:
+                if episode.scenario not in simulators:
+                    simulators[episode.scenario] = KinectSimulator(episode.scenario)
+                clip = by_name[episode.clip]
+                recording = simulators[episode.scenario].simulate(clip, seed=episode.sim_seed)
+            recording = _cap(recording, config.max_frames)
+            partial = target.with_name(target.name + ".part.npz")
+            write_recording(partial, recording)
+            os.replace(partial, target)
+    finally:
+        bar.close()
+        for simulator in simulators.values():
+            simulator.close()
+    # A recording simulated from an embedded clip must be held out of the default graph too.
+    for episode in episodes:
+        if episode.recording:
+            clip_name = _recording_clip(folder / f"{episode.id}.npz")
+            if clip_name in DEFAULT_CLIP_NAMES:
+                embedded = sorted({*embedded, clip_name})
+    return episodes, embedded
+
+
+def _recording_clip(path: Path) -> str:
+    """The embedded clip a simulated recording came from (``""`` for anything else)."""
+    with np.load(path, allow_pickle=False) as archive:
+        metadata = json.loads(str(archive["metadata"])) if "metadata" in archive.files else {}
+    source = str(metadata.get("source", ""))
+    if metadata.get("format") == "simulated" and "pybullet_data" in source:
+        return str(metadata.get("clip", ""))
+    return ""
+
+
+def load_graph(graph: str, exclude: Sequence[str] = ()) -> Any:
+    """``"default"``: the embedded graph without ``exclude``; otherwise a graph ``.npz``."""
+    from fpg_gym.graph import FilteredPoseGraph, default_graph
+
+    if graph == "default":
+        return default_graph(exclude=list(exclude))
+    return FilteredPoseGraph.load(graph)
+
+
+# --------------------------------------------------------------------------- one task
+
+
+@dataclass(frozen=True)
+class _Task:
+    episode: EpisodeSpec
+    method: str
+    recording_path: str
+
+
+def _nanmean(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(finite.mean()) if finite.size else float("nan")
+
+
+def _jitter(poses: np.ndarray, timestamps: np.ndarray) -> float:
+    if len(poses) < 3:
+        return float("nan")
+    stamps = np.asarray(timestamps, dtype=np.float64)
+    if np.all(np.diff(stamps) > 0):
+        return _nanmean(metrics.jitter(poses, timestamps=stamps))
+    return _nanmean(metrics.jitter(poses))
+
+
+def _execute(
+    runner: MethodRunner, task: _Task, recording: Any
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Run one method on one episode; return the CSV row and the per-frame arrays."""
+    method = parse_method(task.method)
+    episode = task.episode
+    start = time.perf_counter()
+    result = runner.run(method, recording, seed=episode.sim_seed)
+    seconds = time.perf_counter() - start
+    count = result.num_frames
+    poses = result.poses
+    truth = recording.ground_truth
+    row: dict[str, Any] = {
+        "episode": episode.id,
+        "clip": episode.clip,
+        "scenario": episode.scenario,
+        "seed": episode.seed,
+        "method": method.name,
+        "base": method.base,
+        "selector": method.selector or "",
+        "optimizer": method.optimizer or "",
+        "ragdoll": int(method.ragdoll),
+        "budget": runner.budget if not method.is_filter else "",
+        "frames": count,
+        "input_frames": recording.num_frames,
+        "interrupted": int(result.interrupted),
+        "seconds": round(seconds, 4),
+        "recoveries": result.info.get("recoveries", ""),
+        "ragdoll_divergences": result.info.get("ragdoll_divergences", ""),
+    }
+    arrays: dict[str, np.ndarray] = {
+        "poses": poses.astype(np.float32),
+        "ms": result.ms.astype(np.float64),
+        "stage_names": np.array(list(result.stage_ms)),
+        "stage_ms": (
+            np.stack([result.stage_ms[s] for s in result.stage_ms], axis=1)
+            if result.stage_ms
+            else np.zeros((count, 0))
+        ),
+    }
+    if count:
+        times = metrics.time_summary(result.ms)
+        row.update(ms_median=times["median"], ms_p95=times["p95"], ms_mean=times["mean"])
+        spread = metrics.bone_length_variation(poses)
+        row["bone_length_spread_mm"] = 1000.0 * _nanmean(spread)
+        row["jitter_ms2"] = _jitter(poses, recording.timestamps[:count])
+    if result.evaluations is not None and count:
+        row["evaluations_mean"] = float(result.evaluations.mean())
+        arrays["evaluations"] = result.evaluations
+    if result.energy is not None and count:
+        row["energy_mean"] = _nanmean(result.energy)
+        arrays["energy"] = result.energy
+    if truth is not None and count:
+        errors = metrics.frame_error(truth[:count], poses)
+        row.update(
+            mean_error_m=float(errors.mean()),
+            std_error_m=float(errors.std()),
+            median_error_m=float(np.median(errors)),
+            p95_error_m=float(np.percentile(errors, 95)),
+            err02_pct=100.0 * metrics.err_ratio(errors),
+            input_mean_error_m=metrics.mean_error(truth[:count], recording.positions[:count]),
+            truth_jitter_ms2=_jitter(truth[:count], recording.timestamps[:count]),
+        )
+        arrays["errors"] = errors
+        arrays["per_joint_error"] = metrics.per_joint_error(truth[:count], poses)
+    return row, arrays
+
+
+# Worker processes: one runner per process, set by the pool initializer (process-local).
+_WORKER_RUNNER: MethodRunner | None = None
+
+
+def _init_worker(graph: str, exclude: list[str], budget: int, options: dict[str, Any]) -> None:
+    global _WORKER_RUNNER
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+    warnings.simplefilter("ignore")
+    _WORKER_RUNNER = MethodRunner(
+        load_graph(graph, exclude), budget=budget, reconstructor_options=options
+    )
+
+
+def _worker_task(task: _Task) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    from fpg_gym.io.recording import load_recording
+
+    assert _WORKER_RUNNER is not None, "worker not initialised"
+    return _execute(_WORKER_RUNNER, task, load_recording(task.recording_path))
+
+
+# --------------------------------------------------------------------------- results files
+
+
+def _read_rows(path: Path) -> list[dict[str, str]]:
+    if not path.is_file():
+        return []
+    with path.open(newline="") as handle:
+        return list(csv.DictReader(handle))
+
+
+def _format_value(value: Any) -> Any:
+    if isinstance(value, float):
+        return "" if not math.isfinite(value) else f"{value:.6g}"
+    return value
+
+
+class _ResultsWriter:
+    """Appends rows to ``results.csv`` (header first) and flushes each one."""
+
+    def __init__(self, path: Path) -> None:
+        new = not path.is_file() or path.stat().st_size == 0
+        self.handle = path.open("a", newline="")
+        self.writer = csv.DictWriter(
+            self.handle, fieldnames=list(CSV_FIELDS), extrasaction="ignore"
+        )
+        if new:
+            self.writer.writeheader()
+            self.handle.flush()
+
+    def write(self, row: dict[str, Any]) -> None:
+        self.writer.writerow({k: _format_value(row.get(k, "")) for k in CSV_FIELDS})
+        self.handle.flush()
+        os.fsync(self.handle.fileno())
+
+    def close(self) -> None:
+        self.handle.close()
+
+
+def _frames_path(out: Path, episode: str, method: str) -> Path:
+    return out / "frames" / _safe(episode) / f"{_safe(method)}.npz"
+
+
+def _save_frames(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    partial = path.with_name(path.name + ".part.npz")
+    np.savez_compressed(partial, **arrays)  # type: ignore[arg-type]
+    os.replace(partial, path)
+
+
+def _load_frames(path: Path) -> dict[str, np.ndarray]:
+    with np.load(path, allow_pickle=False) as archive:
+        return {key: archive[key] for key in archive.files}
+
+
+# --------------------------------------------------------------------------- the run
+
+
+@dataclass
+class CompareOutcome:
+    """What :func:`run_compare` did.
+
+    Attributes
+    ----------
+    out : Path
+    summary : dict
+        The content of ``summary.json``.
+    table : str
+        The main table (markdown).
+    tasks_run, tasks_skipped : int
+        Tasks finished now, and finished ones found from an earlier run.
+    interrupted : bool
+        Ctrl-C stopped the run (the report covers the finished tasks).
+    seconds : float
+    files : list of Path
+        Everything written at the top of ``out``.
+    """
+
+    out: Path
+    summary: dict[str, Any]
+    table: str
+    tasks_run: int
+    tasks_skipped: int
+    interrupted: bool
+    seconds: float
+    files: list[Path]
+
+
+def _check_optimizers(methods: Sequence[str]) -> None:
+    """Make every optimiser once, so a missing one or a missing dependency fails first."""
+    from optimizers import make
+
+    for name in methods:
+        method = parse_method(name)
+        if method.optimizer is not None:
+            make(method.optimizer)
+
+
+def _held_out_warning(
+    graph: Any, episodes: Sequence[EpisodeSpec], extra_names: Sequence[str] = ()
+) -> str:
+    names = {str(n) for n in getattr(graph, "clip_names", ())}
+    shared = sorted(({e.clip for e in episodes} | set(extra_names)) & names)
+    if not shared:
+        return ""
+    listed = ", ".join(shared[:5]) + (" ..." if len(shared) > 5 else "")
+    return (
+        f"{len(shared)} evaluated clip(s) are also graph clips ({listed}): the graph was not "
+        "built without the evaluated takes, so accuracy is optimistic"
+    )
+
+
+def run_compare(
+    config: CompareConfig,
+    *,
+    progress: bool = True,
+    fresh: bool = False,
+    plots: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> CompareOutcome:
+    """Run every episode x method of ``config`` and write the report (see the module docstring).
+
+    Parameters
+    ----------
+    config : CompareConfig
+    progress : bool
+        tqdm progress bars on stderr.
+    fresh : bool
+        Delete the results of an earlier run in ``config.out`` instead of resuming.
+    plots : bool
+        Write the PNG plots.
+    log : callable, optional
+        Receives one-line messages (default: print to stderr).
+
+    Raises
+    ------
+    ValueError
+        Bad settings, an unknown optimiser/scenario, or ``out`` holding a run with other
+        settings (pass ``fresh=True``).
+    """
+    from tqdm.auto import tqdm
+
+    say = log or (lambda text: print(text, file=sys.stderr))
+    started = time.perf_counter()
+    out = Path(config.out)
+    _check_optimizers(config.methods)
+    out.mkdir(parents=True, exist_ok=True)
+    config_path = out / "config.json"
+    results_path = out / "results.csv"
+    if fresh:
+        for name in ("results.csv", "summary.json", "report.md", "config.json"):
+            (out / name).unlink(missing_ok=True)
+        for name in ("frames", "episodes"):
+            if (out / name).is_dir():
+                shutil.rmtree(out / name)
+    elif results_path.is_file() and config_path.is_file():
+        previous = json.loads(config_path.read_text()).get("resume_key")
+        if previous != config.resume_key():
+            raise ValueError(
+                f"{out} holds results of a run with other settings ({previous}); use another "
+                "--out or --fresh"
+            )
+
+    episodes, embedded = _prepare_episodes(config, out / "episodes", progress)
+    exclude = embedded if config.graph == "default" else []
+    graph = load_graph(config.graph, exclude)
+    recorded = [_recording_clip(out / "episodes" / f"{e.id}.npz") for e in episodes if e.recording]
+    warning = _held_out_warning(graph, episodes, [n for n in recorded if n])
+    if warning:
+        say(f"warning: {warning}")
+    config_path.write_text(
+        json.dumps(
+            {
+                "config": asdict(config),
+                "resume_key": config.resume_key(),
+                "graph_exclude": exclude,
+                "graph_summary": repr(graph),
+                "held_out_warning": warning,
+                "episodes": [asdict(e) for e in episodes],
+            },
+            indent=2,
+        )
+    )
+
+    done = {
+        (r["episode"], r["method"])
+        for r in _read_rows(results_path)
+        if r.get("interrupted") in ("0", "")
+        and _frames_path(out, r["episode"], r["method"]).is_file()
+    }
+    tasks = [
+        _Task(e, m, str(out / "episodes" / f"{e.id}.npz"))
+        for e in episodes
+        for m in config.methods
+        if (e.id, m) not in done
+    ]
+    skipped = len(episodes) * len(config.methods) - len(tasks)
+    if skipped:
+        say(f"resuming: {skipped} finished task(s) in {results_path} are kept")
+    options = {"k": config.k}
+    writer = _ResultsWriter(results_path)
+    bar = tqdm(total=len(tasks), desc="compare", unit="run", disable=not progress)
+    interrupted = False
+    completed = [0]
+
+    def finish(row: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        _save_frames(_frames_path(out, row["episode"], row["method"]), arrays)
+        writer.write(row)
+        completed[0] += 1
+        error = row.get("mean_error_m")
+        bar.set_postfix_str(
+            f"{row['method']} {error:.3f} m" if isinstance(error, float) else row["method"],
+            refresh=False,
+        )
+        bar.update(1)
+
+    workers = max(1, min(int(config.workers), len(tasks)))
+    try:
+        if workers <= 1:
+            from fpg_gym.io.recording import load_recording
+
+            with MethodRunner(graph, budget=config.budget, reconstructor_options=options) as runner:
+                for task in tasks:
+                    finish(*_execute(runner, task, load_recording(task.recording_path)))
+        else:
+            interrupted = _run_pool(tasks, workers, config, exclude, options, finish)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        bar.close()
+        writer.close()
+    if interrupted:
+        say("interrupted: finished results are kept; writing the report from them")
+    summary = write_report(out, plots=plots, baseline=config.baseline, interrupted=interrupted)
+    files = sorted(p for p in out.iterdir() if p.is_file())
+    return CompareOutcome(
+        out=out,
+        summary=summary,
+        table=format_table(summary),
+        tasks_run=completed[0],
+        tasks_skipped=skipped,
+        interrupted=interrupted,
+        seconds=time.perf_counter() - started,
+        files=files,
+    )
+
+
+def _run_pool(
+    tasks: Sequence[_Task],
+    workers: int,
+    config: CompareConfig,
+    exclude: list[str],
+    options: dict[str, Any],
+    finish: Callable[[dict[str, Any], dict[str, np.ndarray]], None],
+) -> bool:
+    """Run ``tasks`` in ``workers`` spawned processes; True when interrupted by Ctrl-C."""
+    import multiprocessing
+
+    # The per-frame matrices are tiny: one BLAS thread per worker avoids oversubscription.
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
+    executor = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(config.graph, list(exclude), config.budget, options),
+    )
+    pending: set[Future[Any]] = set()
+    try:
+        queue = list(tasks)
+        # Keep a few tasks queued per worker so that Ctrl-C leaves little to cancel.
+        while queue or pending:
+            while queue and len(pending) < 2 * workers:
+                pending.add(executor.submit(_worker_task, queue.pop(0)))
+            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in finished:
+                finish(*future.result())
+    except KeyboardInterrupt:
+        for future in pending:
+            future.cancel()
+        processes = list(getattr(executor, "_processes", {}).values())
+        executor.shutdown(wait=False, cancel_futures=True)
+        for process in processes:  # workers ignore SIGINT: stop the ones still running
+            process.terminate()
+        for process in processes:
+            process.join(timeout=5)
+        return True
+    executor.shutdown(wait=True)
+    return False
+
+
+# --------------------------------------------------------------------------- aggregation
+
+
+def _num(value: Any) -> float:
+    try:
+        return float(value)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _paired_test(rows: dict[str, dict[str, float]], method: str, baseline: str) -> dict[str, Any]:
+    """Wilcoxon signed-rank test of per-episode mean errors, ``method`` vs ``baseline``."""
+    from scipy.stats import wilcoxon
+
+    mine, base = rows.get(method, {}), rows.get(baseline, {})
+    common = sorted(
+        e for e in set(mine) & set(base) if math.isfinite(mine[e]) and math.isfinite(base[e])
+    )
+    result: dict[str, Any] = {
+        "paired_episodes": len(common),
+        "mean_difference_m": None,
+        "lower_error_episodes": None,
+        "wilcoxon_p": None,
+        "note": "",
+    }
+    if not common:
+        result["note"] = "no paired episodes"
+        return result
+    x = np.array([mine[e] for e in common])
+    y = np.array([base[e] for e in common])
+    diff = x - y
+    result["mean_difference_m"] = float(diff.mean())
+    result["lower_error_episodes"] = int(np.sum(diff < 0))
+    if method == baseline:
+        result["note"] = "baseline"
+        return result
+    nonzero = diff[diff != 0]
+    if len(nonzero) < 2:
+        result["note"] = "too few episodes that differ"
+        return result
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            test = wilcoxon(x, y, zero_method="wilcox", alternative="two-sided")
+        except ValueError as error:  # e.g. every difference zero
+            result["note"] = str(error)
+            return result
+    result["wilcoxon_p"] = float(test.pvalue)
+    if len(nonzero) < 6:
+        result["note"] = f"only {len(nonzero)} differing episodes: p cannot fall below 0.05"
+    return result
+
+
+def summarise(out: str | Path, baseline: str = BASELINE.name) -> dict[str, Any]:
+    """Aggregate ``results.csv`` and the per-frame files of a compare folder.
+
+    Rows of interrupted tasks are left out. Returns the structure written to ``summary.json``.
+    """
+    out = Path(out)
+    rows = [r for r in _read_rows(out / "results.csv") if r.get("interrupted") in ("0", "")]
+    latest: dict[tuple[str, str], dict[str, str]] = {}
+    for row in rows:  # a task rerun after an interruption: the last row counts
+        latest[(row["episode"], row["method"])] = row
+    rows = list(latest.values())
+    config: dict[str, Any] = {}
+    if (out / "config.json").is_file():
+        config = json.loads((out / "config.json").read_text())
+    order = list(config.get("config", {}).get("methods", []))
+    for row in rows:
+        if row["method"] not in order:
+            order.append(row["method"])
+    methods = [m for m in order if any(r["method"] == m for r in rows)]
+    episodes = sorted({r["episode"] for r in rows})
+    if baseline not in methods and methods:
+        fallback = next((m for m in methods if m.startswith("fpg:local-search")), methods[0])
+        baseline = fallback
+    per_episode_error: dict[str, dict[str, float]] = {}
+    result: dict[str, Any] = {}
+    for method in methods:
+        mine = [r for r in rows if r["method"] == method]
+        errors, ms, joints = [], [], []
+        stage_sums: dict[str, list[np.ndarray]] = {}
+        for r in mine:
+            path = _frames_path(out, r["episode"], method)
+            if not path.is_file():
+                continue
+            frames = _load_frames(path)
+            if "errors" in frames:
+                errors.append(frames["errors"])
+                joints.append((frames["per_joint_error"], len(frames["errors"])))
+            ms.append(frames["ms"])
+            for i, stage in enumerate(frames["stage_names"]):
+                stage_sums.setdefault(str(stage), []).append(frames["stage_ms"][:, i])
+        per_episode_error[method] = {r["episode"]: _num(r["mean_error_m"]) for r in mine}
+        episode_err02 = np.array([_num(r["err02_pct"]) for r in mine])
+        episode_err02 = episode_err02[np.isfinite(episode_err02)]
+        all_errors = np.concatenate(errors) if errors else np.zeros(0)
+        all_ms = np.concatenate(ms) if ms else np.zeros(0)
+        weights = np.array([_num(r["frames"]) for r in mine])
+
+        def weighted(
+            column: str, rows_: list[dict[str, str]] = mine, w: np.ndarray = weights
+        ) -> Any:
+            values = np.array([_num(r[column]) for r in rows_])
+            use = np.isfinite(values) & (w > 0)
+            return float(np.average(values[use], weights=w[use])) if use.any() else None
+
+        entry: dict[str, Any] = {
+            "episodes": len(mine),
+            "frames": int(np.nansum(weights)),
+            "mean_error_m": float(all_errors.mean()) if all_errors.size else None,
+            "std_error_m": float(all_errors.std()) if all_errors.size else None,
+            "median_error_m": float(np.median(all_errors)) if all_errors.size else None,
+            "err02_pct": (
+                {
+                    "min": float(episode_err02.min()),
+                    "mean": float(episode_err02.mean()),
+                    "max": float(episode_err02.max()),
+                    "pooled": 100.0 * metrics.err_ratio(all_errors),
+                }
+                if episode_err02.size and all_errors.size
+                else None
+            ),
+            "band_shares": (metrics.band_shares(all_errors).tolist() if all_errors.size else None),
+            "bone_length_spread_mm": weighted("bone_length_spread_mm"),
+            "jitter_ms2": weighted("jitter_ms2"),
+            "ms_per_frame": metrics.time_summary(all_ms) if all_ms.size else None,
+            "stage_ms_median": {
+                s: float(np.median(np.concatenate(v))) for s, v in stage_sums.items()
+            },
+            "evaluations_per_frame": weighted("evaluations_mean"),
+            "mean_energy": weighted("energy_mean"),
+            "per_joint_error_m": (
+                dict(
+                    zip(
+                        skeleton.JOINT_NAMES,
+                        (
+                            np.sum([j * n for j, n in joints], axis=0) / sum(n for _, n in joints)
+                        ).tolist(),
+                        strict=True,
+                    )
+                )
+                if joints
+                else None
+            ),
+            "per_scenario_mean_error_m": {},
+        }
+        for scenario in sorted({r["scenario"] for r in mine}):
+            subset = [r for r in mine if r["scenario"] == scenario]
+            entry["per_scenario_mean_error_m"][scenario or "(recording)"] = weighted(
+                "mean_error_m", subset, np.array([_num(r["frames"]) for r in subset])
+            )
+        result[method] = entry
+    for method in methods:
+        result[method]["vs_baseline"] = _paired_test(per_episode_error, method, baseline)
+    truth_rows = [r for r in rows if r["method"] == (methods[0] if methods else "")]
+    truth_jitter = np.array([_num(r["truth_jitter_ms2"]) for r in truth_rows])
+    truth_jitter = truth_jitter[np.isfinite(truth_jitter)]
+    input_error = np.array([_num(r["input_mean_error_m"]) for r in truth_rows])
+    input_error = input_error[np.isfinite(input_error)]
+    return {
+        "generated": datetime.now(timezone.utc).isoformat(timespec="seconds"),
+        "baseline": baseline,
+        "methods": result,
+        "method_order": methods,
+        "episodes": episodes,
+        "scenarios": sorted({r["scenario"] for r in rows}),
+        "clips": sorted({r["clip"] for r in rows}),
+        "ground_truth_jitter_ms2": float(truth_jitter.mean()) if truth_jitter.size else None,
+        "input_mean_error_m": float(input_error.mean()) if input_error.size else None,
+        "config": config.get("config", {}),
+        "graph": config.get("graph_summary", ""),
+        "graph_exclude": config.get("graph_exclude", []),
+        "held_out_warning": config.get("held_out_warning", ""),
+    }
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, dict):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.generic):
+        return _plain(value.item())
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+# --------------------------------------------------------------------------- report
+
+
+def _fmt(value: Any, digits: int = 3) -> str:
+    if value is None or (isinstance(value, float) and not math.isfinite(value)):
+        return "–"
+    return f"{value:.{digits}f}"
+
+
+def table_rows(summary: dict[str, Any]) -> list[list[str]]:
+    """The main table's cells, one list per method (columns of :data:`TABLE_COLUMNS`)."""
+    rows = []
+    for name in summary["method_order"]:
+        m = summary["methods"][name]
+        error = (
+            f"{m['mean_error_m']:.3f} ± {m['std_error_m']:.3f}"
+            if m["mean_error_m"] is not None
+            else "–"
+        )
+        err = m["err02_pct"]
+        err_text = f"{err['min']:.1f} / {err['mean']:.1f} / {err['max']:.1f}" if err else "–"
+        ms = m["ms_per_frame"]
+        ms_text = f"{ms['median']:.2f} / {ms['p95']:.2f}" if ms else "–"
+        label = f"**{name}**" if name == summary["baseline"] else name
+        rows.append(
+            [
+                label,
+                str(m["episodes"]),
+                error,
+                err_text,
+                _fmt(m["bone_length_spread_mm"], 1),
+                _fmt(m["jitter_ms2"], 1),
+                ms_text,
+                _fmt(m["evaluations_per_frame"], 0),
+                _fmt(m["mean_energy"], 4),
+            ]
+        )
+    return rows
+
+
+def _markdown(columns: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    lines = ["| " + " | ".join(columns) + " |", "|" + "|".join(" --- " for _ in columns) + "|"]
+    lines += ["| " + " | ".join(row) + " |" for row in rows]
+    return "\n".join(lines)
+
+
+def format_table(summary: dict[str, Any]) -> str:
+    """The main table (markdown) of a summary (:func:`summarise`)."""
+    return _markdown(TABLE_COLUMNS, table_rows(summary))
+
+
+def format_tests(summary: dict[str, Any]) -> str:
+    """The paired-test table (markdown): each method against the baseline."""
+    rows = []
+    for name in summary["method_order"]:
+        test = summary["methods"][name]["vs_baseline"]
+        if name == summary["baseline"]:
+            continue
+        n = test["paired_episodes"]
+        p = test["wilcoxon_p"]
+        p_text = f"{p:.3g}" if p is not None else "–"
+        if test["note"]:
+            p_text += f" ({test['note']})"
+        rows.append(
+            [
+                name,
+                str(n),
+                (
+                    f"{test['mean_difference_m']:+.4f}"
+                    if test["mean_difference_m"] is not None
+                    else "–"
+                ),
+                f"{test['lower_error_episodes']} of {n}" if n else "–",
+                p_text,
+            ]
+        )
+    return _markdown(TEST_COLUMNS, rows)
+
+
+def format_scenarios(summary: dict[str, Any]) -> str:
+    """Mean error per scenario (rows) and method (columns), markdown."""
+    methods = summary["method_order"]
+    scenarios = sorted(
+        {s for m in methods for s in summary["methods"][m]["per_scenario_mean_error_m"]}
+    )
+    rows = [
+        [s] + [_fmt(summary["methods"][m]["per_scenario_mean_error_m"].get(s)) for m in methods]
+        for s in scenarios
+    ]
+    return _markdown(["scenario", *methods], rows)
+
+
+def _plot_methods(summary: dict[str, Any], limit: int = 6) -> list[str]:
+    """Methods for the per-episode time plot: raw, the baseline, then the most accurate."""
+    methods = summary["method_order"]
+    if len(methods) <= limit:
+        return list(methods)
+    chosen = [m for m in ("raw", summary["baseline"]) if m in methods]
+    ranked = sorted(
+        (
+            m
+            for m in methods
+            if m not in chosen and summary["methods"][m]["mean_error_m"] is not None
+        ),
+        key=lambda m: summary["methods"][m]["mean_error_m"],
+    )
+    chosen += ranked[: limit - len(chosen)]
+    return [m for m in methods if m in chosen]
+
+
+def _write_plots(out: Path, summary: dict[str, Any]) -> dict[str, str]:
+    from fpg_gym import plots
+
+    methods = summary["method_order"]
+    errors: dict[str, np.ndarray] = {}
+    ms: dict[str, np.ndarray] = {}
+    for method in methods:
+        e, t = [], []
+        for episode in summary["episodes"]:
+            path = _frames_path(out, episode, method)
+            if path.is_file():
+                frames = _load_frames(path)
+                if "errors" in frames:
+                    e.append(frames["errors"])
+                t.append(frames["ms"])
+        if e:
+            errors[method] = np.concatenate(e)
+        if t:
+            ms[method] = np.concatenate(t)
+    written: dict[str, str] = {}
+    colours = plots.method_colours(methods)
+    if errors:
+        written["error_histogram"] = plots.plot_error_histogram(
+            errors, out / "error_histogram.png", colours=colours
+        ).name
+        written["cumulative"] = plots.plot_cumulative(
+            errors, out / "cumulative.png", colours=colours
+        ).name
+        chosen = _plot_methods(summary)
+        episode = _time_plot_episode(out, summary, chosen)
+        if episode:
+            series = {m: _load_frames(_frames_path(out, episode, m))["errors"] for m in chosen}
+            written["error_over_time"] = plots.plot_error_over_time(
+                series,
+                out / "error_over_time.png",
+                title=f"Per-frame error, episode {episode}",
+                colours=colours,
+            ).name
+            summary["time_plot_episode"] = episode
+    if ms:
+        written["frame_times"] = plots.plot_frame_times(
+            ms, out / "frame_times.png", colours=colours
+        ).name
+    return written
+
+
+def _time_plot_episode(out: Path, summary: dict[str, Any], methods: Sequence[str]) -> str:
+    """The first episode that every plotted method finished with ground truth."""
+    for episode in summary["episodes"]:
+        if all(_frames_path(out, episode, m).is_file() for m in methods):
+            if all("errors" in _load_frames(_frames_path(out, episode, m)) for m in methods):
+                return str(episode)
+    return ""
+
+
+def write_report(
+    out: str | Path,
+    *,
+    plots: bool = True,
+    baseline: str = BASELINE.name,
+    interrupted: bool = False,
+) -> dict[str, Any]:
+    """Write ``summary.json``, ``report.md`` and the plots of a compare folder from its files.
+
+    Works on a partial run (only finished rows count; ``interrupted`` says so in the report).
+    Returns the summary.
+    """
+    out = Path(out)
+    summary = summarise(out, baseline=baseline)
+    summary["interrupted"] = bool(interrupted)
+    summary["plots"] = _write_plots(out, summary) if plots and summary["method_order"] else {}
+    (out / "summary.json").write_text(json.dumps(_plain(summary), indent=2))
+    (out / "report.md").write_text(report_markdown(summary))
+    return summary
+
+
+def report_markdown(summary: dict[str, Any]) -> str:
+    """The text of ``report.md``."""
+    config = summary.get("config", {})
+    lines = [
+        "# fpg-gym compare",
+        "",
+        f"Generated {summary['generated']} (fpg-gym "
+        f"{__import__('fpg_gym').__version__}). Graph: `{config.get('graph', '?')}` "
+        f"{summary.get('graph', '')}"
+        + (
+            f", built without the evaluated embedded clips {', '.join(summary['graph_exclude'])}"
+            if summary.get("graph_exclude")
+            else ""
+        )
+        + ".",
+        "",
+        f"{len(summary['episodes'])} episodes: clips {', '.join(summary['clips'])}; scenarios "
+        f"{', '.join(s or '(recording)' for s in summary['scenarios'])}; seeds "
+        f"{', '.join(str(s) for s in config.get('seeds', []))}"
+        + (f"; at most {config['max_frames']} frames each" if config.get("max_frames") else "")
+        + f". Budget {config.get('budget', '?')} evaluations per frame, K = "
+        f"{config.get('k', '?')}; {config.get('workers', 1)} worker process(es).",
+        "",
+    ]
+    if summary.get("held_out_warning"):
+        lines += [f"**Warning:** {summary['held_out_warning']}.", ""]
+    if summary.get("interrupted"):
+        lines += ["**Interrupted:** the tables cover the finished runs only.", ""]
+    if not summary["method_order"]:
+        lines += ["No finished runs.", ""]
+        return "\n".join(lines)
+    truth_jitter = summary.get("ground_truth_jitter_ms2")
+    lines += [
+        "## Results",
+        "",
+        format_table(summary),
+        "",
+        "Mean error: FPG Eq. 13 (mean over the 19 bones of the bone-vector error) over all "
+        "frames, ± its standard deviation over frames. Err0.2: share of frames with error "
+        "≥ 0.2 m, min / mean / max over episodes. Bone-length spread: standard deviation of "
+        "each bone's length over an episode, mean over bones and episodes. Jitter: mean "
+        "acceleration magnitude over joints and frames"
+        + (f" (ground truth: {truth_jitter:.1f} m/s²)" if truth_jitter is not None else "")
+        + ". ms/frame: computation time of one frame on this machine, ragdoll included, "
+        "median / 95th percentile (noisy when workers share cores). Evaluations and energy "
+        f"(Shum Eq. 10, lower is better): reconstruction methods only. Bold: the baseline "
+        f"`{summary['baseline']}`.",
+        "",
+        f"## Paired test against `{summary['baseline']}`",
+        "",
+        format_tests(summary),
+        "",
+        "Per-episode mean errors, paired by episode; two-sided Wilcoxon signed-rank test "
+        "(`scipy.stats.wilcoxon`, zero differences dropped). A negative difference means "
+        "lower error than the baseline.",
+        "",
+        "## Mean error (m) per scenario",
+        "",
+        format_scenarios(summary),
+        "",
+    ]
+    plots = summary.get("plots", {})
+    if plots:
+        lines += ["## Plots", ""]
+        captions = {
+            "error_histogram": "Share of frames per error band (FPG §8)",
+            "cumulative": "Frames with error above a threshold (FPG Fig. 7)",
+            "error_over_time": f"Per-frame error over episode {summary.get('time_plot_episode')}",
+            "frame_times": "Computation time per frame",
+        }
+        for key, name in plots.items():
+            lines += [f"![{captions.get(key, key)}]({name})", ""]
+    lines += ["## Episodes", "", ", ".join(f"`{e}`" for e in summary["episodes"]), ""]
+    return "\n".join(lines)
+
+
+def method_list(methods: Sequence[Method | str]) -> list[str]:
+    """Canonical names of ``methods``."""
+    return [m.name if isinstance(m, Method) else parse_method(m).name for m in methods]

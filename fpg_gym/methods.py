@@ -1,0 +1,505 @@
+"""Reconstruction methods by name: the reference filters and the two reconstruction pipelines.
+
+One name picks everything a run of a Kinect stream needs; ``fpg-gym compare --methods`` and
+``fpg-gym demo`` take these names, and :func:`run_method` runs one on a recording.
+
+Grammar::
+
+    METHOD  = BASE [":" OPTION] ["+ragdoll"]
+
+=========  ===================  =============================================================
+base       option               method
+=========  ===================  =============================================================
+``raw``    (none)               the sensor's positions as they are
+``holt``   Holt preset          Kinect SDK joint filter (:class:`fpg_gym.filters.HoltFilter`):
+                                ``default``, ``smoothed``, ``very-smoothed``, ``sample``,
+                                ``none`` (see :data:`fpg_gym.filters.HOLT_PRESETS`)
+``kalman`` Kalman preset        constant-velocity Kalman filter per joint
+                                (:class:`fpg_gym.filters.KalmanFilter`): ``default``, ``fast``
+``shum``   optimiser name       Shum 2013: brute-force selection (Eq. 9) + an optimiser
+``fpg``    optimiser name       FPG 2016: graph selection + an optimiser
+=========  ===================  =============================================================
+
+The option of ``shum``/``fpg`` is a registered optimiser (``optimizers.available()``:
+``local-search`` — the papers' search, the default —, ``random-search``, ``cma-es``, ``none``);
+the option of a filter is its preset (the SDK's documented default when omitted). ``+ragdoll``
+sends the method's output through the pybullet PD ragdoll (:class:`fpg_gym.ragdoll.Ragdoll`) as a
+final filter — for ``shum``/``fpg`` inside the :class:`~fpg_gym.reconstruct.Reconstructor`
+(Shum §VII, FPG §7), for a filter on its output (see :class:`RagdollStage`).
+
+Canonical names (:attr:`Method.name`) spell the optimiser of a reconstruction method and omit a
+filter's default preset: ``fpg`` is ``fpg:local-search``, ``holt:default`` is ``holt``.
+
+The baseline of every comparison is :data:`BASELINE` (``fpg:local-search``: graph selection and
+the papers' local search, no ragdoll).
+
+Examples
+--------
+>>> from fpg_gym.methods import parse_method
+>>> parse_method("fpg").name
+'fpg:local-search'
+>>> parse_method("holt:smoothed+ragdoll").ragdoll
+True
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fpg_gym import skeleton
+
+__all__ = [
+    "BASELINE",
+    "FILTER_BASES",
+    "METHOD_BASES",
+    "RECONSTRUCTION_BASES",
+    "SELECTOR_OF_BASE",
+    "Method",
+    "MethodResult",
+    "MethodRunner",
+    "RagdollStage",
+    "expand_methods",
+    "parse_method",
+    "parse_methods",
+]
+
+FILTER_BASES: tuple[str, ...] = ("raw", "holt", "kalman")
+RECONSTRUCTION_BASES: tuple[str, ...] = ("shum", "fpg")
+METHOD_BASES: tuple[str, ...] = FILTER_BASES + RECONSTRUCTION_BASES
+#: Candidate selector of each reconstruction base (``fpg-gym compare --selectors`` uses these).
+SELECTOR_OF_BASE: dict[str, str] = {"shum": "brute-force", "fpg": "graph"}
+BASE_OF_SELECTOR: dict[str, str] = {v: k for k, v in SELECTOR_OF_BASE.items()}
+DEFAULT_OPTIMIZER = "local-search"
+RAGDOLL_SUFFIX = "+ragdoll"
+
+
+@dataclass(frozen=True)
+class Method:
+    """A parsed method name (see the module docstring).
+
+    Attributes
+    ----------
+    base : str
+        One of :data:`METHOD_BASES`.
+    option : str
+        Filter preset (``""`` for the default) or optimiser name (reconstruction methods).
+    ragdoll : bool
+        Whether the output goes through the ragdoll.
+    """
+
+    base: str
+    option: str = ""
+    ragdoll: bool = False
+
+    def __post_init__(self) -> None:
+        if self.base not in METHOD_BASES:
+            raise ValueError(
+                f"method: unknown base {self.base!r}; expected one of {', '.join(METHOD_BASES)}"
+            )
+
+    @property
+    def is_filter(self) -> bool:
+        """True for ``raw``, ``holt`` and ``kalman``."""
+        return self.base in FILTER_BASES
+
+    @property
+    def selector(self) -> str | None:
+        """``"graph"`` (fpg), ``"brute-force"`` (shum) or None (filters)."""
+        return SELECTOR_OF_BASE.get(self.base)
+
+    @property
+    def optimizer(self) -> str | None:
+        """The optimiser of a reconstruction method (None for filters)."""
+        if self.is_filter:
+            return None
+        return self.option or DEFAULT_OPTIMIZER
+
+    @property
+    def filter_name(self) -> str | None:
+        """The :func:`fpg_gym.filters.make_filter` name (``"holt:smoothed"``) or None."""
+        if not self.is_filter:
+            return None
+        return f"{self.base}:{self.option}" if self.option else self.base
+
+    @property
+    def name(self) -> str:
+        """Canonical name (optimiser spelled out, default filter preset omitted)."""
+        core = self.filter_name if self.is_filter else f"{self.base}:{self.optimizer}"
+        return f"{core}{RAGDOLL_SUFFIX if self.ragdoll else ''}"
+
+    def with_ragdoll(self, ragdoll: bool) -> Method:
+        """The same method with or without the ragdoll."""
+        return Method(self.base, self.option, ragdoll)
+
+    def __str__(self) -> str:
+        return self.name
+
+
+def parse_method(text: str) -> Method:
+    """Parse ``BASE[:OPTION][+ragdoll]`` (see the module docstring).
+
+    Filter presets are checked here; optimiser names are checked when the optimiser is made
+    (third-party optimisers may register later).
+
+    Raises
+    ------
+    ValueError
+        Empty text, an unknown base, an unknown filter preset or a ``+`` suffix other than
+        ``+ragdoll``.
+    """
+    from fpg_gym.filters import PRESETS
+
+    raw = str(text).strip()
+    if not raw:
+        raise ValueError("method: empty name")
+    body, plus, suffix = raw.partition("+")
+    if plus and suffix.strip().lower() != "ragdoll":
+        raise ValueError(f"method {raw!r}: the only suffix is '+ragdoll', got '+{suffix}'")
+    base, _, option = body.partition(":")
+    base, option = base.strip().lower(), option.strip()
+    if base not in METHOD_BASES:
+        raise ValueError(
+            f"method {raw!r}: unknown base {base!r}; expected one of {', '.join(METHOD_BASES)} "
+            "(e.g. raw, holt:smoothed, kalman, shum:local-search, fpg:cma-es+ragdoll)"
+        )
+    if base in FILTER_BASES:
+        option = option.lower()
+        if option == "default":
+            option = ""
+        if option and option not in PRESETS[base]:
+            known = ", ".join(PRESETS[base]) or "none"
+            raise ValueError(f"method {raw!r}: unknown {base} preset {option!r}; presets: {known}")
+    elif option == DEFAULT_OPTIMIZER:
+        option = ""
+    return Method(base, option if base in FILTER_BASES else (option or ""), bool(plus))
+
+
+def parse_methods(texts: Iterable[str]) -> list[Method]:
+    """Parse comma-separated method lists (``["raw,holt", "fpg"]``), keeping order, no repeats."""
+    result: list[Method] = []
+    seen: set[str] = set()
+    for text in texts:
+        for item in str(text).split(","):
+            if not item.strip():
+                continue
+            method = parse_method(item)
+            if method.name not in seen:
+                seen.add(method.name)
+                result.append(method)
+    return result
+
+
+def expand_methods(
+    methods: Sequence[str] = (),
+    optimizers: Sequence[str] = (),
+    selectors: Sequence[str] = ("graph",),
+    ragdoll: str = "off",
+) -> list[Method]:
+    """The method list of ``fpg-gym compare``.
+
+    Parameters
+    ----------
+    methods : sequence of str
+        Method names (comma-separated lists allowed).
+    optimizers : sequence of str
+        Each optimiser adds ``fpg:OPT`` and/or ``shum:OPT`` for the given ``selectors``.
+    selectors : sequence of str
+        ``"graph"`` (fpg) and/or ``"brute-force"`` (shum), for ``optimizers``.
+    ragdoll : {"off", "on", "both"}
+        ``"on"`` adds the ragdoll to every method, ``"both"`` runs each with and without it;
+        ``"off"`` keeps the names as given (a ``+ragdoll`` suffix still counts).
+
+    Returns
+    -------
+    list of Method
+        In order: the given methods, then optimiser x selector; duplicates dropped.
+
+    Raises
+    ------
+    ValueError
+        Unknown selector or ragdoll mode, or no method at all.
+    """
+    if ragdoll not in ("off", "on", "both"):
+        raise ValueError(f"ragdoll: expected 'off', 'on' or 'both', got {ragdoll!r}")
+    names = [item for text in methods for item in str(text).split(",") if item.strip()]
+    for selector in selectors:
+        if selector not in BASE_OF_SELECTOR:
+            raise ValueError(f"selector: expected 'graph' or 'brute-force', got {selector!r}")
+    for optimizer in optimizers:
+        for opt in str(optimizer).split(","):
+            if opt.strip():
+                names.extend(f"{BASE_OF_SELECTOR[s]}:{opt.strip()}" for s in selectors)
+    parsed = parse_methods(names)
+    if ragdoll == "on":
+        parsed = [m.with_ragdoll(True) for m in parsed]
+    elif ragdoll == "both":
+        parsed = [v for m in parsed for v in (m.with_ragdoll(False), m.with_ragdoll(True))]
+    unique: dict[str, Method] = {}
+    for method in parsed:
+        unique.setdefault(method.name, method)
+    if not unique:
+        raise ValueError("no method to run: give --methods and/or --optimizers")
+    return list(unique.values())
+
+
+# --------------------------------------------------------------------------- running
+
+
+@dataclass
+class MethodResult:
+    """The output of one method on one recording.
+
+    Attributes
+    ----------
+    poses : ndarray, shape (T, 20, 3), float32
+        Output poses in the recording's camera space (T may be short of the input's length
+        when interrupted).
+    ms : ndarray, shape (T,)
+        Computation time of each frame (milliseconds), ragdoll included.
+    stage_ms : dict of str to ndarray (T,)
+        Per-stage times: the reconstructor's stages, or ``filter`` (+ ``ragdoll``).
+    evaluations : ndarray (T,) or None
+        Energy evaluations per frame (reconstruction methods).
+    energy : ndarray (T,) or None
+        Energy of the chosen pose per frame (reconstruction methods).
+    interrupted : bool
+    info : dict
+        Extra facts (recoveries, ragdoll divergences, the filter's parameters, ...).
+    """
+
+    poses: np.ndarray
+    ms: np.ndarray
+    stage_ms: dict[str, np.ndarray] = field(default_factory=dict)
+    evaluations: np.ndarray | None = None
+    energy: np.ndarray | None = None
+    interrupted: bool = False
+    info: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def num_frames(self) -> int:
+        """Frames produced."""
+        return len(self.poses)
+
+
+def reference_bone_lengths(positions: np.ndarray, states: np.ndarray) -> np.ndarray:
+    """Median length of each bone over the frames where both its joints are tracked, ``(19,)``.
+
+    Bones never tracked at both ends take the median over all frames. This is the calibration
+    of :class:`RagdollStage` for the filters; it looks at the whole stream (an offline
+    calibration), where the reconstructor estimates the lengths online.
+    """
+    pos = np.asarray(positions, dtype=np.float64)
+    vectors = pos[:, skeleton.BONES[:, 1]] - pos[:, skeleton.BONES[:, 0]]
+    lengths = np.linalg.norm(vectors, axis=-1)  # (T, 19)
+    tracked = np.asarray(states) >= skeleton.TRACKED
+    both = tracked[:, skeleton.BONES[:, 0]] & tracked[:, skeleton.BONES[:, 1]]
+    masked = np.where(both, lengths, np.nan)
+    seen = both.any(axis=0)
+    result = np.median(lengths, axis=0)
+    if seen.any():
+        result[seen] = np.nanmedian(masked[:, seen], axis=0)
+    return np.maximum(result, 0.01)
+
+
+class RagdollStage:
+    """The ragdoll as a final filter on any stream of camera-space poses.
+
+    Mirrors what :class:`~fpg_gym.reconstruct.Reconstructor` does with its ragdoll: camera space
+    has no floor, so the poses are shifted down by a floor height estimated as the lowest joint
+    seen so far (a running minimum); the body is reset on the first frame and tracks the
+    following ones. The ragdoll gets the stream's bone lengths from
+    :func:`reference_bone_lengths` and is rebuilt when they move by more than ``rebuild_m``.
+    """
+
+    def __init__(self, rebuild_m: float = 0.02) -> None:
+        self.rebuild_m = float(rebuild_m)
+        self._ragdoll: Any = None
+        self._lengths: np.ndarray | None = None
+
+    def run(
+        self, poses: np.ndarray, lengths: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+        """Track ``poses`` ``(T, 20, 3)``; return the output poses, ms per frame and info."""
+        from fpg_gym.ragdoll import Ragdoll
+
+        lengths = np.asarray(lengths, dtype=np.float64)
+        if self._ragdoll is None or (
+            self._lengths is not None and np.max(np.abs(self._lengths - lengths)) > self.rebuild_m
+        ):
+            self.close()
+            self._ragdoll = Ragdoll(bone_lengths=lengths)
+            self._lengths = lengths.copy()
+        body = self._ragdoll
+        poses = np.asarray(poses, dtype=np.float64)
+        out = np.empty(poses.shape, dtype=np.float32)
+        ms = np.empty(len(poses))
+        floor: float | None = None
+        start_divergences = int(body.info["divergences"])
+        for t, target in enumerate(poses):
+            t0 = time.perf_counter()
+            lowest = float(target[:, 1].min())
+            floor = lowest if floor is None else min(floor, lowest)
+            shift = np.array([0.0, floor, 0.0])
+            world = target - shift
+            simulated = body.reset(world) if t == 0 else body.track(world)
+            out[t] = np.asarray(simulated, dtype=np.float64) + shift
+            ms[t] = 1000.0 * (time.perf_counter() - t0)
+        info = {"ragdoll_divergences": int(body.info["divergences"]) - start_divergences}
+        return out, ms, info
+
+    def close(self) -> None:
+        """Release the pybullet client."""
+        if self._ragdoll is not None:
+            self._ragdoll.close()
+            self._ragdoll = None
+            self._lengths = None
+
+
+class MethodRunner:
+    """Runs methods on recordings against one pose graph.
+
+    Keeps one :class:`~fpg_gym.reconstruct.Reconstructor` per (selector, ragdoll) and one
+    ragdoll for the filters, so a worker that runs many episodes builds each once.
+
+    Parameters
+    ----------
+    graph : FilteredPoseGraph, optional
+        Needed by ``shum`` and ``fpg`` (filters run without one).
+    budget : int, optional
+        Energy evaluations per frame (the reconstructor's ``max_evaluations``; 2,000).
+    reconstructor_options : dict, optional
+        Further :class:`~fpg_gym.reconstruct.ReconstructorConfig` fields (e.g. ``k``).
+    """
+
+    def __init__(
+        self,
+        graph: Any = None,
+        *,
+        budget: int | None = 2000,
+        reconstructor_options: dict[str, Any] | None = None,
+    ) -> None:
+        self.graph = graph
+        self.budget = budget
+        self.options = dict(reconstructor_options or {})
+        self._reconstructors: dict[tuple[str, bool], Any] = {}
+        self._ragdoll_stage: RagdollStage | None = None
+
+    def _reconstructor(self, selector: str, ragdoll: bool) -> Any:
+        from fpg_gym.reconstruct import Reconstructor
+
+        key = (selector, ragdoll)
+        if key not in self._reconstructors:
+            if self.graph is None:
+                raise ValueError("a pose graph is needed for the shum and fpg methods")
+            self._reconstructors[key] = Reconstructor(
+                self.graph,
+                ragdoll=ragdoll,
+                selector=selector,
+                max_evaluations=self.budget,
+                **self.options,
+            )
+        return self._reconstructors[key]
+
+    def run(
+        self,
+        method: Method | str,
+        recording: Any,
+        seed: int | np.random.Generator = 0,
+        *,
+        stop_on_interrupt: bool = False,
+    ) -> MethodResult:
+        """Run ``method`` on ``recording`` (``positions``, ``states``, ``timestamps``).
+
+        ``seed`` drives the optimiser (reconstruction methods); filters are deterministic.
+        """
+        spec = parse_method(method) if isinstance(method, str) else method
+        if spec.is_filter:
+            return self._run_filter(spec, recording)
+        return self._run_reconstruction(spec, recording, seed, stop_on_interrupt)
+
+    def _run_filter(self, spec: Method, recording: Any) -> MethodResult:
+        from fpg_gym.filters import make_filter
+
+        assert spec.filter_name is not None
+        flt = make_filter(spec.filter_name)
+        positions = np.asarray(recording.positions)
+        states = np.asarray(recording.states)
+        stamps = getattr(recording, "timestamps", None)
+        times = np.arange(len(positions)) / 30.0 if stamps is None else np.asarray(stamps)
+        out = np.empty(positions.shape, dtype=np.float32)
+        ms = np.empty(len(positions))
+        flt.reset()
+        for t in range(len(positions)):
+            t0 = time.perf_counter()
+            out[t] = flt.update(positions[t], states[t], float(times[t]))
+            ms[t] = 1000.0 * (time.perf_counter() - t0)
+        stage_ms = {"filter": ms.copy()}
+        info: dict[str, Any] = {"filter_params": flt.params}
+        if spec.ragdoll:
+            if self._ragdoll_stage is None:
+                self._ragdoll_stage = RagdollStage()
+            lengths = reference_bone_lengths(positions, states)
+            out, ragdoll_ms, ragdoll_info = self._ragdoll_stage.run(out, lengths)
+            stage_ms["ragdoll"] = ragdoll_ms
+            ms = ms + ragdoll_ms
+            info.update(ragdoll_info)
+        return MethodResult(poses=out, ms=ms, stage_ms=stage_ms, info=info)
+
+    def _run_reconstruction(
+        self,
+        spec: Method,
+        recording: Any,
+        seed: int | np.random.Generator,
+        stop_on_interrupt: bool,
+    ) -> MethodResult:
+        from optimizers import make
+
+        assert spec.selector is not None and spec.optimizer is not None
+        reconstructor = self._reconstructor(spec.selector, spec.ragdoll)
+        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        result = reconstructor.reconstruct(
+            recording, make(spec.optimizer), rng=rng, stop_on_interrupt=stop_on_interrupt
+        )
+        arrays = result.arrays()
+        names = [str(n) for n in arrays["stage_names"]]
+        stages = np.asarray(arrays["ms_stages"], dtype=np.float64).reshape(len(result.poses), -1)
+        info: dict[str, Any] = {"recoveries": int(np.sum(arrays["recovered"]))}
+        ragdoll_infos = [r.ragdoll for r in result.records if r.ragdoll]
+        if ragdoll_infos:
+            # The reconstructor keeps its ragdoll between episodes: count this run's events.
+            info["ragdoll_divergences"] = int(ragdoll_infos[-1].get("divergences", 0)) - int(
+                ragdoll_infos[0].get("divergences", 0)
+            )
+        return MethodResult(
+            poses=np.asarray(result.poses, dtype=np.float32),
+            ms=np.asarray(arrays["ms_per_frame"], dtype=np.float64),
+            stage_ms={name: stages[:, i] for i, name in enumerate(names)},
+            evaluations=np.asarray(arrays["evaluations"], dtype=np.float64),
+            energy=np.asarray(arrays["energy"], dtype=np.float64),
+            interrupted=bool(result.interrupted),
+            info=info,
+        )
+
+    def close(self) -> None:
+        """Release every ragdoll."""
+        for reconstructor in self._reconstructors.values():
+            reconstructor.close()
+        self._reconstructors.clear()
+        if self._ragdoll_stage is not None:
+            self._ragdoll_stage.close()
+            self._ragdoll_stage = None
+
+    def __enter__(self) -> MethodRunner:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
+#: The method every comparison is measured against (graph selection + local search).
+BASELINE: Method = Method("fpg")

@@ -1,0 +1,48 @@
+"""``fpg-gym bench --quick``: every section reports plausible figures."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from fpg_gym.bench import BenchSettings, format_bench, run_bench
+from fpg_gym.cli import main
+
+
+def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--quick", "--quiet", "--json"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    report = json.loads(lines[-1])
+    assert not report["interrupted"]
+    stages = {row["stage"]: row for row in report["stages"]}
+    for stage in ("reliability", "selection", "latent", "search", "ragdoll", "total"):
+        assert stage in stages
+        assert stages[stage]["graph_median_ms"] > 0
+    assert stages["total"]["graph_median_ms"] >= stages["search"]["graph_median_ms"]
+    selection = report["selection"]
+    assert [row["nodes"] for row in selection] == sorted(row["nodes"] for row in selection)
+    for row in selection:  # brute force scores every node; graph selection a neighbourhood
+        assert row["brute-force_scored"] == row["nodes"]
+        assert row["graph_scored"] < row["nodes"]
+    build = report["build"]
+    assert all(row["seconds"] > 0 for row in build)
+    plain = [row["poses"] for row in build if not row["mirror"]]
+    assert plain == sorted(plain) and plain[0] < plain[-1]
+    assert report["read"][0]["frames"] == 1013
+    assert "steps_per_second" in report["env"][0]
+    assert any(line.startswith("| selection |") for line in lines)
+
+
+def test_bench_sections_subset_and_format() -> None:
+    settings = BenchSettings.make(quick=True)
+    settings.sections = ("read",)
+    report = run_bench(settings, progress=False)
+    assert "stages" not in report and report["read"][0]["frames_per_second"] > 0
+    text = format_bench(report)
+    assert "Mocap read speed" in text and "Frame time per stage" not in text
+
+
+def test_bench_rejects_unknown_section(capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "--quick", "--sections", "gpu"]) == 2
+    assert "unknown gpu" in capsys.readouterr().err

@@ -1,0 +1,400 @@
+"""Methods by name, the compare run (files, resume, interruption) and its statistics."""
+
+from __future__ import annotations
+
+import csv
+import json
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fpg_gym import compare, metrics
+from fpg_gym.compare import CompareConfig, run_compare
+from fpg_gym.methods import (
+    BASELINE,
+    Method,
+    MethodRunner,
+    expand_methods,
+    parse_method,
+    reference_bone_lengths,
+)
+
+# --------------------------------------------------------------------------- method names
+
+
+@pytest.mark.parametrize(
+    ("text", "name", "is_filter", "selector", "optimizer", "ragdoll"),
+    [
+        ("raw", "raw", True, None, None, False),
+        ("holt:default", "holt", True, None, None, False),
+        ("HOLT:very-smoothed+ragdoll", "holt:very-smoothed+ragdoll", True, None, None, True),
+        ("kalman:fast", "kalman:fast", True, None, None, False),
+        ("fpg", "fpg:local-search", False, "graph", "local-search", False),
+        ("shum:cma-es+ragdoll", "shum:cma-es+ragdoll", False, "brute-force", "cma-es", True),
+        ("fpg:none", "fpg:none", False, "graph", "none", False),
+    ],
+)
+def test_parse_method(
+    text: str,
+    name: str,
+    is_filter: bool,
+    selector: str | None,
+    optimizer: str | None,
+    ragdoll: bool,
+) -> None:
+    method = parse_method(text)
+    assert method.name == name
+    assert parse_method(method.name) == method  # canonical names round-trip
+    assert method.is_filter is is_filter
+    assert method.selector == selector
+    assert method.optimizer == optimizer
+    assert method.ragdoll is ragdoll
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("", "empty"),
+        ("sgd", "unknown base"),
+        ("holt:extra-smooth", "preset"),
+        ("raw:fast", "preset"),
+        ("fpg+physics", "suffix"),
+    ],
+)
+def test_parse_method_errors(text: str, message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        parse_method(text)
+
+
+def test_expand_methods() -> None:
+    names = [
+        m.name
+        for m in expand_methods(
+            ["raw,holt", "fpg"], ["none", "local-search"], ["graph", "brute-force"]
+        )
+    ]
+    assert names == [
+        "raw",
+        "holt",
+        "fpg:local-search",
+        "fpg:none",
+        "shum:none",
+        "shum:local-search",
+    ]
+    both = [m.name for m in expand_methods(["kalman"], ragdoll="both")]
+    assert both == ["kalman", "kalman+ragdoll"]
+    assert [m.name for m in expand_methods(["raw"], ragdoll="on")] == ["raw+ragdoll"]
+    with pytest.raises(ValueError, match="selector"):
+        expand_methods([], ["none"], ["tree"])
+    with pytest.raises(ValueError, match="no method"):
+        expand_methods([], [], ["graph"])
+    assert BASELINE.name == "fpg:local-search"
+
+
+# --------------------------------------------------------------------------- running methods
+
+
+@pytest.fixture(scope="module")
+def recording() -> Any:
+    from fpg_gym.io import load_default_clips
+    from fpg_gym.simulate import simulate
+
+    clip = load_default_clips(["walk"])[0]
+    return compare._cap(simulate(clip, "front-many", seed=3), 16)
+
+
+@pytest.fixture(scope="module")
+def graph() -> Any:
+    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.graph import default_graph
+
+    return default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)
+
+
+def test_filter_methods_match_the_filters(recording: Any) -> None:
+    from fpg_gym.filters import make_filter
+
+    with MethodRunner() as runner:
+        raw = runner.run("raw", recording)
+        holt = runner.run("holt:smoothed", recording)
+    assert np.array_equal(raw.poses, recording.positions)
+    expected = make_filter("holt:smoothed").filter_sequence(
+        recording.positions, recording.states, recording.timestamps
+    )
+    assert np.allclose(holt.poses, expected)
+    assert holt.ms.shape == (recording.num_frames,) and np.all(holt.ms >= 0)
+    assert holt.evaluations is None and list(holt.stage_ms) == ["filter"]
+
+
+def test_filter_with_ragdoll_has_fixed_bone_lengths(recording: Any) -> None:
+    with MethodRunner() as runner:
+        result = runner.run("kalman+ragdoll", recording)
+    assert list(result.stage_ms) == ["filter", "ragdoll"]
+    spread = metrics.bone_length_variation(result.poses)
+    assert np.nanmax(spread) < 2e-3  # the ragdoll's bones are rigid
+    raw_spread = metrics.bone_length_variation(recording.positions)
+    assert np.nanmean(raw_spread) > 5 * np.nanmean(spread)
+    lengths = reference_bone_lengths(recording.positions, recording.states)
+    assert lengths.shape == (19,) and np.all(lengths > 0.01)
+
+
+def test_reconstruction_method_is_seeded(recording: Any, graph: Any) -> None:
+    with MethodRunner(graph, budget=300) as runner:
+        first = runner.run("fpg:random-search", recording, seed=5)
+        again = runner.run("fpg:random-search", recording, seed=5)
+        other = runner.run("shum:none", recording, seed=5)
+    assert first.poses.shape == recording.positions.shape
+    assert np.array_equal(first.poses, again.poses)
+    assert first.evaluations is not None and np.all(first.evaluations <= 300)
+    assert first.evaluations.max() > 0
+    assert other.evaluations is not None and np.all(other.evaluations == 0)
+    assert "selection" in first.stage_ms and "search" in first.stage_ms
+
+
+def test_runner_without_graph_refuses_reconstruction(recording: Any) -> None:
+    with MethodRunner() as runner, pytest.raises(ValueError, match="graph"):
+        runner.run("fpg", recording)
+
+
+# --------------------------------------------------------------------------- episodes
+
+
+def test_plan_episodes_ids_and_seeds() -> None:
+    episodes = compare.plan_episodes(["walk", "kick"], ["front-many", "left45-many"], [0, 1])
+    assert len(episodes) == 8
+    assert len({e.id for e in episodes}) == 8
+    assert episodes[0].id == "walk__front-many__s0"
+    swapped = compare.plan_episodes(["kick", "walk"], ["left45-many", "front-many"], [0, 1])
+    seeds = {e.id: e.sim_seed for e in episodes}
+    assert all(seeds[e.id] == e.sim_seed for e in swapped)  # order does not matter
+    assert len(set(seeds.values())) == 8
+    duplicate = compare.plan_episodes(["a", "a"], ["front-few"], [0])
+    assert [e.id for e in duplicate] == ["a__front-few__s0", "a__front-few__s0-2"]
+
+
+def test_resolve_clips_embedded_names() -> None:
+    clips, embedded = compare.resolve_clips(["default:walk", "kick"])
+    assert [c.name for c in clips] == ["walk", "kick"]
+    assert embedded == ["kick", "walk"]
+    with pytest.raises(ValueError, match="unknown embedded clip"):
+        compare.resolve_clips(["default:moonwalk"])
+
+
+def test_held_out_warning() -> None:
+    class FakeGraph:
+        clip_names = ("walk", "run")
+
+    episodes = compare.plan_episodes(["walk", "kick"], ["front-many"], [0])
+    assert "walk" in compare._held_out_warning(FakeGraph(), episodes)
+    assert compare._held_out_warning(FakeGraph(), episodes[1:]) == ""
+
+
+# --------------------------------------------------------------------------- statistics
+
+
+def test_paired_test() -> None:
+    episodes = [f"e{i}" for i in range(8)]
+    base = {e: 0.10 + 0.01 * i for i, e in enumerate(episodes)}
+    worse = {e: v + 0.02 + 0.001 * i for i, (e, v) in enumerate(base.items())}
+    rows = {"fpg:local-search": base, "raw": worse, "same": dict(base)}
+    result = compare._paired_test(rows, "raw", "fpg:local-search")
+    assert result["paired_episodes"] == 8
+    assert result["mean_difference_m"] == pytest.approx(0.0235)
+    assert result["lower_error_episodes"] == 0
+    assert result["wilcoxon_p"] is not None and result["wilcoxon_p"] < 0.01
+    tie = compare._paired_test(rows, "same", "fpg:local-search")
+    assert tie["wilcoxon_p"] is None and "differ" in tie["note"]
+    few = {"fpg:local-search": dict(list(base.items())[:3]), "raw": worse}
+    small = compare._paired_test(few, "raw", "fpg:local-search")
+    assert small["paired_episodes"] == 3 and "cannot fall below 0.05" in small["note"]
+    none = compare._paired_test({"raw": worse}, "raw", "fpg:local-search")
+    assert none["paired_episodes"] == 0
+
+
+# --------------------------------------------------------------------------- the run
+
+
+def _config(out: Path, **changes: Any) -> CompareConfig:
+    settings: dict[str, Any] = {
+        "out": str(out),
+        "methods": ["raw", "holt", "fpg:none", "fpg"],
+        "clips": ["default:walk", "default:kick"],
+        "scenarios": ["front-many"],
+        "max_frames": 12,
+        "budget": 200,
+        "workers": 1,
+    }
+    settings.update(changes)
+    return CompareConfig(**settings)
+
+
+def test_compare_writes_results_report_and_plots(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    outcome = run_compare(_config(out), progress=False)
+    assert outcome.tasks_run == 8 and not outcome.interrupted
+    for name in ("results.csv", "summary.json", "report.md", "config.json"):
+        assert (out / name).is_file()
+    for name in ("error_histogram", "cumulative", "error_over_time", "frame_times"):
+        assert (out / f"{name}.png").stat().st_size > 10_000
+    with (out / "results.csv").open() as handle:
+        rows = list(csv.DictReader(handle))
+    assert len(rows) == 8
+    assert list(rows[0]) == list(compare.CSV_FIELDS)
+    raw = [r for r in rows if r["method"] == "raw"]
+    # The raw method's error is the input's error.
+    assert all(
+        float(r["mean_error_m"]) == pytest.approx(float(r["input_mean_error_m"])) for r in raw
+    )
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["method_order"] == ["raw", "holt", "fpg:none", "fpg:local-search"]
+    assert summary["baseline"] == "fpg:local-search"
+    assert len(summary["episodes"]) == 2
+    fpg = summary["methods"]["fpg:local-search"]
+    assert 0 < fpg["evaluations_per_frame"] <= 200
+    assert sum(fpg["band_shares"]) == pytest.approx(1.0)
+    assert summary["methods"]["raw"]["evaluations_per_frame"] is None
+    # The pooled mean error equals the frame-weighted mean of the rows.
+    fpg_rows = [r for r in rows if r["method"] == "fpg:local-search"]
+    weights = np.array([float(r["frames"]) for r in fpg_rows])
+    means = np.array([float(r["mean_error_m"]) for r in fpg_rows])
+    assert fpg["mean_error_m"] == pytest.approx(np.average(means, weights=weights))
+    report = (out / "report.md").read_text()
+    header = "| " + " | ".join(compare.TABLE_COLUMNS) + " |"
+    assert header in report
+    assert "Wilcoxon" in report and "![" in report
+    assert outcome.table.splitlines()[0] == header
+    assert summary["graph_exclude"] == ["kick", "walk"]  # default graph held them out
+
+
+def test_compare_resumes_and_refuses_other_settings(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    config = _config(out, methods=["raw", "holt"])
+    assert run_compare(config, progress=False, plots=False).tasks_run == 4
+    again = run_compare(config, progress=False, plots=False)
+    assert again.tasks_run == 0 and again.tasks_skipped == 4
+    more = run_compare(_config(out, methods=["raw", "holt", "kalman"]), progress=False, plots=False)
+    assert more.tasks_run == 2 and more.tasks_skipped == 4
+    with pytest.raises(ValueError, match="other settings"):
+        run_compare(_config(out, methods=["raw"], max_frames=10), progress=False, plots=False)
+    fresh = run_compare(_config(out, methods=["raw"], max_frames=10), progress=False, fresh=True)
+    assert fresh.tasks_run == 2
+
+
+def test_compare_interrupted_keeps_finished_rows(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    calls = {"n": 0}
+    real = compare._execute
+
+    def flaky(*args: Any) -> Any:
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise KeyboardInterrupt
+        return real(*args)
+
+    monkeypatch.setattr(compare, "_execute", flaky)
+    out = tmp_path / "run"
+    outcome = run_compare(_config(out, methods=["raw", "holt"]), progress=False)
+    assert outcome.interrupted
+    with (out / "results.csv").open() as handle:
+        assert len(list(csv.DictReader(handle))) == 2
+    assert "Interrupted" in (out / "report.md").read_text()
+    monkeypatch.setattr(compare, "_execute", real)
+    rest = run_compare(_config(out, methods=["raw", "holt"]), progress=False, plots=False)
+    assert rest.tasks_run == 2 and rest.tasks_skipped == 2
+
+
+def test_compare_in_worker_processes(tmp_path: Path) -> None:
+    out = tmp_path / "pool"
+    outcome = run_compare(
+        _config(out, methods=["raw", "fpg:none"], workers=2), progress=False, plots=False
+    )
+    assert outcome.tasks_run == 4
+    single = run_compare(
+        _config(tmp_path / "one", methods=["raw", "fpg:none"]), progress=False, plots=False
+    )
+    for method in ("raw", "fpg:none"):  # same results whatever the process
+        assert outcome.summary["methods"][method]["mean_error_m"] == pytest.approx(
+            single.summary["methods"][method]["mean_error_m"]
+        )
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"methods": []}, "no method"),
+        ({"budget": -1}, "budget"),
+        ({"max_frames": 2}, "max_frames"),
+        ({"clips": []}, "--clips"),
+        ({"seeds": [-1]}, "seeds"),
+    ],
+)
+def test_config_errors(tmp_path: Path, changes: dict[str, Any], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        _config(tmp_path, **changes)
+
+
+def test_unknown_scenario_and_optimizer_fail_early(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="scenario"):
+        run_compare(_config(tmp_path / "a", scenarios=["moon"]), progress=False)
+    from optimizers import OptimizerNotFound
+
+    with pytest.raises(OptimizerNotFound):
+        run_compare(_config(tmp_path / "b", methods=["fpg:gradient"]), progress=False)
+    assert not (tmp_path / "b" / "results.csv").exists()
+
+
+def test_method_dataclass_rejects_unknown_base() -> None:
+    with pytest.raises(ValueError, match="unknown base"):
+        Method("sgd")
+
+
+# --------------------------------------------------------------------------- command line
+
+
+def test_compare_command_reads_argument_files(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from fpg_gym.cli import main
+
+    listing = tmp_path / "clips.txt"
+    listing.write_text("default:walk\ndefault:punch\n")
+    out = tmp_path / "cli"
+    argv = ["compare", "--clips", f"@{listing}", "--scenarios", "front-many", "--max-frames"]
+    argv += ["8", "--methods", "raw,kalman", "--workers", "1", "--out", str(out), "--quiet"]
+    assert main([*argv, "--no-plots", "--json"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    summary = json.loads(lines[-1])
+    assert summary["episodes"] == 2 and set(summary["methods"]) == {"raw", "kalman"}
+    assert lines[0] == "| " + " | ".join(compare.TABLE_COLUMNS) + " |"
+    assert main(["compare", "--clips", "default:walk", "--methods", "sgd", "--out", str(out)]) == 2
+    assert "unknown base" in capsys.readouterr().err
+
+
+def test_holdout_split_script(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    from conftest import REPO, shared_path
+
+    data = shared_path("bandai_namco")
+    script = REPO / "scripts" / "holdout_split.py"
+
+    def split(out: Path) -> tuple[list[str], list[str]]:
+        subprocess.run(
+            [sys.executable, str(script), "--data", str(data), "--out-dir", str(out)],
+            check=True,
+            capture_output=True,
+        )
+        graph = (out / "graph_takes.txt").read_text().splitlines()
+        held = (out / "eval_takes_all.txt").read_text().splitlines()
+        return graph, held
+
+    graph, held = split(tmp_path / "a")
+    assert len(graph) + len(held) == 163  # dataset-1, whole files
+    assert len(held) == round(0.2 * 163)
+    assert not set(graph) & set(held)
+    assert all(Path(p).is_file() for p in graph[:3] + held[:3])
+    assert split(tmp_path / "b") == (graph, held)  # fixed seed, same lists

@@ -1,0 +1,59 @@
+"""The reduced demo writes its table, report, plots and GIF."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import imageio.v3 as iio
+import pytest
+
+from fpg_gym.cli import main
+from fpg_gym.compare import TABLE_COLUMNS
+from fpg_gym.demo import DEMO_METHODS, QUICK_METHODS
+
+
+def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    out = tmp_path / "demo"
+    assert main(["demo", "--quick", "--out", str(out), "--quiet", "--json"]) == 0
+    printed = capsys.readouterr().out
+    lines = printed.strip().splitlines()
+    summary = json.loads(lines[-1])
+    # The printed table has the report's columns and one row per method.
+    header = "| " + " | ".join(TABLE_COLUMNS) + " |"
+    assert header in lines
+    start = lines.index(header)
+    rows = [line for line in lines[start + 2 :] if line.startswith("|")]
+    rows = rows[: len(QUICK_METHODS)]
+    assert [r.split("|")[1].strip().strip("*") for r in rows] == list(QUICK_METHODS)
+    assert all(len(r.strip("|").split("|")) == len(TABLE_COLUMNS) for r in rows)
+    assert summary["episodes"] == 2
+    assert set(summary["methods"]) == set(QUICK_METHODS)
+    for method in QUICK_METHODS:
+        assert 0 < summary["methods"][method]["mean_error_m"] < 0.5
+    expected = {
+        "results.csv",
+        "summary.json",
+        "report.md",
+        "config.json",
+        "error_histogram.png",
+        "cumulative.png",
+        "error_over_time.png",
+        "frame_times.png",
+        "demo.gif",
+        "demo_frame.png",
+    }
+    assert expected <= set(summary["files"])
+    assert expected <= {p.name for p in out.iterdir()}
+    gif = iio.imread(out / "demo.gif")
+    assert gif.shape[0] == 24  # one GIF frame per episode frame (24 in the quick demo)
+    assert gif.shape[2] > 2 * gif.shape[1]  # three panels side by side
+    assert "time:" in printed
+
+
+def test_demo_methods_are_valid_names() -> None:
+    from fpg_gym.methods import parse_method
+
+    assert "fpg:local-search" in DEMO_METHODS
+    for name in DEMO_METHODS + QUICK_METHODS:
+        assert parse_method(name).name == name
