@@ -1,0 +1,1053 @@
+"""``KinectPoseEnv``: Kinect pose reconstruction as a Gymnasium env (``fpg_gym/KinectPose-v0``).
+
+One step reconstructs one Kinect frame (Shum 2013, FPG 2016): the action is a point of the
+frame's natural posture space, the whitened local PCA of the K poses that the Filtered Pose Graph
+selected; the env back-projects it, scores it with the paper's energy, sends it through the PD
+ragdoll and prepares the next frame. See :class:`KinectPoseEnv` for the full description.
+
+The env is registered as ``fpg_gym/KinectPose-v0`` when :mod:`fpg_gym` is imported::
+
+    import gymnasium as gym
+    import fpg_gym  # noqa: F401  (registers the env)
+
+    env = gym.make("fpg_gym/KinectPose-v0", k=30, reward_mode="error")
+    obs, info = env.reset(seed=0, options={"clip": "walk", "scenario": "front-many"})
+    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+"""
+
+from __future__ import annotations
+
+import os
+import time
+import warnings
+from collections.abc import Iterator, Mapping, Sequence
+from pathlib import Path
+from typing import Any, SupportsFloat
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from gymnasium.utils import EzPickle
+
+from fpg_gym import skeleton
+from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.env_observation import ObservationLayout
+from fpg_gym.io.clip import Clip
+from fpg_gym.io.recording import Recording
+from fpg_gym.metrics import frame_error
+from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem
+
+__all__ = [
+    "ACTION_MODES",
+    "ENV_ID",
+    "OBSERVATION_MODES",
+    "RESET_OPTIONS",
+    "REWARD_MODES",
+    "KinectPoseEnv",
+    "StageTimes",
+]
+
+#: The registered id.
+ENV_ID = "fpg_gym/KinectPose-v0"
+#: Values of ``reward_mode``.
+REWARD_MODES: tuple[str, ...] = ("energy", "error", "combined")
+#: Values of ``action_mode``.
+ACTION_MODES: tuple[str, ...] = ("delta", "absolute")
+#: Values of ``observation_mode``.
+OBSERVATION_MODES: tuple[str, ...] = ("vector", "dict")
+#: Keys ``reset(options=...)`` accepts.
+RESET_OPTIONS: tuple[str, ...] = ("recording", "clip", "scenario", "seed")
+
+_REWARD_KEYS = ("reward_control", "reward_style", "reward_bone", "reward_temporal")
+_NON_INTERACTIVE_BACKENDS = {"agg", "pdf", "ps", "svg", "pgf", "cairo", "template"}
+_PANEL = 320
+
+
+class StageTimes(Mapping[str, float]):
+    """Milliseconds per stage of one step: read it like a dict (``info["timings"]["ragdoll"]``).
+
+    Wall-clock times are measurements, not part of the environment's deterministic output, so two
+    ``StageTimes`` compare equal when they time the same stages, whatever the values (Gymnasium's
+    ``check_env`` compares the infos of two seeded runs). Compare ``dict(a) == dict(b)`` for the
+    values.
+    """
+
+    def __init__(self, milliseconds: Mapping[str, float]) -> None:
+        self._ms = {str(k): float(v) for k, v in milliseconds.items()}
+
+    def __getitem__(self, key: str) -> float:
+        return self._ms[key]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._ms)
+
+    def __len__(self) -> int:
+        return len(self._ms)
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, StageTimes):
+            return self._ms.keys() == other._ms.keys()
+        return NotImplemented
+
+    __hash__ = None  # type: ignore[assignment]
+
+    def __repr__(self) -> str:
+        inner = ", ".join(f"{k}={v:.3f}" for k, v in self._ms.items())
+        return f"StageTimes({inner})"
+
+
+class _RagdollProbe:
+    """The env's ragdoll: a :class:`~fpg_gym.ragdoll.Ragdoll` that counts resets and divergences.
+
+    A divergence already resets the body to its target and is counted in the step's info, so its
+    :class:`~fpg_gym.ragdoll.PhysicsWarning` is not repeated as a Python warning.
+    """
+
+    def __init__(self, ragdoll: Any, counts: dict[str, int]) -> None:
+        self.ragdoll = ragdoll
+        self.counts = counts
+        self._divergences = 0
+
+    def reset(self, pose: np.ndarray) -> np.ndarray:
+        self.counts["ragdoll_resets"] += 1
+        return np.asarray(self.ragdoll.reset(pose))
+
+    def track(self, target_pose: np.ndarray) -> np.ndarray:
+        from fpg_gym.ragdoll import PhysicsWarning
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PhysicsWarning)
+            out = self.ragdoll.track(target_pose)
+        divergences = int(self.ragdoll.info["divergences"])
+        self.counts["ragdoll_divergences"] += divergences - self._divergences
+        self._divergences = divergences
+        return np.asarray(out)
+
+    @property
+    def info(self) -> dict[str, Any]:
+        return dict(self.ragdoll.info)
+
+    def render(self, width: int = 320, height: int = 240) -> np.ndarray:
+        return np.asarray(self.ragdoll.render(width, height))
+
+    def close(self) -> None:
+        self.ragdoll.close()
+
+
+class _RagdollFactory:
+    """Builds the env's ragdolls (``lengths -> _RagdollProbe``), counting the builds."""
+
+    def __init__(self, kwargs: Mapping[str, Any], counts: dict[str, int]) -> None:
+        self.kwargs = dict(kwargs)
+        self.counts = counts
+
+    def __call__(self, lengths: np.ndarray) -> _RagdollProbe:
+        from fpg_gym.ragdoll import Ragdoll
+
+        self.counts["ragdoll_builds"] += 1
+        return _RagdollProbe(Ragdoll(bone_lengths=lengths, **self.kwargs), self.counts)
+
+
+def _energy_weights(value: Any) -> EnergyWeights:
+    if value is None:
+        return EnergyWeights()
+    if isinstance(value, EnergyWeights):
+        return value
+    if isinstance(value, Mapping):
+        try:
+            return EnergyWeights(**{str(k): float(v) for k, v in value.items()})
+        except TypeError:
+            raise ValueError(
+                "energy_weights: expected keys among control, style, kinematic, motion, got "
+                f"{sorted(value)}"
+            ) from None
+    values = list(value)
+    if len(values) != 4:
+        raise ValueError(
+            "energy_weights: expected 4 weights (control, style, kinematic, motion), got "
+            f"{len(values)}"
+        )
+    return EnergyWeights(*(float(v) for v in values))
+
+
+def _unique(names: list[str]) -> list[str]:
+    """Names made unique by a ``#i`` suffix on repeats."""
+    seen: dict[str, int] = {}
+    out = []
+    for name in names:
+        count = seen.get(name, 0)
+        seen[name] = count + 1
+        out.append(name if count == 0 else f"{name}#{count}")
+    return out
+
+
+class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
+    """Kinect pose reconstruction, one frame per step, over the graph-selected latent space.
+
+    ## Description
+
+    A Kinect skeleton stream is noisy, and occluded joints are guessed or lost. Shum et al.
+    (2013) and the Filtered Pose Graph of Plantard, Shum & Multon (2016) reconstruct each frame
+    from a database of clean poses: they rate each joint's reliability, select K = 30 database
+    poses near the reliable joints (FPG: by walking a graph from the previous frame's poses),
+    build a local PCA "natural posture space" of them, search that space for the pose with the
+    lowest energy ``E = 1.0 Ec + 0.5 Es + 1.5 Ek + 0.25 Em`` (follow the reliable joints, stay
+    near real poses, keep the bone lengths, move smoothly) and pass the result through a PD
+    ragdoll. This environment exposes the search: one episode is one recording, one step is one
+    frame, and the agent picks the frame's point in the natural posture space. An optimiser can
+    be the agent too: the frame's search problem is ``env.unwrapped.problem``
+    (:class:`~fpg_gym.reconstruct.SearchProblem`, with the energy as a vectorised function of
+    latent points and an evaluation budget); :func:`fpg_gym.episodes.run_episode` runs an
+    optimiser from the registry or a trained policy over a whole episode.
+
+    ## Action Space
+
+    ``Box(-1, 1, (latent_dim,), float32)``: a point of the frame's whitened latent space, in units
+    of ``action_scale`` whitened standard deviations (3 by default). With ``action_mode="delta"``
+    (default) the point is ``z = x0 + action_scale * action``, relative to ``x0``, the previous
+    reconstruction projected into the new space (the best candidate on a stream's first frame),
+    so the zero action is the no-search baseline; with ``"absolute"`` it is
+    ``z = action_scale * action`` (the zero action is the candidates' mean). Delta is the default
+    because ``x0`` usually lies far out in whitened units (median largest coordinate ~10, up to
+    ~150 on the embedded episodes: the previous pose is rarely inside the new space) while the
+    best point found by the paper's search is within ±4 of ``x0`` on 90 % of frames.
+    A frame's space has ``d = min(latent_dim, K - 1)`` axes (fewer when fewer than K candidates
+    are found); the action's entries beyond ``d`` are ignored. Out-of-bound entries are clipped
+    to [-1, 1] (``info["action_clipped"]`` says so); ``clip_actions=False`` uses them as given
+    (the optimiser driver does, to reconstruct exactly from the point it found). Non-finite
+    actions raise ``ValueError``.
+
+    ## Observation Space
+
+    ``Box(low, high, (N,), float32)`` with ``N = 344 + 65 L + K L + 2 K``: 2,304 values at the
+    defaults (L = ``latent_dim`` = 20, K = ``k`` = 30); ``observation_mode="dict"`` gives
+    the same parts as a ``Dict`` of flat Boxes. ``env.unwrapped.observation_layout`` maps each
+    part's name to its slice and ``env.unwrapped.split_observation(obs)`` cuts a vector (or a
+    batch) into named, reshaped parts. The parts (see :mod:`fpg_gym.env_observation` for the
+    table with bounds): ``kinect`` (20, 3) the normalised sensor pose (m, root at the origin,
+    facing +Z); ``reliability`` (20,) and ``reliability_terms`` (3, 20) (behaviour, kinematic,
+    tracking); ``prediction`` (20, 3) the continuity prediction; ``previous`` (20, 3) the previous
+    reconstruction; ``bone_lengths`` (19,); the latent space: ``latent_mean`` (20, 3),
+    ``latent_basis`` (L, 60), ``latent_std`` (L,) in metres, ``latent_mask`` (L,); ``x0`` (L,) as
+    ``x0 / action_scale``; ``z_kinect``, ``z_prediction`` (L,) and ``z_candidates`` (K, L): the
+    actions that select the projections of the sensor pose, the prediction and each candidate;
+    ``candidate_scores``, ``candidate_mask`` (K,); ``context`` (5,): first frame, no body, has
+    prediction, dt in frames, episode progress. Values are finite and clipped to the bounds
+    (poses ±4 m, latent coordinates ±10 action units); missing parts are zeros.
+
+    ## Rewards
+
+    ``reward_mode="energy"`` (default): ``-E``, the paper's energy of the chosen point (Shum
+    Eq. 10; needs no ground truth). ``"error"``: ``-e``, the FPG Eq. 13 frame error (mean over the
+    19 bones of the bone-vector distance, metres) of the output (after the ragdoll) against the
+    ground truth. ``"combined"``: ``-(E + error_weight * e)`` (``error_weight`` 1.0: on the
+    embedded episodes E is about 0.03 after the paper's search and 0.3 without, e about
+    0.1-0.15 m). ``info`` holds the four negated
+    weighted terms ``reward_control`` (``-w_c Ec``), ``reward_style`` (``-w_s Es``),
+    ``reward_bone`` (``-w_k Ek``), ``reward_temporal`` (``-w_m Em``), which sum to ``-E``; and
+    ``energy``, and ``frame_error`` / ``raw_frame_error`` (of the sensor stream) when the episode
+    has ground truth. The error modes raise ``ValueError`` at construction (recordings) or reset
+    (a recording given in ``options``) when an episode has no ground truth.
+
+    ## Starting State
+
+    ``reset`` picks an episode with ``np_random``: one of ``recordings`` uniformly, or a clip and
+    a scenario uniformly and a simulator seed, and simulates the Kinect stream of the clip
+    (:func:`fpg_gym.simulate.simulate`). It starts a new stream (reliability, bone lengths and the
+    graph walk start over, a fresh ragdoll), prepares frame 0 (full candidate search) and
+    returns its observation. ``options`` may fix the episode: ``{"recording": index or name}``,
+    or ``{"clip": name or index, "scenario": name, "seed": int}``, or (in any env)
+    ``{"recording": Recording}`` to play that stream; the choices are drawn all the same, so the
+    random stream does not depend on the options. Simulating costs about
+    0.6 ms per frame; with ``simulator_seeds=n`` the seed is drawn from ``range(n)`` and the
+    simulated recordings are kept (at most clips x scenarios x n), so later resets are free.
+
+    ## Episode End
+
+    ``terminated`` once the last frame of the recording is reconstructed (the final observation
+    repeats the last frame's: there is no next frame, and ``env.unwrapped.problem`` is None).
+    ``truncated`` after ``max_episode_steps`` steps when set (the same rule as Gymnasium's
+    ``TimeLimit``, which ``gym.make(..., max_episode_steps=n)`` adds instead).
+
+    ## Arguments
+
+    ``graph``: a pose graph file (``.npz`` from ``fpg-gym build-graph``), a
+    :class:`~fpg_gym.graph.FilteredPoseGraph`, or None for the embedded default (the DeepMimic
+    clips less :data:`~fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`, built once and cached, see
+    ``cache_dir``). Episodes: ``recordings`` (paths in any Kinect format or
+    :class:`~fpg_gym.io.Recording` objects) or ``clips`` (embedded clip names or
+    :class:`~fpg_gym.io.Clip` objects; default the held-out clips walk, punch, kick, dance_b) and
+    ``scenarios`` (simulator scenarios; default front-many, left45-many, right45-many).
+    ``selector`` ``"graph"`` (FPG) or ``"brute-force"`` (Shum); ``k`` = 30 candidates;
+    ``latent_dim`` = 20; ``energy_weights`` (an ``EnergyWeights``, a mapping or 4 numbers; 1.0,
+    0.5, 1.5, 0.25); ``reward_mode``, ``error_weight``; ``action_mode``, ``action_scale``,
+    ``clip_actions``; ``observation_mode`` ``"vector"`` or ``"dict"``; ``ragdoll`` (True, False,
+    or a mapping of :class:`~fpg_gym.ragdoll.Ragdoll` keyword arguments); ``max_episode_steps``;
+    ``simulator_seeds`` (None: any seed; n: seeds 0..n-1, simulated streams cached);
+    ``max_evaluations`` (energy evaluations an optimiser may spend per frame, 2,000);
+    ``render_mode`` ``"rgb_array"`` or ``"human"``; ``cache_dir`` for the default graph;
+    ``reconstructor_options`` (other :class:`~fpg_gym.reconstruct.ReconstructorConfig` fields).
+
+    ## Version History
+
+    * v0: initial version.
+
+    Notes
+    -----
+    Pickling (and ``copy.deepcopy``) re-creates the env from its constructor arguments
+    (:class:`gymnasium.utils.EzPickle`): a pybullet client cannot be pickled, so the episode
+    state is not carried over and the copy must be reset. Same seed, same actions: same
+    observations, rewards and infos (``info["timings"]`` aside).
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}  # noqa: RUF012
+
+    def __init__(
+        self,
+        graph: str | os.PathLike[str] | Any | None = None,
+        *,
+        recordings: Sequence[str | os.PathLike[str] | Recording] | None = None,
+        clips: Sequence[str | Clip] | None = None,
+        scenarios: Sequence[Any] | None = None,
+        selector: str = "graph",
+        k: int = 30,
+        latent_dim: int = 20,
+        energy_weights: EnergyWeights | Mapping[str, float] | Sequence[float] | None = None,
+        reward_mode: str = "energy",
+        error_weight: float = 1.0,
+        action_mode: str = "delta",
+        action_scale: float = 3.0,
+        clip_actions: bool = True,
+        observation_mode: str = "vector",
+        ragdoll: bool | Mapping[str, Any] = True,
+        max_episode_steps: int | None = None,
+        simulator_seeds: int | None = None,
+        max_evaluations: int | None = 2000,
+        render_mode: str | None = None,
+        cache_dir: str | os.PathLike[str] | None = None,
+        reconstructor_options: Mapping[str, Any] | None = None,
+    ) -> None:
+        EzPickle.__init__(
+            self,
+            graph,
+            recordings=recordings,
+            clips=clips,
+            scenarios=scenarios,
+            selector=selector,
+            k=k,
+            latent_dim=latent_dim,
+            energy_weights=energy_weights,
+            reward_mode=reward_mode,
+            error_weight=error_weight,
+            action_mode=action_mode,
+            action_scale=action_scale,
+            clip_actions=clip_actions,
+            observation_mode=observation_mode,
+            ragdoll=ragdoll,
+            max_episode_steps=max_episode_steps,
+            simulator_seeds=simulator_seeds,
+            max_evaluations=max_evaluations,
+            render_mode=render_mode,
+            cache_dir=cache_dir,
+            reconstructor_options=reconstructor_options,
+        )
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(
+                f"render_mode: expected None, 'human' or 'rgb_array', got {render_mode!r}"
+            )
+        if reward_mode not in REWARD_MODES:
+            raise ValueError(f"reward_mode: expected one of {REWARD_MODES}, got {reward_mode!r}")
+        if action_mode not in ACTION_MODES:
+            raise ValueError(f"action_mode: expected one of {ACTION_MODES}, got {action_mode!r}")
+        if observation_mode not in OBSERVATION_MODES:
+            raise ValueError(
+                f"observation_mode: expected one of {OBSERVATION_MODES}, got {observation_mode!r}"
+            )
+        if not (np.isfinite(action_scale) and action_scale > 0):
+            raise ValueError(f"action_scale: expected a positive number, got {action_scale!r}")
+        if not (np.isfinite(error_weight) and error_weight >= 0):
+            raise ValueError(f"error_weight: expected a number >= 0, got {error_weight!r}")
+        if int(latent_dim) < 1:
+            raise ValueError(f"latent_dim: expected >= 1, got {latent_dim!r}")
+        if max_episode_steps is not None and int(max_episode_steps) < 1:
+            raise ValueError(f"max_episode_steps: expected None or >= 1, got {max_episode_steps!r}")
+        if simulator_seeds is not None and int(simulator_seeds) < 1:
+            raise ValueError(f"simulator_seeds: expected None or >= 1, got {simulator_seeds!r}")
+        if recordings is not None and clips is not None:
+            raise ValueError("give either recordings= or clips= (with scenarios=), not both")
+        if recordings is not None and scenarios is not None:
+            raise ValueError("scenarios= applies to clips=, not to recordings=")
+
+        self.render_mode = render_mode
+        self.reward_mode = reward_mode
+        self.error_weight = float(error_weight)
+        self.action_mode = action_mode
+        self.action_scale = float(action_scale)
+        self.clip_actions = bool(clip_actions)
+        self.observation_mode = observation_mode
+        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
+        self.simulator_seeds = None if simulator_seeds is None else int(simulator_seeds)
+        self.latent_dim = int(latent_dim)
+        self.weights = _energy_weights(energy_weights)
+        self._needs_truth = reward_mode != "energy"
+
+        # Episode source.
+        self._recordings: list[Recording] = []
+        self._recording_names: list[str] = []
+        self._clips: list[Clip] = []
+        self._scenarios: list[Any] = []
+        if recordings is not None:
+            self._load_recordings(recordings)
+        else:
+            self._load_clips(DEFAULT_HOLDOUT_CLIPS if clips is None else clips)
+            self._load_scenarios(DEFAULT_EPISODE_SCENARIOS if scenarios is None else scenarios)
+
+        # Reconstruction core.
+        self.graph = self._load_graph(graph, cache_dir)
+        overrides: dict[str, Any] = dict(reconstructor_options or {})
+        explicit: dict[str, Any] = {
+            "selector": selector,
+            "k": int(k),
+            "latent_dim": int(latent_dim),
+            "weights": self.weights,
+            "max_evaluations": max_evaluations,
+        }
+        clash = sorted(set(overrides) & set(explicit))
+        if clash:
+            raise ValueError(
+                f"reconstructor_options: {clash} are arguments of the env itself; pass them "
+                "as keyword arguments"
+            )
+        self._ragdoll_kwargs: dict[str, Any] | None = (
+            dict(ragdoll) if isinstance(ragdoll, Mapping) else ({} if ragdoll else None)
+        )
+        self._counts = {"ragdoll_resets": 0, "ragdoll_divergences": 0, "ragdoll_builds": 0}
+        self.reconstructor = Reconstructor(
+            self.graph,
+            ragdoll=(
+                None
+                if self._ragdoll_kwargs is None
+                else _RagdollFactory(self._ragdoll_kwargs, self._counts)
+            ),
+            **explicit,
+            **overrides,
+        )
+        self.candidates = self.reconstructor.k
+        self.layout = ObservationLayout(self.latent_dim, self.candidates)
+
+        # Spaces.
+        self.action_space = spaces.Box(-1.0, 1.0, (self.latent_dim,), dtype=np.float32)
+        if observation_mode == "vector":
+            self.observation_space: spaces.Space[Any] = spaces.Box(
+                self.layout.low, self.layout.high, dtype=np.float32
+            )
+        else:
+            self.observation_space = spaces.Dict(
+                {
+                    name: spaces.Box(self.layout.low[sl], self.layout.high[sl], dtype=np.float32)
+                    for name, sl in self.layout.slices.items()
+                }
+            )
+
+        # Episode state.
+        self._recording: Recording | None = None
+        self._episode: dict[str, Any] = {}
+        self._problem: SearchProblem | None = None
+        self._t = 0
+        self._elapsed = 0
+        self._last_obs: np.ndarray | None = None
+        self._last_pose: np.ndarray | None = None
+        self._render_centre: np.ndarray | None = None
+        self._figure: Any = None
+        self._image: Any = None
+        self._human_disabled = False
+        self._prepare_ms = self._observation_ms = 0.0
+        self._simulated: dict[tuple[int, int, int], Recording] = {}
+
+    # ------------------------------------------------------------------ construction helpers
+
+    def _load_recordings(self, recordings: Sequence[str | os.PathLike[str] | Recording]) -> None:
+        from fpg_gym.io.kinect import read_recording
+
+        if isinstance(recordings, (str, os.PathLike, Recording)):
+            recordings = [recordings]
+        names = []
+        for i, item in enumerate(recordings):
+            if isinstance(item, Recording):
+                rec = item
+                names.append(str(rec.metadata.get("name") or rec.metadata.get("clip") or i))
+            elif isinstance(item, (str, os.PathLike)):
+                rec = read_recording(Path(item))
+                names.append(Path(item).name)
+            else:
+                raise TypeError(
+                    f"recordings[{i}]: expected a path or a Recording, got {type(item).__name__}"
+                )
+            self._recordings.append(rec)
+        if not self._recordings:
+            raise ValueError("recordings: expected at least one recording, got none")
+        self._recording_names = _unique(names)
+        if self._needs_truth:
+            missing = [
+                name
+                for name, rec in zip(self._recording_names, self._recordings, strict=True)
+                if rec.ground_truth is None
+            ]
+            if missing:
+                raise ValueError(
+                    f"reward_mode={self.reward_mode!r} needs ground truth, but recording(s) "
+                    f"{missing} have none; use reward_mode='energy' or simulated recordings"
+                )
+
+    def _load_clips(self, clips: Sequence[str | Clip]) -> None:
+        from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
+
+        if isinstance(clips, (str, Clip)):
+            clips = [clips]
+        names = [c for c in clips if isinstance(c, str)]
+        unknown = sorted(set(names) - set(DEFAULT_CLIP_NAMES))
+        if unknown:
+            raise ValueError(
+                f"clips: unknown embedded clip name(s) {unknown}; expected some of "
+                + ", ".join(DEFAULT_CLIP_NAMES)
+                + " or Clip objects"
+            )
+        embedded = {c.name: c for c in load_default_clips(tuple(dict.fromkeys(names)))}
+        for i, item in enumerate(clips):
+            if isinstance(item, Clip):
+                self._clips.append(item)
+            elif isinstance(item, str):
+                self._clips.append(embedded[item])
+            else:
+                raise TypeError(
+                    f"clips[{i}]: expected a clip name or a Clip, got {type(item).__name__}"
+                )
+        if not self._clips:
+            raise ValueError("clips: expected at least one clip, got none")
+        self._recording_names = _unique([c.name for c in self._clips])
+
+    def _load_scenarios(self, scenarios: Sequence[Any]) -> None:
+        from fpg_gym.simulate import get_scenario
+
+        if isinstance(scenarios, str):
+            scenarios = [scenarios]
+        self._scenarios = [get_scenario(s) for s in scenarios]
+        if not self._scenarios:
+            raise ValueError("scenarios: expected at least one scenario, got none")
+
+    @staticmethod
+    def _load_graph(graph: Any, cache_dir: str | os.PathLike[str] | None) -> Any:
+        from fpg_gym.graph import FilteredPoseGraph, default_graph
+
+        if graph is None:
+            return default_graph(exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=cache_dir)
+        if isinstance(graph, (str, os.PathLike)):
+            return FilteredPoseGraph.load(graph)
+        if not hasattr(graph, "poses"):
+            raise TypeError(
+                f"graph: expected a path, a FilteredPoseGraph or None, got {type(graph).__name__}"
+            )
+        return graph
+
+    # ------------------------------------------------------------------ public state
+
+    @property
+    def problem(self) -> SearchProblem | None:
+        """The current frame's :class:`~fpg_gym.reconstruct.SearchProblem` (None after the
+        episode's last step or before ``reset``).
+
+        An optimiser may evaluate it (within its budget, ``problem.max_evaluations``) and step
+        with the action of the point it found (:meth:`action_for`).
+        """
+        return self._problem
+
+    @property
+    def recording(self) -> Recording | None:
+        """The current episode's recording (None before ``reset``)."""
+        return self._recording
+
+    @property
+    def episode(self) -> dict[str, Any]:
+        """The current episode: ``recording`` (name), ``clip``, ``scenario``, ``seed``,
+        ``num_frames``, ``has_ground_truth`` (a copy)."""
+        return dict(self._episode)
+
+    @property
+    def episode_names(self) -> list[str]:
+        """Names of the recordings (or clips) episodes are drawn from."""
+        return list(self._recording_names)
+
+    @property
+    def scenario_names(self) -> list[str]:
+        """Names of the scenarios episodes are simulated in (empty with ``recordings``)."""
+        return [s.name for s in self._scenarios]
+
+    @property
+    def frame(self) -> int:
+        """Index of the frame the next step reconstructs."""
+        return self._t
+
+    @property
+    def observation_layout(self) -> dict[str, slice]:
+        """Part name -> its slice of the observation vector (see :mod:`fpg_gym.env_observation`)."""
+        return dict(self.layout.slices)
+
+    def split_observation(self, observation: Any) -> dict[str, np.ndarray]:
+        """Named, reshaped parts of an observation vector or a batch ``(..., N)`` (or of a
+        ``"dict"`` observation)."""
+        if isinstance(observation, Mapping):
+            return {
+                name: np.asarray(observation[name]).reshape(
+                    *np.shape(observation[name])[:-1], *self.layout.shapes[name]
+                )
+                for name in self.layout.slices
+            }
+        return self.layout.split(observation)
+
+    def action_for(self, z: np.ndarray, problem: SearchProblem | None = None) -> np.ndarray:
+        """The action that selects latent point ``z`` ``(d,)`` of ``problem`` (the current one).
+
+        Returns a float64 ``(latent_dim,)`` array, zero-padded, *not* clipped: entries beyond
+        ±1 are clipped by :meth:`step` unless ``clip_actions`` is False.
+        """
+        problem = problem or self._require_problem("action_for")
+        z = np.asarray(z, dtype=np.float64).reshape(-1)
+        if z.shape != (problem.dim,):
+            raise ValueError(f"z: expected shape ({problem.dim},), got {z.shape}")
+        action = np.zeros(self.latent_dim)
+        d = min(problem.dim, self.latent_dim)
+        origin = problem.x0[:d] if self.action_mode == "delta" else 0.0
+        action[:d] = (z[:d] - origin) / self.action_scale
+        return action
+
+    def latent_point(self, action: np.ndarray, problem: SearchProblem | None = None) -> np.ndarray:
+        """The latent point ``(d,)`` that ``action`` selects in ``problem`` (the current one),
+        after clipping when ``clip_actions`` is set."""
+        problem = problem or self._require_problem("latent_point")
+        return self._latent_point(action, problem)[0]
+
+    def _require_problem(self, what: str) -> SearchProblem:
+        if self._problem is None:
+            raise RuntimeError(f"{what}: no frame is waiting (call reset, or the episode is over)")
+        return self._problem
+
+    def _latent_point(self, action: Any, problem: SearchProblem) -> tuple[np.ndarray, bool]:
+        a = np.asarray(action, dtype=np.float64)
+        if a.size != self.latent_dim:
+            raise ValueError(f"action: expected shape ({self.latent_dim},), got {np.shape(action)}")
+        a = a.reshape(self.latent_dim)
+        if not np.all(np.isfinite(a)):
+            raise ValueError("action: NaN or inf value")
+        clipped = bool(np.any(np.abs(a) > 1.0))
+        if clipped and self.clip_actions:
+            a = np.clip(a, -1.0, 1.0)
+        d = min(problem.dim, self.latent_dim)
+        z = problem.x0.copy() if self.action_mode == "delta" else np.zeros(problem.dim)
+        z[:d] += self.action_scale * a[:d]
+        return z, clipped
+
+    # ------------------------------------------------------------------ gymnasium API
+
+    def reset(
+        self, *, seed: int | None = None, options: dict[str, Any] | None = None
+    ) -> tuple[Any, dict[str, Any]]:
+        """Start an episode (see *Starting State*); returns ``(observation, info)``.
+
+        ``info``: the episode (``recording``, ``clip``, ``scenario``, ``seed``, ``num_frames``,
+        ``has_ground_truth``) and frame 0's ``frame``, ``reliability``, ``nodes``,
+        ``full_search``, ``recovered``.
+        """
+        super().reset(seed=seed)
+        recording, episode = self._draw_episode(dict(options or {}))
+        self._recording = recording
+        self._episode = episode
+        for key in self._counts:
+            self._counts[key] = 0
+        self._t = 0
+        self._elapsed = 0
+        self._last_pose = None
+        root = recording.positions[:, skeleton.ROOT]
+        self._render_centre = np.array([np.median(root[:, 0]), np.median(root[:, 1])])
+        # A new stream that does not depend on earlier episodes (same seed, same episode): a
+        # fresh ragdoll (pybullet keeps solver and contact caches across a body reset), and the
+        # database's retargeted copy refreshed on frame 0 (it is otherwise reused while the bone
+        # lengths stay within its tolerance of an earlier episode's).
+        reconstructor = self.reconstructor
+        reconstructor.close()
+        reconstructor.reset()
+        database = reconstructor.database
+        tolerance = database.refresh_tolerance_m
+        database.refresh_tolerance_m = -1.0
+        try:
+            obs_vector = self._prepare()
+        finally:
+            database.refresh_tolerance_m = tolerance
+        info: dict[str, Any] = dict(episode)
+        info.update(self._frame_info())
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(obs_vector), info
+
+    def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
+        """Reconstruct the waiting frame from ``action`` and prepare the next one.
+
+        Returns ``(observation, reward, terminated, truncated, info)``; see *Rewards* for
+        ``info``'s energy terms and errors. ``info`` also holds ``pose`` (20, 3) the
+        reconstruction in the recording's camera space, ``frame``, ``timestamp``,
+        ``energy_x0``, ``reliability`` (20,), ``nodes`` (K,) (-1 padded), ``recovered``,
+        ``full_search``, ``first``, ``no_body``, ``labelling``, ``evaluations`` (energy
+        evaluations the agent spent on ``problem``), ``action_clipped``, ``ragdoll_resets``,
+        ``ragdoll_divergences``, ``ragdoll_builds`` (counts in this step) and ``timings``
+        (:class:`StageTimes`, ms: the frame's ``normalise`` ... ``ragdoll`` stages and ``total``,
+        whose ``search`` is the agent's time between the observation and this call; then this
+        step's ``prepare_next`` (the next frame's normalise ... latent), ``observation`` and
+        ``env_step``, the whole call).
+
+        Raises
+        ------
+        RuntimeError
+            If no frame is waiting (before ``reset`` or after the episode's last step).
+        ValueError
+            On an action of the wrong size or with NaN/inf.
+        """
+        start = time.perf_counter()
+        problem = self._require_problem("step")
+        recording = self._recording
+        assert recording is not None
+        z, clipped = self._latent_point(action, problem)
+        pose, record = self.reconstructor.finish(z)
+        t = self._t
+        self._last_pose = pose
+
+        w = problem.weights
+        terms = record.terms
+        info: dict[str, Any] = {
+            "frame": t,
+            "timestamp": float(record.timestamp),
+            "pose": pose.copy(),
+            "energy": float(record.energy),
+            "energy_x0": float(record.energy_x0),
+            "reward_control": -w.control * terms["Ec"],
+            "reward_style": -w.style * terms["Es"],
+            "reward_bone": -w.kinematic * terms["Ek"],
+            "reward_temporal": -w.motion * terms["Em"],
+        }
+        truth = recording.ground_truth
+        if truth is not None:
+            errors = frame_error(truth[[t, t]], np.stack([pose, recording.positions[t]]))
+            info["frame_error"] = float(errors[0])
+            info["raw_frame_error"] = float(errors[1])
+        if self.reward_mode == "energy":
+            reward = -float(record.energy)
+        elif self.reward_mode == "error":
+            reward = -info["frame_error"]
+        else:
+            reward = -(float(record.energy) + self.error_weight * info["frame_error"])
+        nodes = np.full(self.candidates, -1, dtype=np.int64)
+        nodes[: len(record.nodes)] = record.nodes[: self.candidates]
+        info.update(
+            {
+                "reliability": np.asarray(record.reliability, dtype=np.float32),
+                "nodes": nodes,
+                "recovered": bool(record.recovered),
+                "full_search": bool(record.full_search),
+                "first": bool(record.first),
+                "no_body": bool(record.no_body),
+                "labelling": str(record.labelling),
+                "evaluations": int(record.evaluations),
+                "action_clipped": clipped,
+            }
+        )
+        info.update(self._counts)
+        for key in self._counts:
+            self._counts[key] = 0
+
+        self._t += 1
+        self._elapsed += 1
+        terminated = self._t >= recording.num_frames
+        self._prepare_ms = self._observation_ms = 0.0
+        if terminated:
+            self._problem = None
+            assert self._last_obs is not None
+            obs_vector = self._last_obs.copy()
+        else:
+            obs_vector = self._prepare()
+        timings = dict(record.ms)
+        timings["prepare_next"] = self._prepare_ms
+        timings["observation"] = self._observation_ms
+        timings["env_step"] = 1e3 * (time.perf_counter() - start)
+        info["timings"] = StageTimes(timings)
+        truncated = self.max_episode_steps is not None and self._elapsed >= self.max_episode_steps
+        if self.render_mode == "human":
+            self.render()
+        return self._observation(obs_vector), reward, terminated, bool(truncated), info
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: a ``(320, 640, 3)`` uint8 image, the Kinect input (joints coloured by
+        tracking state: green tracked, orange inferred, red not tracked) and the reconstruction
+        side by side, as the sensor sees them, with the ground truth in light grey when known.
+        ``human``: the same image in a matplotlib window (a warning and nothing shown when there
+        is no display)."""
+        if self.render_mode is None:
+            gym.logger.warn(
+                "You are calling render method without specifying any render mode. "
+                "You can specify the render_mode at initialization, "
+                f'e.g. gym.make("{ENV_ID}", render_mode="rgb_array")'
+            )
+            return None
+        frame = self._render_frame()
+        if self.render_mode == "rgb_array":
+            return frame
+        self._show(frame)
+        return None
+
+    def close(self) -> None:
+        """Release the ragdoll's pybullet client and the render window (idempotent)."""
+        reconstructor = getattr(self, "reconstructor", None)
+        if reconstructor is not None:
+            reconstructor.close()
+        if self._figure is not None:
+            import matplotlib.pyplot as plt
+
+            plt.close(self._figure)
+            self._figure = None
+            self._image = None
+
+    # ------------------------------------------------------------------ episodes
+
+    def _draw_episode(self, options: dict[str, Any]) -> tuple[Recording, dict[str, Any]]:
+        unknown = sorted(set(options) - set(RESET_OPTIONS))
+        if unknown:
+            raise ValueError(
+                f"reset options: unknown key(s) {unknown}; expected some of {list(RESET_OPTIONS)}"
+            )
+        # Draw every choice first, whatever the options fix: the random stream stays the same.
+        rng = self.np_random
+        if self._recordings:
+            index = int(rng.integers(len(self._recordings)))
+        else:
+            index = int(rng.integers(len(self._clips)))
+            s_index = int(rng.integers(len(self._scenarios)))
+            seed = int(rng.integers(self.simulator_seeds or 2**31 - 1))
+        choice = options.get("recording")
+        if isinstance(choice, Recording):  # any env plays a recording given here
+            if set(options) - {"recording"}:
+                raise ValueError("reset options: a Recording comes alone (no clip/scenario/seed)")
+            name = str(choice.metadata.get("name") or choice.metadata.get("clip") or "given")
+            if self._needs_truth and choice.ground_truth is None:
+                raise ValueError(
+                    f"reset options: recording {name!r} has no ground truth, which "
+                    f"reward_mode={self.reward_mode!r} needs"
+                )
+            recording = choice
+            episode: dict[str, Any] = {"recording": name, "clip": "", "scenario": "", "seed": -1}
+        elif self._recordings:
+            wrong = sorted(set(options) - {"recording"})
+            if wrong:
+                raise ValueError(
+                    f"reset options: {wrong} apply to clip episodes; this env plays recordings "
+                    "(use {'recording': index or name})"
+                )
+            if choice is not None:
+                index = self._index_of(choice, "recording")
+            recording, name = self._recordings[index], self._recording_names[index]
+            episode = {"recording": name, "clip": "", "scenario": "", "seed": -1}
+        else:
+            if choice is not None:
+                raise ValueError(
+                    "reset options: a recording name applies to recording episodes; this env "
+                    "simulates clips (use 'clip', 'scenario', 'seed', or give a Recording)"
+                )
+            if options.get("clip") is not None:
+                index = self._index_of(options["clip"], "clip")
+            if options.get("scenario") is not None:
+                names = self.scenario_names
+                wanted = getattr(options["scenario"], "name", options["scenario"])
+                if wanted not in names:
+                    raise ValueError(
+                        f"reset options: scenario {wanted!r} is not one of this env's "
+                        f"scenarios {names}"
+                    )
+                s_index = names.index(wanted)
+            if options.get("seed") is not None:
+                seed = int(options["seed"])
+                if seed < 0:
+                    raise ValueError(f"reset options: seed must be >= 0, got {seed}")
+            recording = self._simulate(index, s_index, seed)
+            name = self._recording_names[index]
+            scenario_name = self._scenarios[s_index].name
+            episode = {
+                "recording": f"{name}/{scenario_name}/{seed}",
+                "clip": name,
+                "scenario": scenario_name,
+                "seed": seed,
+            }
+        episode["num_frames"] = recording.num_frames
+        episode["has_ground_truth"] = recording.ground_truth is not None
+        return recording, episode
+
+    def _simulate(self, index: int, s_index: int, seed: int) -> Recording:
+        """The simulated stream of clip ``index`` in scenario ``s_index`` (cached when the seed
+        is below ``simulator_seeds``)."""
+        from fpg_gym.simulate import simulate
+
+        key = (index, s_index, seed)
+        recording = self._simulated.get(key)
+        if recording is None:
+            recording = simulate(self._clips[index], self._scenarios[s_index], seed=seed)
+            if self.simulator_seeds is not None and seed < self.simulator_seeds:
+                self._simulated[key] = recording
+        return recording
+
+    def _index_of(self, choice: Any, what: str) -> int:
+        names = self._recording_names
+        if isinstance(choice, (int, np.integer)) and not isinstance(choice, bool):
+            if not 0 <= int(choice) < len(names):
+                raise ValueError(
+                    f"reset options: {what} index {int(choice)} out of range [0, {len(names)})"
+                )
+            return int(choice)
+        if isinstance(choice, (str, os.PathLike)):
+            key = str(choice)
+            for candidate in (key, Path(key).name):
+                if candidate in names:
+                    return names.index(candidate)
+        raise ValueError(
+            f"reset options: unknown {what} {choice!r}; expected an index or one of {names}"
+        )
+
+    # ------------------------------------------------------------------ frames
+
+    def _prepare(self) -> np.ndarray:
+        """Prepare frame ``self._t``; returns (and keeps) its observation vector."""
+        recording = self._recording
+        assert recording is not None
+        t = self._t
+        states = recording.states[t]
+        t0 = time.perf_counter()
+        problem = self.reconstructor.prepare(
+            recording.positions[t], states, float(recording.timestamps[t])
+        )
+        self._problem = problem
+        t1 = time.perf_counter()
+        obs = self.layout.build(
+            problem,
+            action_scale=self.action_scale,
+            delta=self.action_mode == "delta",
+            no_body=not bool(np.any(states > 0)),
+            progress=t / recording.num_frames,
+            frame_dt=self.reconstructor.config.frame_dt,
+        )
+        self._last_obs = obs
+        self._prepare_ms = 1e3 * (t1 - t0)
+        self._observation_ms = 1e3 * (time.perf_counter() - t1)
+        return obs
+
+    def _frame_info(self) -> dict[str, Any]:
+        problem = self._require_problem("info")
+        nodes = np.full(self.candidates, -1, dtype=np.int64)
+        nodes[: len(problem.nodes)] = problem.nodes[: self.candidates]
+        return {
+            "frame": self._t,
+            "reliability": np.asarray(problem.reliability, dtype=np.float32),
+            "nodes": nodes,
+            "full_search": bool(problem.selection.full_search),
+            "recovered": bool(problem.selection.recovered),
+        }
+
+    def _observation(self, vector: np.ndarray) -> Any:
+        if self.observation_mode == "dict":
+            return self.layout.to_dict(vector)
+        return vector.copy()
+
+    # ------------------------------------------------------------------ rendering
+
+    def _render_frame(self) -> np.ndarray:
+        from PIL import Image, ImageDraw
+
+        image = Image.new("RGB", (2 * _PANEL, _PANEL), (255, 255, 255))
+        draw = ImageDraw.Draw(image)
+        recording = self._recording
+        if recording is None:
+            draw.text((8, 8), "call reset() first", fill=(0, 0, 0))
+            return np.asarray(image)
+        shown = self._t - 1 if self._last_pose is not None else self._t
+        shown = min(max(shown, 0), recording.num_frames - 1)
+        truth = None if recording.ground_truth is None else recording.ground_truth[shown]
+        centre = self._render_centre if self._render_centre is not None else np.zeros(2)
+        panels = [
+            ("Kinect input", recording.positions[shown], recording.states[shown], (60, 60, 60)),
+            ("reconstruction", self._last_pose, None, (40, 90, 160)),
+        ]
+        for index, (title, pose, states, colour) in enumerate(panels):
+            offset = index * _PANEL
+            if truth is not None:
+                _draw_skeleton(draw, truth, centre, offset, (200, 200, 200), None)
+            if pose is not None:
+                _draw_skeleton(draw, pose, centre, offset, colour, states)
+            draw.text((offset + 8, 6), title, fill=(0, 0, 0))
+            draw.line([(offset, 0), (offset, _PANEL)], fill=(180, 180, 180))
+        error = ""
+        if truth is not None and self._last_pose is not None:
+            error = f"   error {1000 * float(frame_error(truth, self._last_pose)[0]):.0f} mm"
+        name = self._episode.get("recording", "")
+        draw.text(
+            (8, _PANEL - 16),
+            f"{name}  frame {shown + 1}/{recording.num_frames}{error}",
+            fill=(0, 0, 0),
+        )
+        return np.asarray(image)
+
+    def _show(self, frame: np.ndarray) -> None:
+        if self._human_disabled:
+            return
+        import matplotlib
+
+        if self._figure is None:
+            import matplotlib.pyplot as plt
+
+            backend = str(matplotlib.get_backend()).lower()
+            if backend in _NON_INTERACTIVE_BACKENDS:
+                warnings.warn(
+                    f"render_mode='human' needs a display, but matplotlib uses the "
+                    f"non-interactive backend {backend!r}: nothing is shown. Use "
+                    "render_mode='rgb_array' (e.g. to save a GIF) or run with a display.",
+                    UserWarning,
+                    stacklevel=3,
+                )
+                self._human_disabled = True
+                return
+            self._figure, axes = plt.subplots(figsize=(8, 4))
+            axes.axis("off")
+            self._image = axes.imshow(frame)
+            self._figure.tight_layout()
+            plt.show(block=False)
+        else:
+            self._image.set_data(frame)
+        import matplotlib.pyplot as plt
+
+        plt.pause(1.0 / self.metadata["render_fps"])
+
+
+_STATE_RGB = {2: (42, 157, 75), 1: (244, 160, 32), 0: (214, 40, 40)}
+
+
+def _draw_skeleton(
+    draw: Any,
+    pose: np.ndarray,
+    centre: np.ndarray,
+    offset: int,
+    colour: tuple[int, int, int],
+    states: np.ndarray | None,
+    half_m: float = 1.2,
+) -> None:
+    """Draw a camera-space pose as the sensor sees it (image x = -X, y = -Y)."""
+    scale = _PANEL / (2 * half_m)
+    u = offset + _PANEL / 2 - (np.asarray(pose[:, 0]) - centre[0]) * scale
+    v = _PANEL / 2 - (np.asarray(pose[:, 1]) - centre[1]) * scale
+    points = np.stack([u, v], axis=1).tolist()
+    for parent, child in skeleton.BONES:
+        draw.line([tuple(points[parent]), tuple(points[child])], fill=colour, width=3)
+    for j, (x, y) in enumerate(points):
+        fill = colour if states is None else _STATE_RGB.get(int(states[j]), colour)
+        draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=fill)

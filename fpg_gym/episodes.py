@@ -1,0 +1,363 @@
+"""Run whole episodes of :class:`~fpg_gym.env.KinectPoseEnv` with an optimiser or a policy.
+
+:func:`run_episode` drives one episode with any of three kinds of agent:
+
+* an **optimiser** — a registered name (``optimizers.available()``: ``"local-search"``,
+  ``"random-search"``, ``"cma-es"``, ``"none"``, ...) or an object with ``reset/ask/tell``: on
+  every frame it searches ``env.unwrapped.problem`` within the problem's evaluation budget
+  (:func:`optimizers.run_optimizer`) and the env steps with the action of the best point found
+  (exactly that point: the action is not clipped);
+* a **policy** — anything with ``predict(obs, deterministic=True) -> (action, state)``, as
+  stable-baselines3 models have;
+* a **callable** ``obs -> action`` (e.g. ``lambda obs: env.action_space.sample()``).
+
+:func:`measure_env_throughput` times the env itself (random actions, no search), for
+``fpg-gym bench``.
+
+Examples
+--------
+>>> import gymnasium as gym, fpg_gym                                           # doctest: +SKIP
+>>> from fpg_gym.episodes import run_episode
+>>> env = gym.make("fpg_gym/KinectPose-v0", reward_mode="error")               # doctest: +SKIP
+>>> result = run_episode(env, "local-search", seed=0)                          # doctest: +SKIP
+>>> result.summary()["mean_error"]                                             # doctest: +SKIP
+0.09...
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from fpg_gym.metrics import ERR_THRESHOLD_M
+
+__all__ = ["EpisodeResult", "measure_env_throughput", "run_episode"]
+
+
+@dataclass
+class EpisodeResult:
+    """One episode, frame by frame.
+
+    Attributes
+    ----------
+    name : str
+        The episode (``info["recording"]`` at reset: a recording name, or clip/scenario/seed).
+    agent : str
+        What acted (the optimiser's name, or the policy's class name).
+    poses : ndarray, shape (T, 20, 3), float32
+        The reconstructions, in the recording's camera space.
+    rewards, energies : ndarray, shape (T,)
+    frame_errors, raw_frame_errors : ndarray, shape (T,), or None
+        FPG Eq. 13 per frame of the reconstruction and of the sensor stream (ground truth only).
+    evaluations : ndarray, shape (T,), int
+        Energy evaluations spent per frame.
+    agent_ms, step_ms : ndarray, shape (T,)
+        Milliseconds the agent took to choose the action, and ``env.step`` took.
+    terminated, truncated : bool
+        How the episode ended (both False if ``max_steps`` stopped it).
+    reset_info : dict
+    infos : list of dict
+        Every step's ``info`` (only with ``keep_infos=True``).
+    """
+
+    name: str
+    agent: str
+    poses: np.ndarray
+    rewards: np.ndarray
+    energies: np.ndarray
+    frame_errors: np.ndarray | None
+    raw_frame_errors: np.ndarray | None
+    evaluations: np.ndarray
+    agent_ms: np.ndarray
+    step_ms: np.ndarray
+    terminated: bool
+    truncated: bool
+    reset_info: dict[str, Any] = field(default_factory=dict)
+    infos: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def steps(self) -> int:
+        """Frames reconstructed."""
+        return len(self.rewards)
+
+    @property
+    def total_reward(self) -> float:
+        """Sum of the rewards."""
+        return float(np.sum(self.rewards))
+
+    def summary(self) -> dict[str, Any]:
+        """Scalars for reports: steps, total reward, mean energy, mean error and Err0.2 (of the
+        reconstruction and of the raw stream, None without ground truth), evaluations per frame,
+        milliseconds per frame (agent + step) and frames per second."""
+        frame_ms = self.agent_ms + self.step_ms
+        out: dict[str, Any] = {
+            "name": self.name,
+            "agent": self.agent,
+            "steps": self.steps,
+            "total_reward": self.total_reward,
+            "mean_energy": float(np.mean(self.energies)) if self.steps else None,
+            "mean_error": None,
+            "err02": None,
+            "raw_mean_error": None,
+            "raw_err02": None,
+            "evaluations_per_frame": float(np.mean(self.evaluations)) if self.steps else 0.0,
+            "ms_per_frame": float(np.mean(frame_ms)) if self.steps else None,
+            "frames_per_second": (
+                float(1e3 * self.steps / np.sum(frame_ms))
+                if self.steps and np.sum(frame_ms) > 0
+                else None
+            ),
+            "terminated": self.terminated,
+            "truncated": self.truncated,
+        }
+        for prefix, errors in (("", self.frame_errors), ("raw_", self.raw_frame_errors)):
+            if errors is not None and len(errors):
+                out[f"{prefix}mean_error"] = float(np.mean(errors))
+                out[f"{prefix}err02"] = float(np.mean(errors >= ERR_THRESHOLD_M))
+        return out
+
+
+def _agent_kind(agent: Any) -> tuple[str, Any, str]:
+    """``("optimizer" | "policy" | "callable", object, label)``."""
+    import optimizers
+
+    if isinstance(agent, str):
+        return "optimizer", optimizers.make(agent), agent
+    if hasattr(agent, "predict"):
+        return "policy", agent, type(agent).__name__
+    if all(callable(getattr(agent, m, None)) for m in ("reset", "ask", "tell")):
+        return "optimizer", agent, str(getattr(agent, "name", type(agent).__name__))
+    if callable(agent):
+        return "callable", agent, str(getattr(agent, "__name__", type(agent).__name__))
+    raise TypeError(
+        "agent: expected an optimiser name or object (reset/ask/tell), a policy with "
+        f"predict(obs, deterministic=...), or a callable obs -> action; got {type(agent).__name__}"
+    )
+
+
+def run_episode(
+    env: Any,
+    agent: Any,
+    *,
+    seed: int | None = None,
+    options: Mapping[str, Any] | None = None,
+    rng: np.random.Generator | int | None = None,
+    deterministic: bool = True,
+    max_steps: int | None = None,
+    keep_infos: bool = False,
+    progress: bool = False,
+) -> EpisodeResult:
+    """Reset ``env`` and run one episode with ``agent`` (see the module docstring).
+
+    Parameters
+    ----------
+    env : gymnasium.Env
+        A :class:`~fpg_gym.env.KinectPoseEnv`, possibly wrapped (``gym.make``); wrappers see
+        every step.
+    agent : str, optimiser, policy or callable
+    seed : int, optional
+        Passed to ``env.reset``; also seeds the optimiser when ``rng`` is None.
+    options : mapping, optional
+        Passed to ``env.reset`` (e.g. ``{"clip": "walk", "scenario": "front-many"}``).
+    rng : numpy.random.Generator or int, optional
+        The optimiser's randomness (default: a generator seeded with ``seed``).
+    deterministic : bool
+        Passed to a policy's ``predict``.
+    max_steps : int, optional
+        Stop after this many steps.
+    keep_infos : bool
+        Keep every step's ``info`` in :attr:`EpisodeResult.infos`.
+    progress : bool
+        Show a tqdm progress bar.
+
+    Returns
+    -------
+    EpisodeResult
+
+    Raises
+    ------
+    TypeError
+        If ``agent`` is none of the accepted kinds.
+    optimizers.OptimizerNotFound
+        If ``agent`` names no registered optimiser.
+    """
+    import optimizers
+
+    kind, actor, label = _agent_kind(agent)
+    base: Any = env.unwrapped
+    generator = (
+        rng
+        if isinstance(rng, np.random.Generator)
+        else np.random.default_rng(seed if rng is None else rng)
+    )
+    obs, reset_info = env.reset(seed=seed, options=dict(options) if options else None)
+    total = int(reset_info.get("num_frames", 0)) or None
+    if max_steps is not None:
+        total = max_steps if total is None else min(total, max_steps)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=total, unit="frame", desc=f"episode ({label})", leave=False)
+    poses: list[np.ndarray] = []
+    rewards: list[float] = []
+    energies: list[float] = []
+    errors: list[float] = []
+    raw_errors: list[float] = []
+    evaluations: list[int] = []
+    agent_ms: list[float] = []
+    step_ms: list[float] = []
+    infos: list[dict[str, Any]] = []
+    terminated = truncated = False
+    saved_clip = getattr(base, "clip_actions", True)
+    try:
+        if kind == "optimizer":
+            base.clip_actions = False  # step with exactly the point the optimiser found
+        while max_steps is None or len(rewards) < max_steps:
+            t0 = time.perf_counter()
+            if kind == "optimizer":
+                problem = base.problem
+                z = optimizers.run_optimizer(problem, actor, generator)
+                action: Any = base.action_for(z, problem)
+            elif kind == "policy":
+                action, _ = actor.predict(obs, deterministic=deterministic)
+            else:
+                action = actor(obs)
+            t1 = time.perf_counter()
+            obs, reward, terminated, truncated, info = env.step(action)
+            t2 = time.perf_counter()
+            poses.append(info["pose"])
+            rewards.append(float(reward))
+            energies.append(info["energy"])
+            if "frame_error" in info:
+                errors.append(info["frame_error"])
+                raw_errors.append(info["raw_frame_error"])
+            evaluations.append(info["evaluations"])
+            agent_ms.append(1e3 * (t1 - t0))
+            step_ms.append(1e3 * (t2 - t1))
+            if keep_infos:
+                infos.append(info)
+            if bar is not None:
+                bar.update(1)
+            if terminated or truncated:
+                break
+    finally:
+        base.clip_actions = saved_clip
+        if bar is not None:
+            bar.close()
+    count = len(rewards)
+    return EpisodeResult(
+        name=str(reset_info.get("recording", "")),
+        agent=label,
+        poses=np.asarray(poses, dtype=np.float32).reshape(count, -1, 3),
+        rewards=np.asarray(rewards, dtype=np.float64),
+        energies=np.asarray(energies, dtype=np.float64),
+        frame_errors=np.asarray(errors) if len(errors) == count and count else None,
+        raw_frame_errors=np.asarray(raw_errors) if len(raw_errors) == count and count else None,
+        evaluations=np.asarray(evaluations, dtype=np.int64),
+        agent_ms=np.asarray(agent_ms),
+        step_ms=np.asarray(step_ms),
+        terminated=bool(terminated),
+        truncated=bool(truncated),
+        reset_info=reset_info,
+        infos=infos,
+    )
+
+
+def measure_env_throughput(
+    steps: int = 300,
+    ragdoll: bool = True,
+    *,
+    seed: int = 0,
+    env_kwargs: Mapping[str, Any] | None = None,
+    make_env: Callable[..., Any] | None = None,
+) -> dict[str, Any]:
+    """Steps per second of one env with random actions and no search (for ``fpg-gym bench``).
+
+    The env is built and reset once before the clock starts (graph loading, first imports).
+    Then ``steps`` random actions (``action_space`` seeded with ``seed``) are taken, resetting
+    when an episode ends: ``steps_per_second`` counts everything (the resets simulate the next
+    episode and build a fresh ragdoll), ``step_only_per_second`` only the ``step`` calls.
+
+    Parameters
+    ----------
+    steps : int
+        Steps to time.
+    ragdoll : bool
+        With the PD ragdoll (True) or without.
+    seed : int
+    env_kwargs : mapping, optional
+        More :class:`~fpg_gym.env.KinectPoseEnv` arguments.
+    make_env : callable, optional
+        ``make_env(**kwargs)`` builds the env (default: :class:`~fpg_gym.env.KinectPoseEnv`).
+
+    Returns
+    -------
+    dict
+        ``steps``, ``resets``, ``seconds``, ``steps_per_second``, ``cpu_seconds`` and
+        ``steps_per_cpu_second`` (process CPU time: steadier than wall time on a busy machine,
+        but it counts every thread), ``step_only_per_second``,
+        ``reset_ms`` (mean), ``step_ms`` (mean, p50, p95), ``stage_ms`` (mean per stage of
+        ``info["timings"]``), ``ragdoll``, ``ragdoll_builds``, ``ragdoll_divergences``,
+        ``observation_size``.
+    """
+    if steps < 1:
+        raise ValueError(f"steps: expected >= 1, got {steps}")
+    kwargs = dict(env_kwargs or {})
+    kwargs["ragdoll"] = ragdoll
+    if make_env is None:
+        from fpg_gym.env import KinectPoseEnv
+
+        make_env = KinectPoseEnv
+    env: Any = make_env(**kwargs)
+    try:
+        env.reset(seed=seed)
+        env.action_space.seed(seed)
+        step_times: list[float] = []
+        reset_times: list[float] = []
+        stages: dict[str, float] = {}
+        builds = divergences = 0
+        start = time.perf_counter()
+        cpu_start = time.process_time()
+        for _ in range(steps):
+            action = env.action_space.sample()
+            t0 = time.perf_counter()
+            _, _, terminated, truncated, info = env.step(action)
+            t1 = time.perf_counter()
+            step_times.append(t1 - t0)
+            for name, value in info["timings"].items():
+                stages[name] = stages.get(name, 0.0) + value
+            builds += info["ragdoll_builds"]
+            divergences += info["ragdoll_divergences"]
+            if terminated or truncated:
+                env.reset()
+                reset_times.append(time.perf_counter() - t1)
+        seconds = time.perf_counter() - start
+        cpu_seconds = time.process_time() - cpu_start
+        step_ms = 1e3 * np.asarray(step_times)
+        return {
+            "steps": steps,
+            "resets": len(reset_times),
+            "seconds": seconds,
+            "steps_per_second": steps / seconds,
+            "cpu_seconds": cpu_seconds,
+            "steps_per_cpu_second": steps / cpu_seconds if cpu_seconds > 0 else None,
+            "step_only_per_second": steps / float(np.sum(step_times)),
+            "reset_ms": float(1e3 * np.mean(reset_times)) if reset_times else None,
+            "step_ms": {
+                "mean": float(np.mean(step_ms)),
+                "p50": float(np.percentile(step_ms, 50)),
+                "p95": float(np.percentile(step_ms, 95)),
+            },
+            "stage_ms": {name: value / steps for name, value in stages.items()},
+            "ragdoll": ragdoll,
+            "ragdoll_builds": builds,
+            "ragdoll_divergences": divergences,
+            "observation_size": int(env.unwrapped.layout.size),
+        }
+    finally:
+        env.close()
