@@ -668,20 +668,10 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._last_pose = None
         root = recording.positions[:, skeleton.ROOT]
         self._render_centre = np.array([np.median(root[:, 0]), np.median(root[:, 1])])
-        # A new stream that does not depend on earlier episodes (same seed, same episode): a
-        # fresh ragdoll (pybullet keeps solver and contact caches across a body reset), and the
-        # database's retargeted copy refreshed on frame 0 (it is otherwise reused while the bone
-        # lengths stay within its tolerance of an earlier episode's).
-        reconstructor = self.reconstructor
-        reconstructor.close()
-        reconstructor.reset()
-        database = reconstructor.database
-        tolerance = database.refresh_tolerance_m
-        database.refresh_tolerance_m = -1.0
-        try:
-            obs_vector = self._prepare()
-        finally:
-            database.refresh_tolerance_m = tolerance
+        # Reconstructor.reset() starts a stream that does not depend on earlier episodes (same
+        # seed, same episode): fresh ragdoll physics and no cached retargeted database.
+        self.reconstructor.reset()
+        obs_vector = self._prepare()
         info: dict[str, Any] = dict(episode)
         info.update(self._frame_info())
         if self.render_mode == "human":

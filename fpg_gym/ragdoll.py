@@ -326,7 +326,6 @@ class Ragdoll:
                 f"floor_height: expected a finite number or None, got {floor_height!r}"
             )
 
-        self.model: BodyModel = build_body_model(bone_lengths, body_mass)
         self.frame_rate = float(frame_rate)
         self.substeps = max(1, math.ceil(physics_rate / frame_rate - 1e-9))
         self.time_step = 1.0 / (self.frame_rate * self.substeps)
@@ -338,16 +337,38 @@ class Ragdoll:
         self.max_joint_gap = float(max_joint_gap)
         self.jump_distance = float(jump_distance)
         self.recovery_frequency = float(recovery_frequency)
-        self._glide = 0.5 * max(float(strength) - 1.0, 0.5) * GRAVITY
-        self.force_bounds = float(strength) * self.model.masses * GRAVITY
+        self._strength = float(strength)
+        self._glide = 0.5 * max(self._strength - 1.0, 0.5) * GRAVITY
+        self._friction = float(friction)
+        self._solver_iterations = int(solver_iterations)
 
         self._rest_directions = np.array(poses.REST_DIRECTIONS, dtype=np.float64)
-        self._rest_vectors = self._rest_directions * self.model.bone_lengths[:, None]
         # Each capsule body's frame at rest: centre of mass, Z along the bone (pybullet
         # capsules lie along Z), so its inertia is diagonal in it.
         self._capsule_frames = _shortest_arc(
             np.tile([0.0, 0.0, 1.0], (_NB, 1)), self._rest_directions
         )
+        self.client = connect_direct()
+        self._closed = False
+        try:
+            self.rebuild(bone_lengths, body_mass=body_mass)
+        except BaseException:
+            self.close()
+            raise
+
+    def rebuild(
+        self, bone_lengths: np.ndarray | None = None, *, body_mass: float | None = None
+    ) -> None:
+        """Rebuild the body for new bone lengths in the same pybullet client, from scratch.
+
+        Cheaper than a new :class:`Ragdoll` (no new client) and just as deterministic:
+        ``resetSimulation`` clears every body, constraint and solver cache. The counters in
+        :attr:`info` restart and the body stands in :meth:`standing_pose`.
+        """
+        self._check_open()
+        self.model: BodyModel = build_body_model(bone_lengths, body_mass)
+        self.force_bounds = self._strength * self.model.masses * GRAVITY
+        self._rest_vectors = self._rest_directions * self.model.bone_lengths[:, None]
         self._frames = 0
         self._divergences = 0
         self._last_error = ""
@@ -361,14 +382,7 @@ class Ragdoll:
         self._offset = np.zeros(3)
         self._offset_velocity = np.zeros(3)
         self._jumps = 0
-
-        self.client = connect_direct()
-        self._closed = False
-        try:
-            self._build(float(friction), int(solver_iterations))
-        except BaseException:
-            self.close()
-            raise
+        self._build(self._friction, self._solver_iterations)
         self.reset(self.standing_pose())
 
     # ----------------------------------------------------------------------- construction

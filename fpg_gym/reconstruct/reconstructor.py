@@ -515,6 +515,11 @@ class Reconstructor:
         self._last_timestamp: float | None = None
         self._floor: float | None = None
         self._ragdoll_needs_reset = True
+        # A new stream starts from scratch: the retargeted-database cache and the ragdoll's
+        # physics (rebuilt at the first tracked frame) carry nothing over, so the output does
+        # not depend on what was reconstructed before.
+        self.database.clear_cache()
+        self._ragdoll_lengths = None
 
     def close(self) -> None:
         """Release the ragdoll, if any."""
@@ -769,15 +774,23 @@ class Reconstructor:
     def _track(self, target: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         """Send a camera-space target through the ragdoll (floor shifted to y = 0)."""
         assert self._ragdoll_factory is not None
-        if self._ragdoll is None or (
-            self._ragdoll_lengths is not None
-            and np.max(np.abs(self._ragdoll_lengths - lengths)) > self.config.ragdoll_rebuild_m
+        new_stream = self._ragdoll_lengths is None
+        if (
+            self._ragdoll is None
+            or new_stream
+            or np.max(np.abs(self._ragdoll_lengths - lengths)) > self.config.ragdoll_rebuild_m
         ):
-            if self._ragdoll is not None:
-                self._ragdoll.close()
+            lengths64 = np.asarray(lengths, dtype=np.float64)
+            rebuild = getattr(self._ragdoll, "rebuild", None)
+            if self._ragdoll is not None and callable(rebuild):
+                rebuild(lengths64)  # same client, fresh physics: cheaper than a new ragdoll
+            else:
+                if self._ragdoll is not None:
+                    self._ragdoll.close()
+                self._ragdoll = self._ragdoll_factory(lengths64)
+            if not new_stream:
                 self.ragdoll_rebuilds += 1
-            self._ragdoll = self._ragdoll_factory(np.asarray(lengths, dtype=np.float64))
-            self._ragdoll_lengths = np.asarray(lengths, dtype=np.float64).copy()
+            self._ragdoll_lengths = lengths64.copy()
             self._ragdoll_needs_reset = True
         lowest = float(target[:, 1].min())
         self._floor = lowest if self._floor is None else min(self._floor, lowest)

@@ -146,6 +146,11 @@ class NodeDatabase:
         out: np.ndarray = joints + self._roots[nodes, None, :]
         return out
 
+    def clear_cache(self) -> None:
+        """Forget the cached retargeted database (a new stream starts from scratch)."""
+        self._cache = None
+        self._cache_lengths = None
+
     def all_poses(self, lengths: np.ndarray | None) -> np.ndarray:
         """Every node's pose, retargeted to ``lengths`` (cached; see ``refresh_tolerance_m``)."""
         if lengths is None:
