@@ -127,6 +127,11 @@ class _RagdollProbe:
     def info(self) -> dict[str, Any]:
         return dict(self.ragdoll.info)
 
+    def rebuild(self, bone_lengths: np.ndarray) -> None:
+        self.counts["ragdoll_builds"] += 1
+        self.ragdoll.rebuild(bone_lengths)
+        self._divergences = 0  # the rebuilt body's counters start again
+
     def render(self, width: int = 320, height: int = 240) -> np.ndarray:
         return np.asarray(self.ragdoll.render(width, height))
 
@@ -560,6 +565,11 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         with the action of the point it found (:meth:`action_for`).
         """
         return self._problem
+
+    @property
+    def ragdoll_enabled(self) -> bool:
+        """Whether reconstructions go through the PD ragdoll (the ``ragdoll`` argument)."""
+        return self._ragdoll_kwargs is not None
 
     @property
     def recording(self) -> Recording | None:

@@ -9,7 +9,12 @@
   (exactly that point: the action is not clipped);
 * a **policy** — anything with ``predict(obs, deterministic=True) -> (action, state)``, as
   stable-baselines3 models have;
-* a **callable** ``obs -> action`` (e.g. ``lambda obs: env.action_space.sample()``).
+* a **callable** ``obs -> action`` (e.g. ``lambda obs: env.action_space.sample()``);
+* a **method name** (:mod:`fpg_gym.methods`): ``fpg:OPTIMIZER`` / ``shum:OPTIMIZER`` run that
+  optimiser (the env's selector and ragdoll setting must match the name), and the reference
+  filters ``raw``, ``holt[:PRESET]``, ``kalman[:PRESET]`` (optionally ``+ragdoll``) run on the
+  episode's recording after the reset, without stepping the env (their rewards and energies are
+  NaN; frame errors are measured when the recording has ground truth).
 
 :func:`measure_env_throughput` times the env itself (random actions, no search), for
 ``fpg-gym bench``.
@@ -121,11 +126,42 @@ class EpisodeResult:
         return out
 
 
-def _agent_kind(agent: Any) -> tuple[str, Any, str]:
-    """``("optimizer" | "policy" | "callable", object, label)``."""
+def _method_agent(name: str, base: Any) -> tuple[str, Any, str] | None:
+    """``("filter", Method, label)`` or ``("optimizer", optimiser, label)`` for a method name
+    (None when ``name`` is not one)."""
+    import optimizers
+    from fpg_gym.methods import METHOD_BASES, parse_method
+
+    head = name.partition("+")[0].partition(":")[0].strip().lower()
+    if head not in METHOD_BASES:
+        return None
+    method = parse_method(name)
+    if method.is_filter:
+        return "filter", method, method.name
+    selector = getattr(getattr(base, "reconstructor", None), "config", None)
+    selector = getattr(selector, "selector", method.selector)
+    if selector != method.selector:
+        raise ValueError(
+            f"agent {name!r} needs selector {method.selector!r} but the env uses {selector!r}; "
+            f"create the env with selector={method.selector!r}"
+        )
+    if bool(getattr(base, "ragdoll_enabled", method.ragdoll)) != method.ragdoll:
+        raise ValueError(
+            f"agent {name!r}: the env's ragdoll setting differs; create the env with "
+            f"ragdoll={method.ragdoll}"
+        )
+    assert method.optimizer is not None
+    return "optimizer", optimizers.make(method.optimizer), method.name
+
+
+def _agent_kind(agent: Any, base: Any = None) -> tuple[str, Any, str]:
+    """``("optimizer" | "filter" | "policy" | "callable", object, label)``."""
     import optimizers
 
     if isinstance(agent, str):
+        as_method = _method_agent(agent, base)
+        if as_method is not None:
+            return as_method
         return "optimizer", optimizers.make(agent), agent
     if hasattr(agent, "predict"):
         return "policy", agent, type(agent).__name__
@@ -187,8 +223,8 @@ def run_episode(
     """
     import optimizers
 
-    kind, actor, label = _agent_kind(agent)
     base: Any = env.unwrapped
+    kind, actor, label = _agent_kind(agent, base)
     generator = (
         rng
         if isinstance(rng, np.random.Generator)
@@ -198,6 +234,8 @@ def run_episode(
     total = int(reset_info.get("num_frames", 0)) or None
     if max_steps is not None:
         total = max_steps if total is None else min(total, max_steps)
+    if kind == "filter":
+        return _run_filter_episode(base.recording, actor, label, total, reset_info)
     bar = None
     if progress:
         from tqdm import tqdm
@@ -265,6 +303,44 @@ def run_episode(
         truncated=bool(truncated),
         reset_info=reset_info,
         infos=infos,
+    )
+
+
+def _run_filter_episode(
+    recording: Any, method: Any, label: str, frames: int | None, reset_info: dict[str, Any]
+) -> EpisodeResult:
+    """A reference filter over the episode's recording (the env is not stepped)."""
+    from types import SimpleNamespace
+
+    from fpg_gym import metrics
+    from fpg_gym.methods import MethodRunner
+
+    count = recording.num_frames if frames is None else min(frames, recording.num_frames)
+    part = SimpleNamespace(
+        positions=recording.positions[:count],
+        states=recording.states[:count],
+        timestamps=recording.timestamps[:count],
+    )
+    with MethodRunner() as runner:
+        result = runner.run(method, part)
+    truth = recording.ground_truth
+    nan = np.full(count, np.nan)
+    return EpisodeResult(
+        name=str(reset_info.get("recording", "")),
+        agent=label,
+        poses=result.poses,
+        rewards=nan,
+        energies=nan.copy(),
+        frame_errors=None if truth is None else metrics.frame_error(truth[:count], result.poses),
+        raw_frame_errors=(
+            None if truth is None else metrics.frame_error(truth[:count], part.positions)
+        ),
+        evaluations=np.zeros(count, dtype=np.int64),
+        agent_ms=result.ms,
+        step_ms=np.zeros(count),
+        terminated=count == recording.num_frames,
+        truncated=count < recording.num_frames,
+        reset_info=reset_info,
     )
 
 

@@ -286,6 +286,17 @@ class MethodResult:
         return len(self.poses)
 
 
+def count_events(cumulative: Sequence[int]) -> int:
+    """Events in a run of cumulative counters that restart at 0 when their ragdoll is rebuilt.
+
+    Each frame adds the rise since the frame before, or the whole count when it dropped (a
+    rebuild restarted the counter).
+    """
+    values = np.asarray(cumulative, dtype=np.int64)
+    previous = np.concatenate([[0], values[:-1]])
+    return int(np.where(values >= previous, values - previous, values).sum())
+
+
 def reference_bone_lengths(positions: np.ndarray, states: np.ndarray) -> np.ndarray:
     """Median length of each bone over the frames where both its joints are tracked, ``(19,)``.
 
@@ -313,13 +324,12 @@ class RagdollStage:
     has no floor, so the poses are shifted down by a floor height estimated as the lowest joint
     seen so far (a running minimum); the body is reset on the first frame and tracks the
     following ones. The ragdoll gets the stream's bone lengths from
-    :func:`reference_bone_lengths` and is rebuilt when they move by more than ``rebuild_m``.
+    :func:`reference_bone_lengths`; every stream starts from freshly built physics
+    (:meth:`Ragdoll.rebuild`), so a stream's output does not depend on the ones before it.
     """
 
-    def __init__(self, rebuild_m: float = 0.02) -> None:
-        self.rebuild_m = float(rebuild_m)
+    def __init__(self) -> None:
         self._ragdoll: Any = None
-        self._lengths: np.ndarray | None = None
 
     def run(
         self, poses: np.ndarray, lengths: np.ndarray
@@ -328,12 +338,10 @@ class RagdollStage:
         from fpg_gym.ragdoll import Ragdoll
 
         lengths = np.asarray(lengths, dtype=np.float64)
-        if self._ragdoll is None or (
-            self._lengths is not None and np.max(np.abs(self._lengths - lengths)) > self.rebuild_m
-        ):
-            self.close()
+        if self._ragdoll is None:
             self._ragdoll = Ragdoll(bone_lengths=lengths)
-            self._lengths = lengths.copy()
+        else:
+            self._ragdoll.rebuild(lengths)
         body = self._ragdoll
         poses = np.asarray(poses, dtype=np.float64)
         out = np.empty(poses.shape, dtype=np.float32)
@@ -357,7 +365,6 @@ class RagdollStage:
         if self._ragdoll is not None:
             self._ragdoll.close()
             self._ragdoll = None
-            self._lengths = None
 
 
 class MethodRunner:
@@ -469,12 +476,9 @@ class MethodRunner:
         names = [str(n) for n in arrays["stage_names"]]
         stages = np.asarray(arrays["ms_stages"], dtype=np.float64).reshape(len(result.poses), -1)
         info: dict[str, Any] = {"recoveries": int(np.sum(arrays["recovered"]))}
-        ragdoll_infos = [r.ragdoll for r in result.records if r.ragdoll]
-        if ragdoll_infos:
-            # The reconstructor keeps its ragdoll between episodes: count this run's events.
-            info["ragdoll_divergences"] = int(ragdoll_infos[-1].get("divergences", 0)) - int(
-                ragdoll_infos[0].get("divergences", 0)
-            )
+        counts = [int(r.ragdoll.get("divergences", 0)) for r in result.records if r.ragdoll]
+        if counts:
+            info["ragdoll_divergences"] = count_events(counts)
         return MethodResult(
             poses=np.asarray(result.poses, dtype=np.float32),
             ms=np.asarray(arrays["ms_per_frame"], dtype=np.float64),

@@ -61,3 +61,29 @@ def test_ci_runs_the_readme_test_command_verbatim() -> None:
     assert marker in readme, "README must mark its test command"
     block = _fenced_commands(readme.split(marker, 1)[1])[0].strip()
     assert block in (REPO / ".ci" / "run").read_text()
+
+
+def test_reconstruct_with_a_reference_filter(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 11: ``fpg-gym reconstruct --method holt`` needs no graph and reports errors."""
+    import numpy as np
+
+    from fpg_gym.io import load_default_clips, write_recording
+    from fpg_gym.simulate import simulate
+
+    recording = simulate(load_default_clips(["punch"])[0], "front-many", seed=2)
+    path = tmp_path / "punch.npz"
+    write_recording(path, recording)
+    out = tmp_path / "holt.npz"
+    assert (
+        main(["reconstruct", "--input", str(path), "--method", "holt", "--out", str(out), "--json"])
+        == 0
+    )
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["method"] == "holt" and summary["frames"] == recording.num_frames
+    assert summary["mean_error_m"] > 0
+    with np.load(out) as archive:
+        assert archive["poses"].shape == recording.positions.shape
+    assert main(["reconstruct", "--input", str(path), "--method", "fpg", "--out", str(out)]) == 2
+    assert "--graph: a pose graph is needed" in capsys.readouterr().err

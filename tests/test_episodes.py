@@ -132,3 +132,31 @@ def test_measure_env_throughput(cache_dir: Path) -> None:
     assert report["step_only_per_second"] >= report["steps_per_second"]
     assert report["stage_ms"]["ragdoll"] > 0 and report["ragdoll_builds"] >= 2
     assert report["observation_size"] == 344 + 65 * 20 + 8 * 20 + 2 * 8
+
+
+def test_method_names_as_agents(cache_dir: Path) -> None:
+    """Issue 11: reference filters and pipeline method names run through run_episode."""
+    from fpg_gym import metrics
+    from fpg_gym.filters import make_filter
+
+    env = make(cache_dir)
+    holt = run_episode(env, "holt:smoothed", seed=4, options=EPISODE, max_steps=20)
+    recording = env.recording
+    assert recording is not None and recording.ground_truth is not None
+    expected = make_filter("holt:smoothed").filter_sequence(
+        recording.positions[:20], recording.states[:20], recording.timestamps[:20]
+    )
+    np.testing.assert_allclose(holt.poses, expected, atol=1e-6)
+    assert holt.frame_errors is not None
+    np.testing.assert_allclose(
+        holt.frame_errors, metrics.frame_error(recording.ground_truth[:20], expected), atol=1e-6
+    )
+    assert holt.truncated and np.isnan(holt.rewards).all()
+
+    by_method = run_episode(env, "fpg:none", seed=4, options=EPISODE)
+    by_optimizer = run_episode(env, "none", seed=4, options=EPISODE)
+    np.testing.assert_array_equal(by_method.poses, by_optimizer.poses)
+    with pytest.raises(ValueError, match="selector='brute-force'"):
+        run_episode(env, "shum:none", seed=4, options=EPISODE)
+    with pytest.raises(ValueError, match="ragdoll=True"):
+        run_episode(env, "fpg:none+ragdoll", seed=4, options=EPISODE)
