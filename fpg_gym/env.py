@@ -58,7 +58,7 @@ OBSERVATION_MODES: tuple[str, ...] = ("vector", "dict")
 #: Keys ``reset(options=...)`` accepts.
 RESET_OPTIONS: tuple[str, ...] = ("recording", "clip", "scenario", "seed")
 
-_REWARD_KEYS = ("reward_control", "reward_style", "reward_bone", "reward_temporal")
+_REWARD_KEYS = ("reward_control", "reward_style", "reward_bone", "reward_temporal", "reward_prior")
 _NON_INTERACTIVE_BACKENDS = {"agg", "pdf", "ps", "svg", "pgf", "cairo", "template"}
 _PANEL = 320
 
@@ -163,14 +163,14 @@ def _energy_weights(value: Any) -> EnergyWeights:
             return EnergyWeights(**{str(k): float(v) for k, v in value.items()})
         except TypeError:
             raise ValueError(
-                "energy_weights: expected keys among control, style, kinematic, motion, got "
+                "energy_weights: expected keys among control, style, kinematic, motion, prior, got "
                 f"{sorted(value)}"
             ) from None
     values = list(value)
-    if len(values) != 4:
+    if len(values) not in (4, 5):
         raise ValueError(
-            "energy_weights: expected 4 weights (control, style, kinematic, motion), got "
-            f"{len(values)}"
+            "energy_weights: expected 4 or 5 weights (control, style, kinematic, motion[, "
+            f"prior]), got {len(values)}"
         )
     return EnergyWeights(*(float(v) for v in values))
 
@@ -249,7 +249,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     embedded episodes E is about 0.03 after the paper's search and 0.3 without, e about
     0.1-0.15 m). ``info`` holds the four negated
     weighted terms ``reward_control`` (``-w_c Ec``), ``reward_style`` (``-w_s Es``),
-    ``reward_bone`` (``-w_k Ek``), ``reward_temporal`` (``-w_m Em``), which sum to ``-E``; and
+    ``reward_bone`` (``-w_k Ek``), ``reward_temporal`` (``-w_m Em``) and ``reward_prior``
+    (``-w_p Ep``, 0 unless the latent prior is switched on), which sum to ``-E``; and
     ``energy``, and ``frame_error`` / ``raw_frame_error`` (of the sensor stream) when the episode
     has ground truth. The error modes raise ``ValueError`` at construction (recordings) or reset
     (a recording given in ``options``) when an episode has no ground truth.
@@ -731,6 +732,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             "reward_style": -w.style * terms["Es"],
             "reward_bone": -w.kinematic * terms["Ek"],
             "reward_temporal": -w.motion * terms["Em"],
+            "reward_prior": -w.prior * terms["Ep"],
         }
         truth = recording.ground_truth
         if truth is not None:

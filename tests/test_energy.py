@@ -7,6 +7,7 @@ import pytest
 
 from fpg_gym import poses, skeleton
 from fpg_gym.reconstruct.energy import (
+    POSE_TERM_NAMES,
     TERM_NAMES,
     EnergyModel,
     EnergyWeights,
@@ -59,7 +60,7 @@ def test_latent_terms_equal_direct_per_sample_terms(rng: np.random.Generator, ma
     )
     for i in range(len(z)):
         naive = per_sample(decoded[i], sensor, r, neighbours, lengths, target)
-        for name in TERM_NAMES:
+        for name in POSE_TERM_NAMES:
             assert fast[name][i] == pytest.approx(naive[name], rel=1e-7, abs=1e-10), name
             assert direct[name][i] == pytest.approx(naive[name], rel=1e-7, abs=1e-10), name
     w = EnergyWeights()
@@ -73,7 +74,7 @@ def test_latent_terms_equal_direct_per_sample_terms(rng: np.random.Generator, ma
 
 
 def test_default_weights_and_no_motion_term_without_history(rng: np.random.Generator) -> None:
-    assert EnergyWeights().as_array().tolist() == [1.0, 0.5, 1.5, 0.25]
+    assert EnergyWeights().as_array().tolist() == [1.0, 0.5, 1.5, 0.25, 0.0]
     latent, sensor, r, neighbours, lengths, _ = setup(rng)
     model = EnergyModel(latent, sensor, r, neighbours, lengths, None, EnergyWeights(style=2.0))
     z = rng.normal(size=(4, latent.dim))
@@ -105,3 +106,18 @@ def test_float32_arithmetic_agrees_with_float64(rng: np.random.Generator) -> Non
     assert np.array_equal(np.argsort(exact(z))[:5], np.argsort(fast(z))[:5])
     with pytest.raises(ValueError, match="dtype"):
         EnergyModel(latent, sensor, r, neighbours, lengths, target, dtype=np.int32)
+
+
+def test_latent_prior_term(rng: np.random.Generator) -> None:
+    """Ep = mean of the squared whitened coordinates; weight 0 (the papers) leaves E unchanged."""
+    latent, sensor, r, neighbours, lengths, target = setup(rng)
+    z = rng.normal(0, 1.0, (6, latent.dim))
+    plain = EnergyModel(latent, sensor, r, neighbours, lengths, target)
+    terms = plain.terms(z)
+    np.testing.assert_allclose(terms["Ep"], (z**2).mean(axis=1))
+    weights = EnergyWeights.with_prior(0.2)
+    assert weights.prior == 0.2 and weights.control == EnergyWeights().control
+    with_prior = EnergyModel(latent, sensor, r, neighbours, lengths, target, weights)
+    np.testing.assert_allclose(with_prior(z), plain(z) + 0.2 * terms["Ep"])
+    with pytest.raises(ValueError, match="prior"):
+        EnergyWeights(prior=-0.1)

@@ -127,7 +127,7 @@ def test_reconstruction_repairs_an_occluded_limb_and_keeps_bone_lengths() -> Non
     arrays = result.arrays()
     t = len(truth)
     assert arrays["reliability"].shape == (t, 20) and arrays["ms_per_frame"].shape == (t,)
-    assert arrays["nodes"].shape == (t, 30) and arrays["energy_terms"].shape == (t, 4)
+    assert arrays["nodes"].shape == (t, 30) and arrays["energy_terms"].shape == (t, 5)
     assert arrays["ms_stages"].shape == (t, len(STAGES))
     assert np.all(arrays["evaluations"] <= 2000) and np.all(arrays["energy"] <= arrays["energy_x0"])
     assert arrays["full_search"][0]  # later full searches only through the recovery rule

@@ -8,6 +8,7 @@ See :mod:`fpg_gym.reconstruct.reconstructor` for the data flow of one frame and
 from __future__ import annotations
 
 from fpg_gym.reconstruct.energy import (
+    POSE_TERM_NAMES,
     TERM_NAMES,
     EnergyModel,
     EnergyWeights,
@@ -50,6 +51,7 @@ from fpg_gym.reconstruct.selection import (
 
 __all__ = [
     "LABELLINGS",
+    "POSE_TERM_NAMES",
     "STAGES",
     "TERM_NAMES",
     "BruteForceSelector",

@@ -13,6 +13,14 @@ pose ``p_x`` (normalised, in the current frame):
   dt_prev`` replaces ``2 p_{x-1} - p_{x-2}`` (identical at a constant frame rate), so
   ``Em = mean_j ||p_x(j) - target(j)||^2``. Without a previous frame ``Em = 0``.
 
+Beyond the papers, an optional fifth term (weight 0 by default, which is the papers' energy):
+
+* ``Ep = mean_i z_i^2`` over the whitened latent coordinates — prior: a Gaussian prior on the
+  natural posture space, centred on the mean of the K candidates with their spread (the PCA
+  pose prior of e.g. Chai & Hodgins 2005). It pulls the search toward the candidates when the
+  sensor term trusts joints that are wrong. ``EnergyWeights.with_prior()`` gives the weight
+  chosen on a validation split (see the README).
+
 The functions ``control_energy`` ... ``motion_energy`` compute each term directly from poses
 (the reference implementation). :class:`EnergyModel` evaluates the same terms for a batch of
 latent points without building the candidates' distance tensors: poses are decoded with one
@@ -30,7 +38,11 @@ import numpy.typing as npt
 from fpg_gym import skeleton
 from fpg_gym.reconstruct.latent import POSE_SIZE, LatentSpace
 
-TERM_NAMES: tuple[str, ...] = ("Ec", "Es", "Ek", "Em")
+#: The papers' terms (computable from a pose alone) and all terms, in weight order.
+POSE_TERM_NAMES: tuple[str, ...] = ("Ec", "Es", "Ek", "Em")
+TERM_NAMES: tuple[str, ...] = (*POSE_TERM_NAMES, "Ep")
+#: Prior weight chosen on a validation split of Bandai Namco takes (README, "Beyond the papers").
+TUNED_PRIOR_WEIGHT = 0.1
 
 
 @dataclass(frozen=True)
@@ -41,12 +53,20 @@ class EnergyWeights:
     ----------
     control, style, kinematic, motion : float
         Weights of ``Ec``, ``Es``, ``Ek`` and ``Em`` (1.0, 0.5, 1.5, 0.25).
+    prior : float
+        Weight of the latent prior ``Ep`` (beyond the papers; 0 = off, the papers' energy).
     """
 
     control: float = 1.0
     style: float = 0.5
     kinematic: float = 1.5
     motion: float = 0.25
+    prior: float = 0.0
+
+    @classmethod
+    def with_prior(cls, prior: float = TUNED_PRIOR_WEIGHT) -> EnergyWeights:
+        """The papers' weights plus the latent prior (weight chosen on a validation split)."""
+        return cls(prior=prior)
 
     def __post_init__(self) -> None:
         for name, value in asdict(self).items():
@@ -54,8 +74,8 @@ class EnergyWeights:
                 raise ValueError(f"energy weight {name}: expected a finite value >= 0, got {value}")
 
     def as_array(self) -> np.ndarray:
-        """The weights in :data:`TERM_NAMES` order, ``(4,)``."""
-        return np.array([self.control, self.style, self.kinematic, self.motion])
+        """The weights in :data:`TERM_NAMES` order, ``(5,)``."""
+        return np.array([self.control, self.style, self.kinematic, self.motion, self.prior])
 
 
 # --------------------------------------------------------------------------- direct terms
@@ -115,7 +135,8 @@ def pose_energy_terms(
     lengths: np.ndarray,
     target: np.ndarray | None,
 ) -> dict[str, np.ndarray]:
-    """All four terms for poses ``(n, 20, 3)``, computed directly (the reference path)."""
+    """The papers' four terms (:data:`POSE_TERM_NAMES`) for poses ``(n, 20, 3)``, computed
+    directly (the reference path)."""
     return {
         "Ec": control_energy(poses, sensor, reliability),
         "Es": style_energy(poses, neighbours),
@@ -202,7 +223,8 @@ class EnergyModel:
         return self._mean + np.asarray(z, dtype=self.dtype) @ self._components
 
     def terms(self, z: np.ndarray) -> dict[str, np.ndarray]:
-        """``Ec``, ``Es``, ``Ek``, ``Em`` for latent points ``(n, d)``, each ``(n,)`` float64."""
+        """``Ec``, ``Es``, ``Ek``, ``Em``, ``Ep`` for latent points ``(n, d)``, each ``(n,)``
+        float64."""
         z = np.asarray(z, dtype=self.dtype)
         x = self.decode_flat(z)
         joints = skeleton.NUM_JOINTS
@@ -221,15 +243,17 @@ class EnergyModel:
         else:
             diff = x - self._w_target
             em = np.einsum("nd,nd->n", diff, diff) / joints  # Eq. 14
-        out = {"Ec": ec, "Es": es, "Ek": ek, "Em": em}
+        ep = np.einsum("nd,nd->n", z, z) / max(z.shape[1], 1)  # latent prior (beyond the papers)
+        out = {"Ec": ec, "Es": es, "Ek": ek, "Em": em, "Ep": ep}
         if self.dtype != np.float64:
             out = {k: v.astype(np.float64) for k, v in out.items()}
         return out
 
     def total(self, terms: dict[str, np.ndarray]) -> np.ndarray:
-        """Weighted sum of terms (Eq. 10)."""
+        """Weighted sum of terms (Eq. 10, plus the prior when its weight is not 0)."""
         w = self._w
-        return w[0] * terms["Ec"] + w[1] * terms["Es"] + w[2] * terms["Ek"] + w[3] * terms["Em"]
+        total = w[0] * terms["Ec"] + w[1] * terms["Es"] + w[2] * terms["Ek"] + w[3] * terms["Em"]
+        return total + w[4] * terms["Ep"] if w[4] else total
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
         """``E`` for latent points ``(n, d) -> (n,)``."""

@@ -334,7 +334,7 @@ class ReconstructionResult:
 
         ``poses`` (T,20,3), ``timestamps`` (T,), ``reliability``/``behaviour``/``kinematic``/
         ``tracking`` (T,20), ``nodes``/``node_scores`` (T,K) (−1 / NaN padded), ``num_scored``,
-        ``evaluations`` (T,), ``energy``, ``energy_x0`` (T,), ``energy_terms`` (T,4) in
+        ``evaluations`` (T,), ``energy``, ``energy_x0`` (T,), ``energy_terms`` (T,5) in
         ``energy_term_names`` order, ``full_search``/``recovered``/``first``/``no_body`` (T,)
         bool, ``ms_per_frame`` (T,), ``ms_stages`` (T,S) in ``stage_names`` order.
         """
