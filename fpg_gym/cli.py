@@ -23,6 +23,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "compare",
     "demo",
     "bench",
+    "train_sampler",
 )
 
 

@@ -21,7 +21,9 @@ base       option               method
 =========  ===================  =============================================================
 
 The option of ``shum``/``fpg`` is a registered optimiser (``optimizers.available()``:
-``local-search`` — the papers' search, the default —, ``random-search``, ``cma-es``, ``none``);
+``local-search`` — the papers' search, the default —, ``random-search``, ``cma-es``, ``none``,
+or a parametrised name such as ``learned:PATH`` / ``learned+search:PATH``, so
+``fpg:learned+search:runs/sampler+ragdoll`` is valid: only a trailing ``+ragdoll`` is a suffix);
 the option of a filter is its preset (the SDK's documented default when omitted). ``+ragdoll``
 sends the method's output through the pybullet PD ragdoll (:class:`fpg_gym.ragdoll.Ragdoll`) as a
 final filter — for ``shum``/``fpg`` inside the :class:`~fpg_gym.reconstruct.Reconstructor`
@@ -157,8 +159,13 @@ def parse_method(text: str) -> Method:
     raw = str(text).strip()
     if not raw:
         raise ValueError("method: empty name")
-    body, plus, suffix = raw.partition("+")
-    if plus and suffix.strip().lower() != "ragdoll":
+    # An optimiser option may hold '+' and ':' (learned+search:PATH): only a trailing
+    # '+ragdoll' is the suffix, and a '+' before the option is an error.
+    plus = raw.lower().endswith(RAGDOLL_SUFFIX)
+    body = raw[: -len(RAGDOLL_SUFFIX)] if plus else raw
+    head, _, rest = body.partition(":")
+    if "+" in head or (head.strip().lower() in FILTER_BASES and "+" in rest):
+        suffix = body[body.index("+") + 1 :]
         raise ValueError(f"method {raw!r}: the only suffix is '+ragdoll', got '+{suffix}'")
     base, _, option = body.partition(":")
     base, option = base.strip().lower(), option.strip()

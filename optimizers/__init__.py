@@ -20,6 +20,10 @@ Built-in optimisers (``make(name, **kwargs)``):
 ``none``           no search: x0 (the previous reconstruction projected, or the best candidate)
 =================  =====================================================================
 
+Parametrised names ``PREFIX:ARGUMENT`` call a prefix factory with the argument (see
+:func:`register_prefix`): ``learned:PATH`` and ``learned+search:PATH`` draw candidates from a
+learned sampler saved at ``PATH`` (:mod:`optimizers.learned`, needs ``fpg-gym[learn]``).
+
 Third-party optimisers register a factory (usually the class) under a name::
 
     import optimizers
@@ -36,6 +40,7 @@ way it changes.
 
 from __future__ import annotations
 
+import functools
 import importlib
 from collections.abc import Callable
 from typing import Any, Protocol, TypeVar, runtime_checkable
@@ -52,7 +57,9 @@ __all__ = [
     "ProblemLike",
     "available",
     "make",
+    "prefixes",
     "register",
+    "register_prefix",
     "run_optimizer",
 ]
 
@@ -141,6 +148,12 @@ _BUILTINS: dict[str, str] = {
     "none": "optimizers.none:NoSearch",
 }
 _REGISTRY: dict[str, OptimizerFactory] = {}
+# Parametrised names "PREFIX:ARGUMENT": the factory is called with ARGUMENT first.
+_BUILTIN_PREFIXES: dict[str, str] = {
+    "learned": "optimizers.learned:LearnedSampler",
+    "learned+search": "optimizers.learned:LearnedSearch",
+}
+_PREFIX_REGISTRY: dict[str, OptimizerFactory] = {}
 
 
 def register(name: str, factory: OptimizerFactory | None = None, *, overwrite: bool = False) -> Any:
@@ -176,6 +189,34 @@ def register(name: str, factory: OptimizerFactory | None = None, *, overwrite: b
     return decorate(factory)
 
 
+def register_prefix(
+    prefix: str, factory: OptimizerFactory, *, overwrite: bool = False
+) -> OptimizerFactory:
+    """Register a factory for parametrised names ``PREFIX:ARGUMENT``.
+
+    ``make("PREFIX:ARGUMENT", **kwargs)`` returns ``factory(ARGUMENT, **kwargs)`` (the argument
+    is everything after the first colon, e.g. a file path). Plain names take precedence.
+
+    Raises
+    ------
+    ValueError
+        If ``prefix`` is empty, contains ``:``, or is taken (without ``overwrite``).
+    """
+    if not isinstance(prefix, str) or not prefix or ":" in prefix:
+        raise ValueError(f"prefix: expected a non-empty string without ':', got {prefix!r}")
+    if not callable(factory):
+        raise ValueError(f"factory for {prefix!r}: expected a callable, got {factory!r}")
+    if not overwrite and (prefix in _PREFIX_REGISTRY or prefix in _BUILTIN_PREFIXES):
+        raise ValueError(f"optimizer prefix {prefix!r} is already registered")
+    _PREFIX_REGISTRY[prefix] = factory
+    return factory
+
+
+def prefixes() -> list[str]:
+    """Prefixes of parametrised names (``learned``, ``learned+search``, ...), sorted."""
+    return sorted(set(_BUILTIN_PREFIXES) | set(_PREFIX_REGISTRY))
+
+
 def available() -> list[str]:
     """Names :func:`make` accepts, sorted."""
     return sorted(set(_BUILTINS) | set(_REGISTRY))
@@ -188,7 +229,17 @@ def _factory(name: str) -> OptimizerFactory:
         module_name, attr = _BUILTINS[name].split(":")
         factory: OptimizerFactory = getattr(importlib.import_module(module_name), attr)
         return factory
-    raise OptimizerNotFound(f"unknown optimizer {name!r}; available: {', '.join(available())}")
+    prefix, colon, argument = name.partition(":")
+    if colon and prefix in _PREFIX_REGISTRY:
+        return functools.partial(_PREFIX_REGISTRY[prefix], argument)
+    if colon and prefix in _BUILTIN_PREFIXES:
+        module_name, attr = _BUILTIN_PREFIXES[prefix].split(":")
+        return functools.partial(getattr(importlib.import_module(module_name), attr), argument)
+    parametrised = ", ".join(f"{p}:ARG" for p in prefixes())
+    raise OptimizerNotFound(
+        f"unknown optimizer {name!r}; available: {', '.join(available())}; parametrised: "
+        f"{parametrised}"
+    )
 
 
 def make(name: str | Optimizer, **kwargs: Any) -> Optimizer:

@@ -1,0 +1,185 @@
+"""Learned candidate samplers as optimisers: ``learned:PATH`` and ``learned+search:PATH``.
+
+A sampler trained by ``fpg-gym train-sampler`` (:mod:`policies`) maps a frame's observation to
+a Gaussian over the whitened latent space. These optimisers build the observation of the
+problem they are given (:meth:`policies.sampler.GaussianSampler.observe`, the env's own
+builder), draw candidates from the Gaussian and let :func:`optimizers.run_optimizer` score them
+with ``problem.evaluate``: the same budget accounting as every other optimiser.
+
+``learned:PATH`` (:class:`LearnedSampler`)
+    One batch of ``samples`` (200) points: the Gaussian's anchor (when the model has one, see
+    :class:`policies.sampler.FeatureMap`) and mean first, then draws from the Gaussian.
+``learned+search:PATH`` (:class:`LearnedSearch`)
+    ``samples`` (100) learned points, then local-search iterations (Shum §VI-E rule: move to the
+    batch's best on improvement, else halve the step) seeded at the best one: ``iterations``
+    (2) x ``search_samples`` (50). 200 evaluations in all by default.
+
+``PATH`` is a model path as :func:`policies.sampler.load_sampler` takes it (``MODEL``,
+``MODEL.json``, ``.pt`` or ``.zip``). torch (and stable-baselines3 for RL samplers) must be
+installed: ``pip install 'fpg-gym[learn]'``.
+
+Examples
+--------
+>>> import optimizers                                                    # doctest: +SKIP
+>>> opt = optimizers.make("learned+search:runs/sampler")                 # doctest: +SKIP
+>>> z = optimizers.run_optimizer(problem, opt, rng=0)                    # doctest: +SKIP
+"""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from optimizers import BaseOptimizer
+
+__all__ = ["LearnedSampler", "LearnedSearch"]
+
+
+def _sampler(model: Any) -> Any:
+    if isinstance(model, str | os.PathLike):
+        from policies.sampler import load_sampler
+
+        return load_sampler(model)
+    if not callable(getattr(model, "latent_gaussian", None)):
+        raise ValueError(
+            f"model: expected a sampler path or a policies.GaussianSampler, got {model!r}"
+        )
+    return model
+
+
+class LearnedSampler(BaseOptimizer):
+    """Candidates drawn from a learned Gaussian (``learned:PATH``).
+
+    Parameters
+    ----------
+    model : str, path or GaussianSampler
+        A saved sampler (loaded once, here) or a sampler object.
+    samples : int
+        Points (200): the anchor (if any) and the mean, then draws from the Gaussian.
+    std_scale : float
+        Multiplies the model's standard deviation (1).
+    """
+
+    name = "learned"
+
+    def __init__(self, model: Any, samples: int = 200, std_scale: float = 1.0) -> None:
+        super().__init__()
+        if samples < 1:
+            raise ValueError(f"samples: expected >= 1, got {samples}")
+        if not std_scale >= 0:
+            raise ValueError(f"std_scale: expected >= 0, got {std_scale}")
+        self.model = model
+        self.sampler = _sampler(model)
+        self.samples = int(samples)
+        self.std_scale = float(std_scale)
+
+    def params(self) -> dict[str, Any]:
+        """Constructor parameters."""
+        model = self.model if isinstance(self.model, str | os.PathLike) else "<sampler>"
+        return {"model": str(model), "samples": self.samples, "std_scale": self.std_scale}
+
+    def reset(self, problem: Any, rng: np.random.Generator) -> None:
+        """Compute the frame's Gaussian (one forward pass)."""
+        super().reset(problem, rng)
+        self.mean, self.std, self.anchor = self.sampler.latent_gaussian(problem)
+        self.best_z = self.mean.copy()
+        self.best_energy = np.inf
+        self.drawn = False
+
+    def _draws(self, count: int) -> np.ndarray:
+        z = self.mean + self.std_scale * self.std * self.rng.standard_normal((count, self.dim))
+        z[0] = self.mean
+        if self.anchor is not None and count > 1:
+            z[1] = self.anchor
+        return z
+
+    def ask(self) -> np.ndarray | None:
+        """The mean, the anchor and draws (``samples`` in all), once; then None."""
+        if self.drawn:
+            return None
+        self.drawn = True
+        return self._draws(self.samples)
+
+    def tell(self, z: np.ndarray, energies: np.ndarray) -> None:
+        """Keep the best point."""
+        i = int(np.argmin(energies))
+        if energies[i] < self.best_energy:
+            self.best_energy = float(energies[i])
+            self.best_z = np.array(z[i], dtype=np.float64)
+
+
+class LearnedSearch(LearnedSampler):
+    """Learned candidates, then a short local search from the best (``learned+search:PATH``).
+
+    Parameters
+    ----------
+    model : str, path or GaussianSampler
+    samples : int
+        Learned points (100).
+    iterations : int
+        Local-search batches after them (2).
+    search_samples : int
+        Points per local-search batch (50).
+    step : float
+        Initial local-search step (0.25 whitened units, as ``local-search``); halved after a
+        batch without improvement.
+    std_scale : float
+        Multiplies the model's standard deviation (1).
+    """
+
+    name = "learned+search"
+
+    def __init__(
+        self,
+        model: Any,
+        samples: int = 100,
+        iterations: int = 2,
+        search_samples: int = 50,
+        step: float = 0.25,
+        std_scale: float = 1.0,
+    ) -> None:
+        super().__init__(model, samples=samples, std_scale=std_scale)
+        if iterations < 0 or search_samples < 1:
+            raise ValueError(
+                f"iterations, search_samples: expected >= 0 and >= 1, got {iterations}, "
+                f"{search_samples}"
+            )
+        if not step > 0:
+            raise ValueError(f"step: expected > 0, got {step}")
+        self.iterations = int(iterations)
+        self.search_samples = int(search_samples)
+        self.step = float(step)
+
+    def params(self) -> dict[str, Any]:
+        """Constructor parameters."""
+        return {
+            **super().params(),
+            "iterations": self.iterations,
+            "search_samples": self.search_samples,
+            "step": self.step,
+        }
+
+    def reset(self, problem: Any, rng: np.random.Generator) -> None:
+        """Compute the frame's Gaussian; the search starts after the learned batch."""
+        super().reset(problem, rng)
+        self.iteration = 0
+        self.current_step = self.step
+
+    def ask(self) -> np.ndarray | None:
+        """The learned batch first, then ``search_samples`` points around the best."""
+        if not self.drawn:
+            return super().ask()
+        if self.iteration >= self.iterations or not np.isfinite(self.best_energy):
+            return None
+        self.iteration += 1
+        noise = self.rng.standard_normal((self.search_samples, self.dim))
+        return self.best_z + self.current_step * noise
+
+    def tell(self, z: np.ndarray, energies: np.ndarray) -> None:
+        """Move to the best point; halve the step after a search batch without improvement."""
+        before = self.best_energy
+        super().tell(z, energies)
+        if self.iteration > 0 and not self.best_energy < before:
+            self.current_step *= 0.5

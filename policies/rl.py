@@ -1,0 +1,355 @@
+"""RL sampler: a stable-baselines3 PPO or SAC policy trained on ``fpg_gym/KinectPose-v0``.
+
+The policy acts on the env with the ``energy`` reward (``-E``, Shum Eq. 10: no ground truth
+needed). A Gymnasium wrapper (:meth:`policies.sampler.FeatureMap.wrap`) shows it the sampler's
+features instead of the raw observation vector and adds its action to the sampler's anchor
+(the closed-form minimiser of the energy's quadratic terms, by default), so the policy learns
+an offset from the anchor and its spread; the env does not clip the sum. Its Gaussian:
+
+* PPO: SB3's diagonal Gaussian, a state-dependent mean and a learned, state-independent
+  standard deviation (``log_std_init`` -1 by default: std 0.37 action units, about one whitened
+  unit at ``action_scale`` 3);
+* SAC: a squashed Gaussian ``tanh(N(mu, sigma))``; the sampler reports ``tanh(mu)`` and the
+  linearised spread ``sigma (1 - tanh(mu)^2)``.
+
+The discount is 0.5: a frame's action matters mostly for its own energy (later frames feel it
+only through the continuity terms), and a short horizon keeps the value estimates less noisy.
+
+Saved as SB3's ``MODEL.zip`` plus ``MODEL.json`` (:class:`~policies.sampler.SamplerSpec`);
+loading passes the spaces, learning-rate and clip-range schedules as ``custom_objects``, so no
+pickled callable from the file is needed (the way SB3 documents loading across versions).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from policies.sampler import (
+    DEFAULT_FEATURES,
+    GaussianSampler,
+    SamplerSpec,
+    import_learn,
+    model_paths,
+)
+
+__all__ = ["ALGOS", "RL_DEFAULTS", "RLSampler", "make_training_env", "train_rl"]
+
+#: Supported algorithms.
+ALGOS: tuple[str, ...] = ("ppo", "sac")
+
+#: Algorithm settings (``SamplerSpec.hyperparameters`` overrides them); ``net_arch`` and
+#: ``log_std_init`` go to the policy.
+RL_DEFAULTS: dict[str, dict[str, Any]] = {
+    "ppo": {
+        "learning_rate": 3e-4,
+        "n_steps": 1024,
+        "batch_size": 128,
+        "n_epochs": 5,
+        "gamma": 0.5,
+        "gae_lambda": 0.9,
+        "clip_range": 0.2,
+        "ent_coef": 0.0,
+        "net_arch": [256, 256],
+        "log_std_init": -1.0,
+    },
+    "sac": {
+        "learning_rate": 3e-4,
+        "buffer_size": 100_000,
+        "batch_size": 256,
+        "learning_starts": 1_000,
+        "gamma": 0.5,
+        "train_freq": 1,
+        "gradient_steps": 1,
+        "net_arch": [256, 256],
+        "log_std_init": -1.0,
+    },
+}
+_POLICY_KEYS = ("net_arch", "log_std_init")
+
+
+def _algo_class(algo: str) -> Any:
+    sb3 = import_learn("stable_baselines3")
+    if algo not in ALGOS:
+        raise ValueError(f"algo: expected one of {ALGOS}, got {algo!r}")
+    return sb3.PPO if algo == "ppo" else sb3.SAC
+
+
+class RLSampler(GaussianSampler):
+    """A :class:`~policies.sampler.GaussianSampler` backed by an SB3 PPO or SAC model.
+
+    Attributes
+    ----------
+    model : stable_baselines3.PPO or stable_baselines3.SAC
+    """
+
+    def __init__(self, spec: SamplerSpec, model: Any, seed: int | None = 0) -> None:
+        super().__init__(spec, seed)
+        if spec.kind != "rl" or spec.algo not in ALGOS:
+            raise ValueError(f"RLSampler: expected an rl spec with algo in {ALGOS}, got {spec}")
+        self.model = model
+
+    @classmethod
+    def load_weights(
+        cls, spec: SamplerSpec, weights: str | os.PathLike[str], *, seed: int | None = 0
+    ) -> RLSampler:
+        """A sampler from ``spec`` and SB3's ``.zip``."""
+        import gymnasium as gym
+
+        feature_map = spec.feature_map()
+        custom = {
+            "observation_space": gym.spaces.Box(
+                feature_map.low, feature_map.high, dtype=np.float32
+            ),
+            "action_space": gym.spaces.Box(-1.0, 1.0, (spec.latent_dim,), dtype=np.float32),
+            "learning_rate": 0.0,
+            "lr_schedule": _Constant(0.0),
+            "clip_range": _Constant(0.0),
+        }
+        model = _algo_class(spec.algo).load(Path(weights), device="cpu", custom_objects=custom)
+        return cls(spec, model, seed)
+
+    def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and std ``(n, L)`` (action units) of feature rows ``(n, F)``."""
+        torch = import_learn("torch")
+        obs = torch.as_tensor(np.asarray(features, dtype=np.float32))
+        policy = self.model.policy
+        with torch.no_grad():
+            if self.spec.algo == "ppo":
+                distribution = policy.get_distribution(obs).distribution
+                mean, std = distribution.mean, distribution.stddev
+            else:
+                mu, log_std, _ = policy.actor.get_action_dist_params(obs)
+                mean = torch.tanh(mu)
+                std = log_std.exp() * (1.0 - mean * mean)
+        mean_np = mean.double().numpy().reshape(len(features), -1)
+        std_np = np.broadcast_to(std.double().numpy(), mean_np.shape).copy()
+        return mean_np, np.maximum(std_np, 1e-6)
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write ``MODEL.zip`` (SB3) and ``MODEL.json``; returns the JSON's path."""
+        json_path, stem = model_paths(path)
+        weights = stem.with_name(stem.name + ".zip")
+        weights.parent.mkdir(parents=True, exist_ok=True)
+        self.model.save(weights)
+        self.spec.weights = weights.name
+        return self.spec.save(json_path)
+
+
+class _Constant:
+    """A picklable constant schedule (stands in for SB3's saved schedules on load)."""
+
+    def __init__(self, value: float) -> None:
+        self.value = float(value)
+
+    def __call__(self, _progress: float) -> float:
+        return self.value
+
+
+def make_training_env(
+    graph: Any,
+    clips: Sequence[Any],
+    scenarios: Sequence[str],
+    *,
+    k: int = 30,
+    latent_dim: int = 20,
+    action_scale: float = 3.0,
+    action_mode: str = "delta",
+    max_frames: int | None = None,
+) -> Any:
+    """The training env: ``KinectPoseEnv`` with the energy reward, no ragdoll (the compared
+    methods run without one), episodes from ``clips`` x ``scenarios``, unclipped actions (the
+    policy's action is added to the sampler's anchor, :meth:`FeatureMap.wrap`)."""
+    from fpg_gym.env import KinectPoseEnv
+
+    return KinectPoseEnv(
+        graph,
+        clips=list(clips),
+        scenarios=list(scenarios),
+        k=k,
+        latent_dim=latent_dim,
+        action_scale=action_scale,
+        action_mode=action_mode,
+        reward_mode="energy",
+        clip_actions=False,
+        ragdoll=False,
+        max_episode_steps=max_frames,
+    )
+
+
+def train_rl(
+    *,
+    graph: Any,
+    clips: Sequence[Any],
+    scenarios: Sequence[str],
+    algo: str = "ppo",
+    timesteps: int = 100_000,
+    seed: int = 0,
+    k: int = 30,
+    latent_dim: int = 20,
+    action_scale: float = 3.0,
+    action_mode: str = "delta",
+    max_frames: int | None = None,
+    features: Sequence[str] = DEFAULT_FEATURES,
+    anchor: str = "quadratic",
+    anchor_style: float = 2.0,
+    hyperparameters: dict[str, Any] | None = None,
+    evaluate: Callable[[GaussianSampler], dict[str, Any]] | None = None,
+    eval_every: int | None = None,
+    checkpoints: str | os.PathLike[str] | None = None,
+    tensorboard: str | None = None,
+    progress: bool = False,
+    log: Callable[[str], None] | None = None,
+) -> tuple[RLSampler, list[dict[str, Any]]]:
+    """Train an SB3 ``algo`` policy on the energy reward; returns the sampler and its history.
+
+    Parameters
+    ----------
+    graph, clips, scenarios, k, latent_dim, action_scale, action_mode, max_frames
+        The training env (:func:`make_training_env`).
+    algo : {"ppo", "sac"}
+    timesteps : int
+        Env steps.
+    seed : int
+        SB3's seed (it seeds Python, numpy and torch, as SB3 does) and the env's.
+    features : sequence of str
+        Observation fields the policy reads.
+    anchor, anchor_style
+        The Gaussian's anchor (:class:`~policies.sampler.FeatureMap`): the policy's action is
+        an offset from it.
+    hyperparameters : dict, optional
+        Overrides of :data:`RL_DEFAULTS`.
+    evaluate : callable, optional
+        ``evaluate(sampler) -> {"mean": {...}}`` run every ``eval_every`` steps (a checkpoint
+        is saved then too, in ``checkpoints``).
+    tensorboard : str, optional
+        SB3's ``tensorboard_log`` folder (needs tensorboard).
+    progress : bool
+        A tqdm bar over the steps.
+    log : callable, optional
+        Receives one-line messages.
+
+    Returns
+    -------
+    sampler : RLSampler
+    history : list of dict
+        ``{"timesteps", "reward_per_step"}`` every twentieth of the run (the mean reward of
+        the steps since the last record) and the periodic evaluations (``eval_*``, the first
+        at step 0, before any training).
+    """
+    sb3 = import_learn("stable_baselines3")
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    algo_class = _algo_class(algo)
+    hyper = {**RL_DEFAULTS[algo], **(hyperparameters or {})}
+    unknown = sorted(set(hyper) - set(RL_DEFAULTS[algo]))
+    if unknown:
+        raise ValueError(f"hyperparameters for {algo}: unknown {unknown}")
+    if algo == "ppo":
+        hyper["n_steps"] = int(min(hyper["n_steps"], max(timesteps, 2)))
+        hyper["batch_size"] = int(min(hyper["batch_size"], hyper["n_steps"]))
+    env = make_training_env(
+        graph,
+        clips,
+        scenarios,
+        k=k,
+        latent_dim=latent_dim,
+        action_scale=action_scale,
+        action_mode=action_mode,
+        max_frames=max_frames,
+    )
+    spec = SamplerSpec.for_env(
+        env,
+        "rl",
+        algo,
+        features=list(features),
+        anchor=anchor,
+        anchor_style=anchor_style,
+        hyperparameters=dict(hyper),
+    )
+    feature_map = spec.feature_map()
+    vec_env = DummyVecEnv([lambda: Monitor(feature_map.wrap(env))])
+    policy_kwargs = {key: hyper[key] for key in _POLICY_KEYS}
+    policy_kwargs["net_arch"] = [int(w) for w in policy_kwargs["net_arch"]]
+    algo_kwargs = {key: v for key, v in hyper.items() if key not in _POLICY_KEYS}
+    say = log or (lambda text: None)
+    model = algo_class(
+        "MlpPolicy",
+        vec_env,
+        seed=seed,
+        device="cpu",
+        verbose=0,
+        policy_kwargs=policy_kwargs,
+        tensorboard_log=tensorboard,
+        **algo_kwargs,
+    )
+    sampler = RLSampler(spec, model, seed)
+    history: list[dict[str, Any]] = []
+    record_every = max(timesteps // 20, 1)
+    checkpoint_dir = None if checkpoints is None else Path(checkpoints)
+
+    class _Callback(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.bar: Any = None
+            self.rewards: list[float] = []
+            self.started = time.perf_counter()
+
+        def _on_training_start(self) -> None:
+            if evaluate is not None and eval_every:
+                self._evaluate(0)  # the untrained policy: the reference of the curve
+            if progress:
+                from tqdm.auto import tqdm
+
+                self.bar = tqdm(total=timesteps, desc=f"train {algo}", unit="step", leave=False)
+
+        def _on_step(self) -> bool:
+            self.rewards.extend(float(r) for r in np.ravel(self.locals.get("rewards", [])))
+            steps = int(self.num_timesteps)
+            if self.bar is not None:
+                self.bar.update(steps - self.bar.n)
+            if steps % record_every == 0 and self.rewards:
+                history.append(
+                    {
+                        "timesteps": steps,
+                        "reward_per_step": float(np.mean(self.rewards)),
+                        "seconds": time.perf_counter() - self.started,
+                    }
+                )
+                if self.bar is not None:
+                    self.bar.set_postfix({"reward/step": f"{history[-1]['reward_per_step']:.4f}"})
+                self.rewards = []
+            if evaluate is not None and eval_every and steps % eval_every == 0:
+                self._evaluate(steps)
+            return True
+
+        def _evaluate(self, steps: int) -> None:
+            assert evaluate is not None
+            table = evaluate(sampler)["mean"]
+            record = {"timesteps": steps, **{f"eval_{k}": v for k, v in table.items()}}
+            history.append(record)
+            self.logger.record("eval/mean_energy", table["mean_energy"])
+            self.logger.record("eval/mean_error", table["mean_error"])
+            name = ""
+            if checkpoint_dir is not None and steps > 0:
+                name = sampler.save(checkpoint_dir / f"step-{steps:08d}").name
+            say(
+                f"step {steps}: held-out mean action: energy {table['mean_energy']:.4f}, "
+                f"error {table['mean_error']:.4f} m" + (f" (checkpoint {name})" if name else "")
+            )
+
+        def _on_training_end(self) -> None:
+            if self.bar is not None:
+                self.bar.close()
+
+    del sb3
+    model.learn(total_timesteps=timesteps, callback=_Callback(), tb_log_name=f"sampler_{algo}")
+    env.close()
+    return sampler, history

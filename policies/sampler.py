@@ -1,0 +1,802 @@
+"""The common interface of learned candidate samplers, their files, and loading by path.
+
+A *sampler* maps the observation of a frame (:mod:`fpg_gym.env_observation`) to a Gaussian over
+the frame's whitened latent space, in the env's action units: a mean and a standard deviation
+per axis (``(L,)`` each, ``L`` = the env's ``latent_dim``). An action ``a`` selects the latent
+point ``z = action_scale * a`` (``"absolute"`` action mode, the samplers' default) or
+``z = x0 + action_scale * a`` (``"delta"``). Two kinds share the interface
+(:class:`GaussianSampler`):
+
+* ``"supervised"`` (:mod:`policies.supervised`): a torch MLP trained to imitate the search
+  optimum (or the ground truth) with a Gaussian likelihood;
+* ``"rl"`` (:mod:`policies.rl`): a stable-baselines3 PPO or SAC policy trained on
+  ``fpg_gym/KinectPose-v0`` with the energy reward.
+
+A sampler acts in the env loop (``predict(obs, deterministic=True)``, so
+:func:`fpg_gym.episodes.run_episode` runs it) and outside it: :meth:`GaussianSampler.observe`
+builds a :class:`~fpg_gym.reconstruct.SearchProblem`'s observation with the same
+:meth:`~fpg_gym.env_observation.ObservationLayout.build` the env uses, which is what the
+optimiser adapter ``learned:PATH`` (:mod:`optimizers.learned`) does.
+
+Features
+--------
+A model does not read the whole observation vector but the *features* of :class:`FeatureMap`:
+chosen fields of the layout, concatenated, with two ``context`` entries set to zero because a
+search problem alone does not know them (:data:`MASKED_CONTEXT`: ``no_body``, which the
+reconstructor keeps private, and ``progress``, ``t / T``, which needs the episode's length).
+The env's observation and the problem's observation then give the model the same input.
+
+Anchor
+------
+The Gaussian is centred on an *anchor* computed from the observation alone, and a model learns
+only the offset from it and the spread. The default anchor (:func:`quadratic_anchor`) is the
+closed-form minimiser of the energy's quadratic terms (control and motion, with a ridge for the
+style term): one small linear solve per frame. Alone (one evaluation) it already reaches a
+lower energy than the papers' 2,000-evaluation local search on the held-out episodes (see the
+README); :class:`AnchorSampler` is that baseline. Absolute action coordinates are the default
+because the observation clips coordinates relative to a far-out ``x0`` (about 10 % of the
+embedded frames), which a delta-mode anchor would inherit.
+
+Files
+-----
+``MODEL.json`` describes every model (:class:`SamplerSpec`: kind, observation layout and size,
+features, action mode and scale, hyper-parameters, training summary). The weights lie beside it:
+``MODEL.pt`` for a supervised sampler (a ``state_dict`` of tensors saved with ``torch.save``,
+loaded with ``weights_only=True``) and ``MODEL.zip`` for an RL sampler (stable-baselines3's own
+format). No pickled Python objects in either of fpg-gym's own files. :func:`load_sampler` takes
+``MODEL``, ``MODEL.json``, ``MODEL.pt`` or ``MODEL.zip``.
+
+torch and stable-baselines3 are the optional extra ``fpg-gym[learn]``: this module imports
+neither; :func:`import_learn` raises :class:`~optimizers.MissingDependency` naming the extra.
+"""
+
+from __future__ import annotations
+
+import importlib
+import json
+import os
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fpg_gym.env_observation import CONTEXT_NAMES, ObservationLayout
+from optimizers import MissingDependency
+
+__all__ = [
+    "ANCHORS",
+    "DEFAULT_FEATURES",
+    "FEATURE_SETS",
+    "FORMAT",
+    "INSTALL_HINT",
+    "KINDS",
+    "LATENT_FEATURES",
+    "MASKED_CONTEXT",
+    "PAPER_WEIGHTS",
+    "AnchorSampler",
+    "FeatureMap",
+    "GaussianSampler",
+    "SamplerSpec",
+    "import_learn",
+    "load_sampler",
+    "model_paths",
+    "problem_observation",
+    "quadratic_anchor",
+]
+
+#: ``format`` of a sampler's JSON file.
+FORMAT = "fpg-gym-sampler"
+#: Version of the JSON format.
+FORMAT_VERSION = 1
+#: Sampler kinds.
+KINDS: tuple[str, ...] = ("supervised", "rl")
+#: What to install for learned samplers.
+INSTALL_HINT = "pip install 'fpg-gym[learn]'"
+#: ``context`` entries a SearchProblem cannot give: zeroed in every model input.
+MASKED_CONTEXT: tuple[str, ...] = ("no_body", "progress")
+#: Observation fields a model reads by default: all of them.
+DEFAULT_FEATURES: tuple[str, ...] = (
+    "kinect",
+    "reliability",
+    "reliability_terms",
+    "prediction",
+    "previous",
+    "bone_lengths",
+    "latent_mean",
+    "latent_basis",
+    "latent_std",
+    "latent_mask",
+    "x0",
+    "z_kinect",
+    "z_prediction",
+    "z_candidates",
+    "candidate_scores",
+    "candidate_mask",
+    "context",
+)
+
+#: A smaller feature set: everything in latent (action) coordinates, the reliabilities and the
+#: context, without the poses and the basis (1,044 of the 2,304 values at the defaults).
+LATENT_FEATURES: tuple[str, ...] = (
+    "reliability",
+    "reliability_terms",
+    "latent_std",
+    "latent_mask",
+    "x0",
+    "z_kinect",
+    "z_prediction",
+    "z_candidates",
+    "candidate_scores",
+    "candidate_mask",
+    "context",
+)
+#: Named feature sets (``fpg-gym train-sampler --features``).
+FEATURE_SETS: dict[str, tuple[str, ...]] = {"all": DEFAULT_FEATURES, "latent": LATENT_FEATURES}
+
+
+def import_learn(module: str) -> Any:
+    """Import ``module`` (``"torch"``, ``"stable_baselines3"``...) of the ``learn`` extra.
+
+    Raises
+    ------
+    optimizers.MissingDependency
+        When it is not installed; the message names ``pip install 'fpg-gym[learn]'``.
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError as error:
+        top = module.split(".")[0]
+        raise MissingDependency(
+            f"learned samplers need torch and stable-baselines3 ({top} is not installed): "
+            f"{INSTALL_HINT}"
+        ) from error
+
+
+# --------------------------------------------------------------------------- features
+
+
+#: Anchors a sampler's Gaussian may be centred on (see :class:`FeatureMap`).
+ANCHORS: tuple[str, ...] = ("none", "quadratic")
+#: Weight of the whitened prior of :func:`quadratic_anchor` (keeps degenerate axes finite).
+_WHITENED_PRIOR = 1e-5
+#: The papers' energy weights (Shum Eq. 10): control, style, kinematic, motion.
+PAPER_WEIGHTS: tuple[float, float, float, float] = (1.0, 0.5, 1.5, 0.25)
+
+
+def quadratic_anchor(
+    parts: Mapping[str, np.ndarray],
+    *,
+    action_scale: float,
+    delta: bool,
+    energy_weights: Sequence[float] = PAPER_WEIGHTS,
+    style: float = 2.0,
+) -> np.ndarray:
+    """Closed-form minimiser of the energy's quadratic terms, from observation parts, as actions.
+
+    In each frame's latent space (unwhitened coordinates ``u``, pose ``x = mean + B^T u``) it
+    minimises ``w_c Ec + w_m Em + (w_s / J) * style * ||u||^2 + 1e-5 ||z||^2`` exactly
+    (``z = u / std`` the whitened coordinates; the last term only keeps the axes of tiny spread
+    finite): ``Ec`` (Shum Eq. 11)
+    and ``Em`` (Eq. 14, when the frame has a prediction) are quadratic in ``u``, and the ridge
+    stands in for the style term ``Es`` (Eq. 12, "stay near the candidates") by pulling toward
+    the candidates' mean. The kinematic term ``Ek`` is left out (not quadratic). One ``(L, L)``
+    solve per frame, batched.
+
+    Parameters
+    ----------
+    parts : mapping
+        :meth:`ObservationLayout.split` of observations ``(n, N)``.
+    action_scale : float
+    delta : bool
+        Actions relative to ``x0`` (``"delta"``) or absolute.
+    energy_weights : 4 floats
+        ``w_c, w_s, w_k, w_m`` (the env's).
+    style : float
+        Ridge weight as a multiple of ``w_s / J`` (2).
+
+    Returns
+    -------
+    ndarray, shape (n, L), float64
+        The actions that select the minimiser (zero on unused axes), clipped to the
+        observation's latent bounds.
+    """
+    from fpg_gym.env_observation import LATENT_LIMIT
+
+    joints = parts["kinect"].shape[-2]
+    n = parts["kinect"].shape[0]
+    w_c, w_s, _, w_m = (float(w) for w in energy_weights)
+    sensor = parts["kinect"].reshape(n, -1).astype(np.float64)
+    prediction = parts["prediction"].reshape(n, -1).astype(np.float64)
+    mean = parts["latent_mean"].reshape(n, -1).astype(np.float64)
+    basis = parts["latent_basis"].astype(np.float64)  # (n, L, 60)
+    std = parts["latent_std"].astype(np.float64)
+    mask = parts["latent_mask"] > 0.5
+    has_prediction = parts["context"][:, CONTEXT_NAMES.index("has_prediction")] > 0.5
+    weights = w_c * np.repeat(parts["reliability"].astype(np.float64), 3, axis=1)  # (n, 60)
+    motion = np.where(has_prediction, w_m / joints, 0.0)  # (n,)
+    ridge = w_s / joints * style + 1e-9
+    size = basis.shape[1]
+    eye = np.eye(size)
+    a = np.einsum("nlk,nk,nmk->nlm", basis, weights, basis)
+    a += (motion + ridge)[:, None, None] * eye
+    # A faint prior in whitened units keeps axes of tiny spread (where z = u / std explodes)
+    # near the candidates; it is negligible on the others.
+    a += _WHITENED_PRIOR * eye / np.maximum(std, 1e-6)[:, :, None] ** 2
+    b = np.einsum("nlk,nk->nl", basis, weights * (sensor - mean))
+    b += motion[:, None] * np.einsum("nlk,nk->nl", basis, prediction - mean)
+    valid = mask[:, :, None] & mask[:, None, :]
+    a = np.where(valid, a, eye)
+    b = np.where(mask, b, 0.0)
+    u = np.linalg.solve(a, b[..., None])[..., 0]
+    z = np.where(mask, u / np.maximum(std, 1e-9), 0.0)
+    action = z / float(action_scale)
+    if delta:
+        action = action - parts["x0"].astype(np.float64)
+    return np.where(mask, np.clip(action, -LATENT_LIMIT, LATENT_LIMIT), 0.0)
+
+
+class FeatureMap:
+    """The model input of an observation, and the anchor its Gaussian is centred on.
+
+    Features: the chosen fields of the observation, with :data:`MASKED_CONTEXT` zeroed, then
+    (with an anchor) the anchor's ``L`` action coordinates. The anchor (``"quadratic"``:
+    :func:`quadratic_anchor`; ``"none"``: zero) is computed from the observation alone, so it
+    is the same in the env loop and in the optimiser adapter; a model outputs its Gaussian's
+    mean *relative to the anchor*.
+
+    Parameters
+    ----------
+    layout : ObservationLayout
+        The env's observation layout.
+    fields : sequence of str
+        Field names of ``layout`` (in this order), default :data:`DEFAULT_FEATURES`.
+    anchor : {"none", "quadratic"}
+    action_scale : float
+    delta : bool
+        The env's action mode is ``"delta"``.
+    energy_weights : 4 floats
+        The env's energy weights (for the anchor).
+    anchor_style : float
+        ``style`` of :func:`quadratic_anchor`.
+
+    Attributes
+    ----------
+    indices : ndarray of int
+        Positions of the field features in the observation vector.
+    size : int
+        Number of features.
+    low, high : ndarray, shape (size,)
+        Bounds of the features.
+    """
+
+    def __init__(
+        self,
+        layout: ObservationLayout,
+        fields: Sequence[str] = DEFAULT_FEATURES,
+        *,
+        anchor: str = "none",
+        action_scale: float = 3.0,
+        delta: bool = True,
+        energy_weights: Sequence[float] = PAPER_WEIGHTS,
+        anchor_style: float = 2.0,
+    ) -> None:
+        from fpg_gym.env_observation import LATENT_LIMIT
+
+        unknown = [f for f in fields if f not in layout.slices]
+        if unknown or not fields:
+            raise ValueError(
+                f"features: unknown observation field(s) {unknown}; expected some of "
+                f"{', '.join(layout.slices)}"
+            )
+        if anchor not in ANCHORS:
+            raise ValueError(f"anchor: expected one of {ANCHORS}, got {anchor!r}")
+        self.layout = layout
+        self.fields = tuple(fields)
+        self.anchor_kind = anchor
+        self.action_scale = float(action_scale)
+        self.delta = bool(delta)
+        self.energy_weights = tuple(float(w) for w in energy_weights)
+        self.anchor_style = float(anchor_style)
+        parts = [np.arange(layout.slices[f].start, layout.slices[f].stop) for f in self.fields]
+        self.indices = np.concatenate(parts)
+        context = layout.slices["context"]
+        masked = [context.start + CONTEXT_NAMES.index(name) for name in MASKED_CONTEXT]
+        self._masked = np.flatnonzero(np.isin(self.indices, masked))
+        extra = layout.latent_dim if anchor != "none" else 0
+        self.size = len(self.indices) + extra
+        limit = np.full(extra, LATENT_LIMIT, np.float32)
+        self.low = np.concatenate([layout.low[self.indices], -limit])
+        self.high = np.concatenate([layout.high[self.indices], limit])
+        self.low[self._masked] = 0.0
+        self.high[self._masked] = 0.0
+
+    def _check(self, observation: np.ndarray) -> np.ndarray:
+        obs = np.asarray(observation, dtype=np.float32)
+        if obs.ndim == 0 or obs.shape[-1] != self.layout.size:
+            raise ValueError(
+                f"observation: expected shape (..., {self.layout.size}) (the layout this model "
+                f"was trained on: latent_dim={self.layout.latent_dim}, "
+                f"k={self.layout.candidates}), got {np.shape(observation)}"
+            )
+        return obs
+
+    def transform(self, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Features ``(..., size)`` float32 and anchor actions ``(..., L)`` float64 of
+        observations ``(..., layout.size)``.
+
+        Raises
+        ------
+        ValueError
+            If the observation's last axis is not the layout's size (a model trained on
+            another observation layout).
+        """
+        obs = self._check(observation)
+        batch = obs.shape[:-1]
+        flat = obs.reshape(-1, obs.shape[-1])
+        fields = flat[:, self.indices]
+        fields[:, self._masked] = 0.0
+        if self.anchor_kind == "none":
+            anchor = np.zeros((len(flat), self.layout.latent_dim))
+            features = fields
+        else:
+            anchor = quadratic_anchor(
+                self.layout.split(flat),
+                action_scale=self.action_scale,
+                delta=self.delta,
+                energy_weights=self.energy_weights,
+                style=self.anchor_style,
+            )
+            features = np.concatenate([fields, anchor.astype(np.float32)], axis=1)
+        return (
+            features.reshape(*batch, self.size),
+            anchor.reshape(*batch, self.layout.latent_dim),
+        )
+
+    def __call__(self, observation: np.ndarray) -> np.ndarray:
+        """Features ``(..., size)`` float32 of observations ``(..., layout.size)``."""
+        return self.transform(observation)[0]
+
+    def anchor(self, observation: np.ndarray) -> np.ndarray:
+        """Anchor actions ``(..., L)`` of observations ``(..., layout.size)``."""
+        return self.transform(observation)[1]
+
+    def wrap(self, env: Any) -> Any:
+        """``env`` seen through this map (a Gymnasium wrapper): observations become features
+        and an action ``a`` becomes ``anchor + a`` (the env should not clip actions then)."""
+        import gymnasium as gym
+
+        feature_map = self
+
+        class SamplerFeatures(gym.Wrapper):
+            """Observations replaced by a sampler's features; actions relative to its anchor."""
+
+            def __init__(self, inner: Any) -> None:
+                super().__init__(inner)
+                self.observation_space = gym.spaces.Box(
+                    feature_map.low, feature_map.high, dtype=np.float32
+                )
+                self._anchor = np.zeros(feature_map.layout.latent_dim)
+
+            def _features(self, observation: Any) -> np.ndarray:
+                features, self._anchor = feature_map.transform(observation)
+                return np.asarray(features, dtype=np.float32)
+
+            def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
+                observation, info = self.env.reset(**kwargs)
+                return self._features(observation), info
+
+            def step(self, action: Any) -> tuple[np.ndarray, Any, bool, bool, dict[str, Any]]:
+                full = self._anchor + np.asarray(action, dtype=np.float64)
+                observation, reward, terminated, truncated, info = self.env.step(full)
+                return self._features(observation), reward, terminated, truncated, info
+
+        return SamplerFeatures(env)
+
+
+def problem_observation(
+    problem: Any,
+    layout: ObservationLayout,
+    *,
+    action_scale: float,
+    delta: bool = True,
+    frame_dt: float = 1.0 / 30.0,
+) -> np.ndarray:
+    """The env observation of a :class:`~fpg_gym.reconstruct.SearchProblem` ``(layout.size,)``.
+
+    The env's own builder (:meth:`ObservationLayout.build`) with the two context entries a
+    problem cannot give (:data:`MASKED_CONTEXT`) left at zero; :class:`FeatureMap` zeroes them
+    in the env's observations too.
+    """
+    return layout.build(
+        problem,
+        action_scale=action_scale,
+        delta=delta,
+        no_body=False,
+        progress=0.0,
+        frame_dt=frame_dt,
+    )
+
+
+# --------------------------------------------------------------------------- files
+
+
+@dataclass
+class SamplerSpec:
+    """The JSON description of a sampler model (``MODEL.json``).
+
+    Attributes
+    ----------
+    kind : {"supervised", "rl"}
+    algo : str
+        ``"mlp"`` (supervised), ``"ppo"`` or ``"sac"`` (rl).
+    latent_dim, candidates, observation_size : int
+        The env's observation layout the model was trained on (``L``, ``K``, ``N``).
+    features : list of str
+        Observation fields read (see :class:`FeatureMap`).
+    anchor : {"none", "quadratic"}
+        What the Gaussian's mean is relative to (:class:`FeatureMap`).
+    anchor_style : float
+        Ridge of the quadratic anchor (:func:`quadratic_anchor`).
+    energy_weights : list of 4 floats
+        The env's energy weights (control, style, kinematic, motion).
+    action_mode : {"delta", "absolute"}
+    action_scale : float
+    frame_dt : float
+        Nominal frame interval of the observation's ``dt_frames``.
+    hyperparameters : dict
+        Everything needed to rebuild the model (network sizes, ...).
+    training : dict
+        What it was trained on, for how long, and its evaluation summary.
+    weights : str
+        File name of the weights, beside the JSON.
+    """
+
+    kind: str
+    algo: str
+    latent_dim: int
+    candidates: int
+    observation_size: int
+    features: list[str] = field(default_factory=lambda: list(DEFAULT_FEATURES))
+    anchor: str = "quadratic"
+    anchor_style: float = 2.0
+    energy_weights: list[float] = field(default_factory=lambda: list(PAPER_WEIGHTS))
+    action_mode: str = "delta"
+    action_scale: float = 3.0
+    frame_dt: float = 1.0 / 30.0
+    hyperparameters: dict[str, Any] = field(default_factory=dict)
+    training: dict[str, Any] = field(default_factory=dict)
+    weights: str = ""
+
+    def __post_init__(self) -> None:
+        if self.kind not in KINDS:
+            raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
+        if self.action_mode not in ("delta", "absolute"):
+            raise ValueError(f"action_mode: expected 'delta' or 'absolute', got {self.action_mode}")
+        if self.anchor not in ANCHORS:
+            raise ValueError(f"anchor: expected one of {ANCHORS}, got {self.anchor!r}")
+        if len(self.energy_weights) != 4:
+            raise ValueError(f"energy_weights: expected 4 weights, got {self.energy_weights}")
+        size = ObservationLayout(self.latent_dim, self.candidates).size
+        if size != self.observation_size:
+            raise ValueError(
+                f"observation_size {self.observation_size} does not match latent_dim "
+                f"{self.latent_dim} and candidates {self.candidates} (expected {size})"
+            )
+
+    @classmethod
+    def for_env(cls, env: Any, kind: str, algo: str, **kwargs: Any) -> SamplerSpec:
+        """The spec of a model for ``env`` (a :class:`~fpg_gym.env.KinectPoseEnv`, wrapped or
+        not)."""
+        base = env.unwrapped
+        w = base.weights
+        return cls(
+            kind=kind,
+            algo=algo,
+            latent_dim=int(base.latent_dim),
+            candidates=int(base.candidates),
+            observation_size=int(base.layout.size),
+            energy_weights=[w.control, w.style, w.kinematic, w.motion],
+            action_mode=str(base.action_mode),
+            action_scale=float(base.action_scale),
+            frame_dt=float(base.reconstructor.config.frame_dt),
+            **kwargs,
+        )
+
+    @property
+    def layout(self) -> ObservationLayout:
+        """The observation layout the model was trained on."""
+        return ObservationLayout(self.latent_dim, self.candidates)
+
+    def feature_map(self) -> FeatureMap:
+        """The model's :class:`FeatureMap`."""
+        return FeatureMap(
+            self.layout,
+            self.features,
+            anchor=self.anchor,
+            action_scale=self.action_scale,
+            delta=self.action_mode == "delta",
+            energy_weights=self.energy_weights,
+            anchor_style=self.anchor_style,
+        )
+
+    def check_env(self, env: Any) -> None:
+        """Raise ``ValueError`` unless ``env``'s observation and actions are this model's (and
+        warn when an anchored sampler meets an env that clips actions)."""
+        base = env.unwrapped
+        size = int(base.layout.size)
+        if size != self.observation_size:
+            raise ValueError(
+                f"this sampler was trained on observations of size {self.observation_size} "
+                f"(latent_dim={self.latent_dim}, k={self.candidates}); the env's have size "
+                f"{size} (latent_dim={base.latent_dim}, k={base.candidates})"
+            )
+        if base.action_mode != self.action_mode or float(base.action_scale) != self.action_scale:
+            raise ValueError(
+                f"this sampler acts in action_mode={self.action_mode!r}, action_scale="
+                f"{self.action_scale}; the env has {base.action_mode!r}, {base.action_scale}"
+            )
+        if self.anchor != "none" and getattr(base, "clip_actions", False):
+            warnings.warn(
+                "this sampler's actions are offsets from its anchor and often lie beyond the "
+                "action box, which this env clips: make it with clip_actions=False to act on "
+                "them exactly",
+                UserWarning,
+                stacklevel=2,
+            )
+
+    def to_json(self) -> dict[str, Any]:
+        """The JSON object (with ``format``, ``version`` and the layout's field table)."""
+        data = asdict(self)
+        data["observation_fields"] = [
+            {"name": row["name"], "start": row["start"], "stop": row["stop"]}
+            for row in self.layout.table()
+        ]
+        return {"format": FORMAT, "version": FORMAT_VERSION, **data}
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the JSON to ``path``."""
+        target = Path(path)
+        target.parent.mkdir(parents=True, exist_ok=True)
+        target.write_text(json.dumps(_plain(self.to_json()), indent=2) + "\n")
+        return target
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> SamplerSpec:
+        """Read a sampler's JSON.
+
+        Raises
+        ------
+        ValueError
+            Not a sampler file, or an unknown version.
+        """
+        source = Path(path)
+        try:
+            data = json.loads(source.read_text())
+        except json.JSONDecodeError as error:
+            raise ValueError(f"{source}: not a JSON file ({error})") from None
+        if not isinstance(data, dict) or data.get("format") != FORMAT:
+            raise ValueError(f"{source}: not an fpg-gym sampler description (format {FORMAT!r})")
+        if int(data.get("version", 0)) > FORMAT_VERSION:
+            raise ValueError(
+                f"{source}: sampler format version {data['version']} is newer than this "
+                f"fpg-gym reads ({FORMAT_VERSION})"
+            )
+        names = {f.name for f in cls.__dataclass_fields__.values()}
+        try:
+            return cls(**{k: v for k, v in data.items() if k in names})
+        except TypeError as error:
+            raise ValueError(f"{source}: incomplete sampler description ({error})") from None
+
+
+def _plain(value: Any) -> Any:
+    if isinstance(value, Mapping):
+        return {str(k): _plain(v) for k, v in value.items()}
+    if isinstance(value, list | tuple):
+        return [_plain(v) for v in value]
+    if isinstance(value, np.ndarray):
+        return _plain(value.tolist())
+    if isinstance(value, np.generic):
+        return value.item()
+    if isinstance(value, Path):
+        return str(value)
+    return value
+
+
+def model_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
+    """``(MODEL.json, stem)`` of a model path given as ``MODEL``, ``MODEL.json``, ``.pt`` or
+    ``.zip``."""
+    p = Path(path)
+    stem = p.with_suffix("") if p.suffix in (".json", ".pt", ".zip") else p
+    return stem.with_name(stem.name + ".json"), stem
+
+
+# --------------------------------------------------------------------------- interface
+
+
+class GaussianSampler:
+    """A learned Gaussian over the latent space, in action units (see the module docstring).
+
+    Subclasses implement :meth:`gaussian_features` (features -> mean relative to the anchor,
+    std) and :meth:`save`; :meth:`gaussian` adds the anchor (:class:`FeatureMap`).
+
+    Parameters
+    ----------
+    spec : SamplerSpec
+    seed : int, optional
+        Seed of :meth:`predict`'s own generator (``deterministic=False``).
+    """
+
+    def __init__(self, spec: SamplerSpec, seed: int | None = 0) -> None:
+        self.spec = spec
+        self.features = spec.feature_map()
+        self.layout = self.features.layout
+        self.rng = np.random.default_rng(seed)
+
+    # ---------------------------------------------------------------- to override
+
+    def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean (relative to the anchor) and std ``(n, L)`` float64 of feature rows ``(n, F)``."""
+        raise NotImplementedError
+
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write ``MODEL.json`` and the weights; returns the JSON's path."""
+        raise NotImplementedError
+
+    # ---------------------------------------------------------------- shared
+
+    @property
+    def kind(self) -> str:
+        """``"supervised"`` or ``"rl"``."""
+        return self.spec.kind
+
+    def distribution(self, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Mean, std and anchor (action units) of an observation ``(N,)`` -> ``(L,)`` each,
+        or of a batch ``(n, N)`` -> ``(n, L)`` each (the anchor is zero without one).
+
+        Raises
+        ------
+        ValueError
+            If the observation does not have the model's size.
+        """
+        obs = np.asarray(observation, dtype=np.float32)
+        single = obs.ndim == 1
+        features, anchor = self.features.transform(np.atleast_2d(obs))
+        if features.ndim != 2:
+            raise ValueError(f"observation: expected (N,) or (n, N), got shape {obs.shape}")
+        offset, std = self.gaussian_features(features)
+        mean = anchor + offset
+        if single:
+            return mean[0], std[0], anchor[0]
+        return mean, std, anchor
+
+    def gaussian(self, observation: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Mean and std (action units) of an observation ``(N,)`` -> ``(L,)`` each, or of a
+        batch ``(n, N)`` -> ``(n, L)`` each (see :meth:`distribution`)."""
+        mean, std, _ = self.distribution(observation)
+        return mean, std
+
+    def predict(
+        self,
+        observation: np.ndarray,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, None]:
+        """SB3-style ``(action, None)``: the mean, or a sample from the sampler's own generator
+        (``seed`` at construction).
+
+        Not clipped: an anchored Gaussian's mean may lie beyond the action box (the point the
+        anchor selects usually does), so make the env with ``clip_actions=False`` to act on it
+        exactly, as the RL sampler's training env is.
+        """
+        mean, std = self.gaussian(observation)
+        action = mean if deterministic else mean + std * self.rng.standard_normal(mean.shape)
+        return np.asarray(action, dtype=np.float32), None
+
+    def observe(self, problem: Any) -> np.ndarray:
+        """The observation ``(N,)`` of a search problem (:func:`problem_observation`).
+
+        Raises
+        ------
+        ValueError
+            If the problem has more latent axes or candidates than the model's layout.
+        """
+        if problem.dim > self.spec.latent_dim or len(problem.nodes) > self.spec.candidates:
+            raise ValueError(
+                f"search problem with {problem.dim} latent axes and {len(problem.nodes)} "
+                f"candidates does not fit this sampler's observation (latent_dim="
+                f"{self.spec.latent_dim}, k={self.spec.candidates}); use the reconstructor "
+                "settings the sampler was trained with"
+            )
+        return problem_observation(
+            problem,
+            self.layout,
+            action_scale=self.spec.action_scale,
+            delta=self.spec.action_mode == "delta",
+            frame_dt=self.spec.frame_dt,
+        )
+
+    def latent_gaussian(self, problem: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray | None]:
+        """The model's Gaussian in ``problem``'s whitened latent space: mean and std ``(d,)``,
+        and the anchor's point ``(d,)`` (None without an anchor). Actions map to points by
+        ``z = x0 + scale * a`` (delta) or ``z = scale * a`` (absolute)."""
+        mean, std, anchor = self.distribution(self.observe(problem))
+        d = int(problem.dim)
+        scale = self.spec.action_scale
+        origin = np.asarray(problem.x0, dtype=np.float64) if self.spec.action_mode == "delta" else 0
+        point = None if self.spec.anchor == "none" else origin + scale * anchor[:d]
+        return origin + scale * mean[:d], scale * std[:d], point
+
+    def __repr__(self) -> str:
+        return (
+            f"{type(self).__name__}(kind={self.kind!r}, algo={self.spec.algo!r}, "
+            f"observation_size={self.spec.observation_size}, features={self.features.size})"
+        )
+
+
+class AnchorSampler(GaussianSampler):
+    """The anchor alone: zero offset and a constant spread (a baseline, nothing learned).
+
+    With ``spec.anchor == "quadratic"`` its mean is :func:`quadratic_anchor`'s point, the
+    closed-form minimiser of the energy's quadratic terms; it shows how much of a learned
+    sampler's result the anchor already gives.
+
+    Parameters
+    ----------
+    spec : SamplerSpec
+    std : float
+        Standard deviation on every axis, in action units (0.1).
+    """
+
+    def __init__(self, spec: SamplerSpec, std: float = 0.1, seed: int | None = 0) -> None:
+        super().__init__(spec, seed)
+        self.std = float(std)
+
+    def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Zero offset, constant std."""
+        shape = (len(features), self.spec.latent_dim)
+        return np.zeros(shape), np.full(shape, self.std)
+
+
+def load_sampler(
+    path: str | os.PathLike[str], *, env: Any = None, seed: int | None = 0
+) -> GaussianSampler:
+    """Load a sampler saved by ``fpg-gym train-sampler`` (``MODEL``, ``.json``, ``.pt``, ``.zip``).
+
+    With ``env`` (a :class:`~fpg_gym.env.KinectPoseEnv`, wrapped or not), refuse an env whose
+    observation or actions differ from the ones the model was trained on
+    (:meth:`SamplerSpec.check_env`).
+
+    Raises
+    ------
+    FileNotFoundError
+        No ``MODEL.json`` or no weights file beside it.
+    ValueError
+        Not a sampler description, or ``env`` has another observation size or action mode.
+    optimizers.MissingDependency
+        torch / stable-baselines3 are not installed (``pip install 'fpg-gym[learn]'``).
+    """
+    json_path, stem = model_paths(path)
+    if not json_path.is_file():
+        raise FileNotFoundError(
+            f"{path}: no sampler description {json_path} (models are saved as MODEL.json "
+            "beside MODEL.pt or MODEL.zip by fpg-gym train-sampler)"
+        )
+    spec = SamplerSpec.load(json_path)
+    if env is not None:
+        spec.check_env(env)
+    weights = json_path.parent / (
+        spec.weights or stem.name + (".zip" if spec.kind == "rl" else ".pt")
+    )
+    if not weights.is_file():
+        raise FileNotFoundError(f"{json_path}: its weights file {weights} is missing")
+    if spec.kind == "supervised":
+        from policies.supervised import SupervisedSampler
+
+        return SupervisedSampler.load_weights(spec, weights, seed=seed)
+    from policies.rl import RLSampler
+
+    return RLSampler.load_weights(spec, weights, seed=seed)

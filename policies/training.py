@@ -1,0 +1,843 @@
+"""Training data, evaluation and the training driver behind ``fpg-gym train-sampler``.
+
+* :func:`training_clips` / :func:`split_clips`: the clips a sampler learns from and the held-out
+  ones it is validated on (by whole clips, seeded). By default the embedded DeepMimic clips of
+  the default graph (:data:`fpg_gym.io.DEFAULT_CLIP_NAMES` less
+  :data:`fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`): never the evaluation clips.
+* :func:`simulate_episodes`: Kinect streams simulated from clips x scenarios x seeds.
+* :func:`collect_imitation_data`: (observation, target action) pairs for the supervised sampler,
+  rolled through the :class:`~fpg_gym.reconstruct.Reconstructor` with the papers' local search.
+* :func:`evaluate_agents`: mean energy, mean error, Err0.2, evaluations and ms per frame of
+  optimisers (a learned sampler through :mod:`optimizers.learned`) on episodes.
+* :func:`train_sampler`: the whole run (:class:`TrainConfig` -> :class:`TrainResult`).
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fpg_gym.env_observation import ObservationLayout
+from fpg_gym.reconstruct.energy import EnergyWeights
+from policies.sampler import (
+    DEFAULT_FEATURES,
+    GaussianSampler,
+    SamplerSpec,
+    model_paths,
+    problem_observation,
+)
+
+__all__ = [
+    "TARGETS",
+    "ImitationData",
+    "TrainConfig",
+    "TrainResult",
+    "collect_imitation_data",
+    "default_training_clip_names",
+    "evaluate_agents",
+    "mirror_clip",
+    "simulate_episodes",
+    "split_clips",
+    "train_sampler",
+    "training_clips",
+]
+
+#: Targets of the supervised sampler (:func:`collect_imitation_data`).
+TARGETS: tuple[str, ...] = ("best", "search", "truth")
+
+
+def default_training_clip_names() -> list[str]:
+    """The embedded clips of the default graph (all but the held-out evaluation clips)."""
+    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.io import DEFAULT_CLIP_NAMES
+
+    return [n for n in DEFAULT_CLIP_NAMES if n not in DEFAULT_HOLDOUT_CLIPS]
+
+
+def training_clips(
+    items: Sequence[str] | None, *, units: str = "auto", progress: bool = False
+) -> list[Any]:
+    """Clips named by ``--clips``: None or ``"default"`` for :func:`default_training_clip_names`,
+    embedded clip names, mocap files or folders (as ``fpg-gym compare --clips``)."""
+    from fpg_gym.compare import resolve_clips
+
+    names: list[str] = []
+    for item in items or ["default"]:
+        if str(item) == "default":
+            names.extend(default_training_clip_names())
+        else:
+            names.append(str(item))
+    clips, _ = resolve_clips(names, units=units, progress=progress)
+    unique: dict[str, Any] = {}
+    for clip in clips:
+        unique.setdefault(clip.name, clip)
+    if not unique:
+        raise ValueError("--clips: no clip to train on")
+    return list(unique.values())
+
+
+def mirror_clip(clip: Any) -> Any:
+    """The left/right mirror image of a clip (``name~mirror``), for data augmentation."""
+    from fpg_gym.io import Clip
+    from fpg_gym.poses import mirror
+
+    return Clip(
+        name=f"{clip.name}~mirror",
+        positions=mirror(clip.positions).astype(np.float32),
+        fps=clip.fps,
+        source=clip.source,
+        metadata={**clip.metadata, "mirrored": True},
+    )
+
+
+def split_clips(
+    clips: Sequence[Any], share: float = 0.2, seed: int = 0
+) -> tuple[list[Any], list[Any]]:
+    """``(training, validation)``: a seeded ``share`` of the clips (at least one, by whole
+    clips) held out for validation; with a single clip both are that clip."""
+    if not 0.0 < share < 1.0:
+        raise ValueError(f"share: expected a value in (0, 1), got {share}")
+    if len(clips) < 2:
+        return list(clips), list(clips)
+    order = np.random.default_rng(seed).permutation(len(clips))
+    count = max(1, round(share * len(clips)))
+    held = sorted(int(i) for i in order[:count])
+    kept = sorted(int(i) for i in order[count:])
+    return [clips[i] for i in kept], [clips[i] for i in held]
+
+
+def simulate_episodes(
+    clips: Sequence[Any],
+    scenarios: Sequence[str],
+    seeds: Sequence[int],
+    *,
+    max_frames: int | None = None,
+) -> list[Any]:
+    """Recordings of every clip x scenario x seed (first ``max_frames`` frames), in that
+    order (seed outermost)."""
+    from fpg_gym.simulate import KinectSimulator
+
+    simulators = {name: KinectSimulator(name) for name in scenarios}
+    try:
+        return [
+            _first_frames(simulators[scenario].simulate(clip, seed=int(seed)), max_frames)
+            for seed in seeds
+            for clip in clips
+            for scenario in scenarios
+        ]
+    finally:
+        for simulator in simulators.values():
+            simulator.close()
+
+
+def _first_frames(recording: Any, count: int | None) -> Any:
+    """``recording`` cut to its first ``count`` frames."""
+    from fpg_gym.io import Recording
+
+    if count is None or recording.num_frames <= count:
+        return recording
+    truth = recording.ground_truth
+    return Recording(
+        positions=recording.positions[:count],
+        states=recording.states[:count],
+        timestamps=recording.timestamps[:count],
+        ground_truth=None if truth is None else truth[:count],
+        metadata={**recording.metadata, "cut_to_frames": int(count)},
+    )
+
+
+# --------------------------------------------------------------------------- imitation data
+
+
+@dataclass
+class ImitationData:
+    """(observation, target action) pairs of the supervised sampler.
+
+    Attributes
+    ----------
+    observations : ndarray, shape (n, N), float32
+        Env observations (:func:`policies.sampler.problem_observation`).
+    actions : ndarray, shape (n, L), float32
+        Target actions (zero beyond each frame's ``d`` axes).
+    masks : ndarray, shape (n, L), float32
+        1 on each frame's valid axes.
+    episodes : ndarray, shape (n,), int
+        Episode index of each frame.
+    search_energies : ndarray, shape (n,)
+        Energy of the local-search optimum on each frame.
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    masks: np.ndarray
+    episodes: np.ndarray
+    search_energies: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+
+def collect_imitation_data(
+    graph: Any,
+    recordings: Sequence[Any],
+    spec: SamplerSpec,
+    *,
+    target: str = "best",
+    frames: int | None = None,
+    seed: int = 0,
+    progress: bool = False,
+) -> ImitationData:
+    """Roll ``recordings`` through the reconstructor and record (observation, target) pairs.
+
+    Every frame is searched with the papers' local search (``local-search``, 2,000
+    evaluations, from ``x0``); with ``target="best"`` a second local search starts from the
+    spec's anchor (:class:`~policies.sampler.FeatureMap`) on the same problem. The stream
+    continues from ``problem.best_z`` (the best point found), as a search-driven
+    reconstruction would. The target action selects:
+
+    * ``"search"``: ``problem.best_z`` after the papers' local search alone;
+    * ``"best"``: ``problem.best_z`` after both searches (the lowest energy found; the same as
+      ``"search"`` without an anchor);
+    * ``"truth"``: the ground-truth pose, moved into the frame's space with the sensor pose's
+      root and heading (as the reconstructor normalises it) and projected (needs recordings
+      with ground truth).
+
+    Parameters
+    ----------
+    graph : FilteredPoseGraph
+    recordings : sequence of Recording
+    spec : SamplerSpec
+        The sampler the data is for (observation layout, action mode and scale, anchor).
+    target : {"best", "search", "truth"}
+    frames : int, optional
+        Stop after this many frames (all recordings otherwise).
+    seed : int
+        The searches' generator.
+    progress : bool
+        A tqdm bar over the frames.
+    """
+    from fpg_gym import poses as pose_utils
+    from fpg_gym.reconstruct import Reconstructor
+    from optimizers import make, run_optimizer
+    from optimizers.learned import LearnedSearch
+    from policies.sampler import AnchorSampler
+
+    if target not in TARGETS:
+        raise ValueError(f"target: expected one of {TARGETS}, got {target!r}")
+    if target == "truth":
+        missing = [i for i, r in enumerate(recordings) if r.ground_truth is None]
+        if missing:
+            raise ValueError(f"target 'truth' needs ground truth; recordings {missing} have none")
+    layout = spec.layout
+    latent_dim, scale = spec.latent_dim, spec.action_scale
+    delta = spec.action_mode == "delta"
+    weights = dict(
+        zip(("control", "style", "kinematic", "motion"), spec.energy_weights, strict=True)
+    )
+    reconstructor = Reconstructor(
+        graph,
+        k=spec.candidates,
+        latent_dim=latent_dim,
+        ragdoll=False,
+        max_evaluations=None,
+        weights=EnergyWeights(**weights),
+    )
+    search = make("local-search")
+    anchored = None
+    if target == "best" and spec.anchor != "none":
+        anchored = LearnedSearch(AnchorSampler(spec), samples=1, iterations=20, search_samples=100)
+    rng = np.random.default_rng(seed)
+    total = sum(r.num_frames for r in recordings)
+    limit = total if frames is None else min(int(frames), total)
+    observations = np.zeros((limit, layout.size), np.float32)
+    actions = np.zeros((limit, latent_dim), np.float32)
+    masks = np.zeros((limit, latent_dim), np.float32)
+    episodes = np.zeros(limit, np.int64)
+    energies = np.zeros(limit)
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=limit, desc="imitation data", unit="frame", leave=False)
+    n = 0
+    try:
+        for e, recording in enumerate(recordings):
+            if n >= limit:
+                break
+            reconstructor.reset()
+            truth = recording.ground_truth
+            for t in range(recording.num_frames):
+                if n >= limit:
+                    break
+                problem = reconstructor.prepare(
+                    recording.positions[t], recording.states[t], float(recording.timestamps[t])
+                )
+                z = run_optimizer(problem, search, rng)
+                if anchored is not None:
+                    z = run_optimizer(problem, anchored, rng)  # best of both searches
+                d = min(problem.dim, latent_dim)
+                if target == "truth":
+                    assert truth is not None
+                    # The truth in the frame's space: the sensor pose's root and heading, as
+                    # the reconstructor normalises it (not the truth's own heading).
+                    _, placement = pose_utils.normalise(recording.positions[t])
+                    local = (truth[t] - placement.root) @ pose_utils.yaw_matrix(placement.yaw)
+                    z_target = problem.encode(local)
+                else:
+                    z_target = z
+                origin = problem.x0 if delta else 0.0
+                actions[n, :d] = ((z_target - origin) / scale)[:d]
+                masks[n, :d] = 1.0
+                observations[n] = problem_observation(
+                    problem, layout, action_scale=scale, delta=delta, frame_dt=spec.frame_dt
+                )
+                episodes[n] = e
+                energies[n] = problem.best_energy
+                reconstructor.finish(z)
+                n += 1
+                if bar is not None:
+                    bar.update(1)
+    finally:
+        reconstructor.close()
+        if bar is not None:
+            bar.close()
+    return ImitationData(observations[:n], actions[:n], masks[:n], episodes[:n], energies[:n])
+
+
+# --------------------------------------------------------------------------- evaluation
+
+
+def evaluate_agents(
+    graph: Any,
+    recordings: Sequence[Any],
+    agents: dict[str, Any],
+    *,
+    k: int = 30,
+    latent_dim: int = 20,
+    seed: int = 0,
+    progress: bool = False,
+) -> dict[str, dict[str, float]]:
+    """Reconstruct ``recordings`` with each agent (an optimiser name or object) and summarise.
+
+    Returns, per agent: ``mean_energy``, ``mean_error`` (FPG Eq. 13, m), ``err02`` (share of
+    frames with error >= 0.2 m), ``evaluations`` and ``ms`` per frame, ``frames``. Errors need
+    ground truth (NaN otherwise).
+    """
+    from fpg_gym import metrics
+    from fpg_gym.reconstruct import Reconstructor
+
+    reconstructor = Reconstructor(graph, k=k, latent_dim=latent_dim, ragdoll=False)
+    out: dict[str, dict[str, float]] = {}
+    try:
+        for name, agent in agents.items():
+            energies: list[np.ndarray] = []
+            errors: list[np.ndarray] = []
+            evaluations: list[np.ndarray] = []
+            ms: list[np.ndarray] = []
+            for i, recording in enumerate(recordings):
+                result = reconstructor.reconstruct(recording, agent, rng=seed + i)
+                arrays = result.arrays()
+                energies.append(arrays["energy"])
+                evaluations.append(arrays["evaluations"])
+                ms.append(arrays["ms_per_frame"])
+                if recording.ground_truth is not None:
+                    count = len(result.poses)
+                    errors.append(metrics.frame_error(recording.ground_truth[:count], result.poses))
+            err = np.concatenate(errors) if errors else np.array([np.nan])
+            out[name] = {
+                "mean_energy": float(np.mean(np.concatenate(energies))),
+                "mean_error": float(np.mean(err)),
+                "err02": float(np.mean(err >= metrics.ERR_THRESHOLD_M)) if errors else np.nan,
+                "evaluations": float(np.mean(np.concatenate(evaluations))),
+                "ms": float(np.mean(np.concatenate(ms))),
+                "frames": int(sum(len(e) for e in energies)),
+            }
+            if progress:
+                print(_format_row(name, out[name]), flush=True)
+    finally:
+        reconstructor.close()
+    return out
+
+
+def _format_row(name: str, row: dict[str, float]) -> str:
+    return (
+        f"  {name:<22} energy {row['mean_energy']:.4f}  error {row['mean_error']:.4f} m  "
+        f"Err0.2 {100 * row['err02']:.1f} %  evals {row['evaluations']:.0f}  "
+        f"{row['ms']:.2f} ms/frame"
+    )
+
+
+def format_evaluation(table: dict[str, dict[str, float]]) -> str:
+    """A markdown table of :func:`evaluate_agents`' output."""
+    lines = [
+        "| agent | mean energy | mean error (m) | Err0.2 (%) | evaluations/frame | ms/frame |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, row in table.items():
+        lines.append(
+            f"| {name} | {row['mean_energy']:.4f} | {row['mean_error']:.4f} | "
+            f"{100 * row['err02']:.1f} | {row['evaluations']:.0f} | {row['ms']:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+# --------------------------------------------------------------------------- driver
+
+
+@dataclass
+class TrainConfig:
+    """Settings of :func:`train_sampler` (``fpg-gym train-sampler``'s arguments).
+
+    Attributes
+    ----------
+    kind : {"supervised", "rl"}
+    out : str
+        Model path (``MODEL``: writes ``MODEL.json`` + ``MODEL.pt``/``.zip``; checkpoints in
+        ``MODEL.checkpoints/``).
+    algo : {"ppo", "sac"}
+        RL algorithm (rl only).
+    graph : str
+        ``"default"`` (embedded, without the held-out clips) or a graph ``.npz``.
+    clips : list of str, optional
+        Training clips (see :func:`training_clips`); a seeded ``val_share`` of them is held out
+        for the periodic evaluation unless ``val_clips`` is given.
+    val_clips : list of str, optional
+    scenarios : list of str, optional
+        Simulator scenarios (default front-many, left45-many, right45-many).
+    timesteps : int, optional
+        Env steps (rl, default 100,000) or training frames collected (supervised, default
+        20,000).
+    seed : int
+    target : {"best", "search", "truth"}
+        Supervised target (:func:`collect_imitation_data`).
+    epochs : int
+        Supervised epochs.
+    eval_every : int, optional
+        Periodic evaluation (and checkpoint) every this many env steps (rl, default
+        timesteps / 10) or epochs (supervised, default epochs / 5).
+    eval_episodes : int
+        Held-out episodes evaluated (the first ones of val clips x scenarios).
+    max_frames : int, optional
+        Frames per episode (the first ones).
+    k, latent_dim, action_scale, action_mode : the env's settings.
+    features : list of str
+        Observation fields the model reads.
+    anchor : {"quadratic", "none"}
+        What the Gaussian is centred on (:class:`~policies.sampler.FeatureMap`).
+    anchor_style : float
+        Ridge of the quadratic anchor.
+    mirror : bool
+        Add the left/right mirror image of every training clip (data augmentation).
+    hyperparameters : dict
+        Network / algorithm overrides.
+    tensorboard : str, optional
+        TensorBoard log folder (used only when tensorboard is installed).
+    units : str
+        BVH units.
+    progress : bool
+    """
+
+    kind: str
+    out: str
+    algo: str = "ppo"
+    graph: str = "default"
+    clips: list[str] | None = None
+    val_clips: list[str] | None = None
+    val_share: float = 0.2
+    scenarios: list[str] | None = None
+    timesteps: int | None = None
+    seed: int = 0
+    target: str = "best"
+    epochs: int = 40
+    eval_every: int | None = None
+    eval_episodes: int = 6
+    max_frames: int | None = None
+    k: int = 30
+    latent_dim: int = 20
+    action_scale: float = 3.0
+    action_mode: str = "absolute"
+    features: list[str] = field(default_factory=lambda: list(DEFAULT_FEATURES))
+    anchor: str = "quadratic"
+    anchor_style: float = 2.0
+    mirror: bool = True
+    hyperparameters: dict[str, Any] = field(default_factory=dict)
+    tensorboard: str | None = None
+    units: str = "auto"
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        if self.kind not in ("supervised", "rl"):
+            raise ValueError(f"kind: expected 'supervised' or 'rl', got {self.kind!r}")
+        if self.algo not in ("ppo", "sac"):
+            raise ValueError(f"algo: expected 'ppo' or 'sac', got {self.algo!r}")
+        if self.target not in TARGETS:
+            raise ValueError(f"target: expected one of {TARGETS}, got {self.target!r}")
+        if self.timesteps is not None and self.timesteps < 1:
+            raise ValueError(f"timesteps: expected >= 1, got {self.timesteps}")
+        if self.epochs < 1:
+            raise ValueError(f"epochs: expected >= 1, got {self.epochs}")
+        if self.eval_episodes < 1:
+            raise ValueError(f"eval_episodes: expected >= 1, got {self.eval_episodes}")
+        if self.max_frames is not None and self.max_frames < 2:
+            raise ValueError(f"max_frames: expected >= 2, got {self.max_frames}")
+
+    @property
+    def total_timesteps(self) -> int:
+        """``timesteps`` or the kind's default."""
+        if self.timesteps is not None:
+            return int(self.timesteps)
+        return 100_000 if self.kind == "rl" else 20_000
+
+
+@dataclass
+class TrainResult:
+    """What :func:`train_sampler` did.
+
+    Attributes
+    ----------
+    model : str
+        Path of the model's JSON.
+    sampler : GaussianSampler
+    history : list of dict
+        Periodic evaluations (and, supervised, every epoch's losses).
+    evaluation : dict
+        Final evaluation on the held-out episodes (see :func:`evaluate_agents`).
+    seconds : dict
+        Wall time per phase (``data``, ``train``, ``evaluate``, ``total``).
+    """
+
+    model: str
+    sampler: GaussianSampler
+    history: list[dict[str, Any]]
+    evaluation: dict[str, dict[str, float]]
+    seconds: dict[str, float]
+
+
+def _load_graph(name: str) -> Any:
+    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.graph import FilteredPoseGraph, default_graph
+
+    if name == "default":
+        return default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)
+    if not Path(name).is_file():
+        raise FileNotFoundError(f"--graph: {name}: no such file")
+    return FilteredPoseGraph.load(name)
+
+
+def _held_out_clash(graph_name: str, clips: Sequence[Any]) -> list[str]:
+    """Training clips that are evaluation clips of the default protocol."""
+    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+
+    if graph_name != "default":
+        return []
+    return sorted({c.name for c in clips} & set(DEFAULT_HOLDOUT_CLIPS))
+
+
+def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = None) -> TrainResult:
+    """Train a sampler as ``config`` says: data / env, training with periodic held-out
+    evaluation and checkpoints, save, final evaluation (learned, learned+search and the
+    baselines none / random-search(200) / local-search on the held-out episodes).
+
+    Raises
+    ------
+    ValueError
+        Bad settings, or training clips that are the default protocol's evaluation clips.
+    optimizers.MissingDependency
+        torch / stable-baselines3 missing (``pip install 'fpg-gym[learn]'``).
+    """
+    from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
+    from optimizers.learned import LearnedSampler, LearnedSearch
+    from policies.sampler import import_learn
+
+    import_learn("torch")
+    if config.kind == "rl":
+        import_learn("stable_baselines3")
+    say = log or (lambda text: print(text, flush=True))
+    started = time.perf_counter()
+    seconds: dict[str, float] = {}
+    scenarios = list(config.scenarios or DEFAULT_EPISODE_SCENARIOS)
+    graph = _load_graph(config.graph)
+    clips = training_clips(config.clips, units=config.units, progress=config.progress)
+    if config.val_clips:
+        val_clips = training_clips(config.val_clips, units=config.units)
+        train_clips = clips
+    else:
+        train_clips, val_clips = split_clips(clips, config.val_share, config.seed)
+    clash = _held_out_clash(config.graph, list(train_clips) + list(val_clips))
+    if config.mirror:
+        train_clips = list(train_clips) + [mirror_clip(c) for c in train_clips]
+    if clash:
+        raise ValueError(
+            f"--clips {clash}: these are the held-out evaluation clips of the default graph; "
+            "train on other clips (the default: the clips the default graph is built from)"
+        )
+    say(
+        f"train-sampler: {config.kind}"
+        + (f" ({config.algo})" if config.kind == "rl" else f" (target {config.target})")
+        + f", {len(train_clips)} training clips, {len(val_clips)} validation clips, "
+        f"scenarios {','.join(scenarios)}, {config.total_timesteps} timesteps, seed {config.seed}"
+    )
+    val_seeds = [10_000 + config.seed]
+    validation = simulate_episodes(val_clips, scenarios, val_seeds, max_frames=config.max_frames)[
+        : config.eval_episodes
+    ]
+    out_json, stem = model_paths(config.out)
+    checkpoints = stem.with_name(stem.name + ".checkpoints")
+    training_info: dict[str, Any] = {
+        "graph": config.graph,
+        "clips": [c.name for c in train_clips],
+        "validation_clips": [c.name for c in val_clips],
+        "scenarios": scenarios,
+        "timesteps": config.total_timesteps,
+        "seed": config.seed,
+        "max_frames": config.max_frames,
+        "versions": _versions(config.kind),
+    }
+
+    def evaluate(sampler: GaussianSampler, agents: dict[str, Any] | None = None) -> dict[str, Any]:
+        table = evaluate_agents(
+            graph,
+            validation,
+            agents or {"mean": LearnedSampler(sampler, samples=1)},
+            k=config.k,
+            latent_dim=config.latent_dim,
+            seed=config.seed,
+        )
+        return table
+
+    if config.kind == "supervised":
+        sampler, history = _train_supervised(
+            config,
+            graph,
+            train_clips,
+            scenarios,
+            training_info,
+            evaluate,
+            checkpoints,
+            seconds,
+            say,
+        )
+    else:
+        from policies.rl import train_rl
+
+        t0 = time.perf_counter()
+        sampler, history = train_rl(
+            graph=graph,
+            clips=train_clips,
+            scenarios=scenarios,
+            algo=config.algo,
+            timesteps=config.total_timesteps,
+            seed=config.seed,
+            k=config.k,
+            latent_dim=config.latent_dim,
+            action_scale=config.action_scale,
+            action_mode=config.action_mode,
+            max_frames=config.max_frames,
+            features=config.features,
+            anchor=config.anchor,
+            anchor_style=config.anchor_style,
+            hyperparameters=config.hyperparameters,
+            evaluate=evaluate,
+            eval_every=config.eval_every or max(config.total_timesteps // 10, 1),
+            checkpoints=checkpoints,
+            tensorboard=_tensorboard_dir(config.tensorboard, say),
+            progress=config.progress,
+            log=say,
+        )
+        seconds["train"] = time.perf_counter() - t0
+    sampler.spec.training = {**training_info, "seconds": dict(seconds), "history": history}
+    t0 = time.perf_counter()
+    from optimizers.random_search import RandomSearch
+    from policies.sampler import AnchorSampler
+
+    final = evaluate(
+        sampler,
+        {
+            "none (x0)": "none",
+            "random-search (200)": RandomSearch(samples=100, iterations=2),
+            "local-search (2000)": "local-search",
+            "anchor only (1)": LearnedSampler(AnchorSampler(sampler.spec), samples=1),
+            "mean action (1)": LearnedSampler(sampler, samples=1),
+            "learned (200)": LearnedSampler(sampler),
+            "learned+search (200)": LearnedSearch(sampler),
+        },
+    )
+    seconds["evaluate"] = time.perf_counter() - t0
+    seconds["total"] = time.perf_counter() - started
+    sampler.spec.training["seconds"] = dict(seconds)
+    sampler.spec.training["evaluation"] = final
+    path = sampler.save(out_json)
+    say(f"saved {path} ({sampler.spec.weights})")
+    say(f"final evaluation on {len(validation)} held-out episodes:\n" + format_evaluation(final))
+    return TrainResult(str(path), sampler, history, final, seconds)
+
+
+def _train_supervised(
+    config: TrainConfig,
+    graph: Any,
+    train_clips: Sequence[Any],
+    scenarios: Sequence[str],
+    training_info: dict[str, Any],
+    evaluate: Callable[..., dict[str, Any]],
+    checkpoints: Path,
+    seconds: dict[str, float],
+    say: Callable[[str], None],
+) -> tuple[GaussianSampler, list[dict[str, Any]]]:
+    from policies.supervised import SupervisedSampler, fit_supervised
+
+    spec = SamplerSpec(
+        kind="supervised",
+        algo="mlp",
+        latent_dim=config.latent_dim,
+        candidates=config.k,
+        observation_size=ObservationLayout(config.latent_dim, config.k).size,
+        features=list(config.features),
+        anchor=config.anchor,
+        anchor_style=config.anchor_style,
+        action_mode=config.action_mode,
+        action_scale=config.action_scale,
+        hyperparameters={
+            **config.hyperparameters,
+            "target": config.target,
+            "epochs": config.epochs,
+        },
+    )
+    t0 = time.perf_counter()
+    frames_per_pass = sum(
+        min(c.num_frames, config.max_frames or c.num_frames) for c in train_clips
+    ) * len(scenarios)
+    passes = max(1, -(-config.total_timesteps // max(frames_per_pass, 1)))
+    seeds = [config.seed * 1000 + i for i in range(passes)]
+    recordings = simulate_episodes(train_clips, scenarios, seeds, max_frames=config.max_frames)
+    order = np.random.default_rng(config.seed).permutation(len(recordings))
+    recordings = [recordings[i] for i in order]
+    data = collect_imitation_data(
+        graph,
+        recordings,
+        spec,
+        target=config.target,
+        frames=config.total_timesteps,
+        seed=config.seed,
+        progress=config.progress,
+    )
+    seconds["data"] = time.perf_counter() - t0
+    say(
+        f"imitation data: {len(data)} frames from {len(set(data.episodes.tolist()))} episodes "
+        f"in {seconds['data']:.1f} s"
+    )
+    # Validation pairs: a tenth of the episodes, by whole episodes.
+    episode_ids = np.unique(data.episodes)
+    rng = np.random.default_rng(config.seed + 1)
+    held = rng.permutation(episode_ids)[: max(1, len(episode_ids) // 10)]
+    is_val = np.isin(data.episodes, held) if len(episode_ids) > 1 else np.zeros(len(data), bool)
+    train = ~is_val
+    feature_map = spec.feature_map()
+    features = feature_map(data.observations[train])
+    mean = features.mean(axis=0)
+    scale = np.maximum(features.std(axis=0), 1e-3)
+    sampler = SupervisedSampler.create(spec, mean, scale, seed=config.seed)
+    eval_every = config.eval_every or max(config.epochs // 5, 1)
+    fit_keys = ("batch_size", "learning_rate", "weight_decay", "loss", "weighting")
+    fit_args = {k: config.hyperparameters[k] for k in fit_keys if k in config.hyperparameters}
+    tensorboard = _tensorboard_writer(config.tensorboard, say)
+
+    def on_epoch(record: dict[str, Any]) -> None:
+        epoch = int(record["epoch"])
+        if tensorboard is not None:
+            for key in ("train_loss", "val_loss"):
+                if key in record:
+                    tensorboard.add_scalar(f"supervised/{key}", record[key], epoch)
+        if epoch % eval_every == 0 or epoch == config.epochs:
+            table = evaluate(sampler)["mean"]
+            record.update({f"eval_{k}": v for k, v in table.items()})
+            path = sampler.save(checkpoints / f"epoch-{epoch:04d}")
+            say(
+                f"epoch {epoch}: train loss {record['train_loss']:.3f}, validation loss "
+                f"{record.get('val_loss', float('nan')):.3f}, MSE "
+                f"{record.get('val_mse', float('nan')):.4f}; held-out mean action: energy "
+                f"{table['mean_energy']:.4f}, error {table['mean_error']:.4f} m "
+                f"(checkpoint {path.name})"
+            )
+            if tensorboard is not None:
+                tensorboard.add_scalar("eval/mean_energy", table["mean_energy"], epoch)
+                tensorboard.add_scalar("eval/mean_error", table["mean_error"], epoch)
+
+    t0 = time.perf_counter()
+    try:
+        history = fit_supervised(
+            sampler,
+            data.observations[train],
+            data.actions[train],
+            data.masks[train],
+            epochs=config.epochs,
+            seed=config.seed,
+            validation=(data.observations[is_val], data.actions[is_val], data.masks[is_val])
+            if is_val.any()
+            else None,
+            on_epoch=on_epoch,
+            progress=config.progress,
+            **fit_args,
+        )
+    finally:
+        if tensorboard is not None:
+            tensorboard.close()
+    seconds["train"] = time.perf_counter() - t0
+    best = [r["epoch"] for r in history if r.get("best")]
+    if best:
+        say(
+            f"kept the weights of epoch {best[0]} (lowest validation MSE); spread x "
+            f"{history[-1].get('std_scale', 1.0):.2f} (calibrated on the validation pairs)"
+        )
+    training_info["frames"] = len(data)
+    training_info["target"] = config.target
+    return sampler, history
+
+
+def _tensorboard_available() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("tensorboard") is not None
+
+
+def _tensorboard_dir(folder: str | None, say: Callable[[str], None]) -> str | None:
+    if folder is None:
+        return None
+    if not _tensorboard_available():
+        say("train-sampler: tensorboard is not installed; no TensorBoard logs are written")
+        return None
+    return folder
+
+
+def _tensorboard_writer(folder: str | None, say: Callable[[str], None]) -> Any:
+    if _tensorboard_dir(folder, say) is None:
+        return None
+    from torch.utils.tensorboard import SummaryWriter
+
+    return SummaryWriter(log_dir=folder)
+
+
+def _versions(kind: str) -> dict[str, str]:
+    import importlib.metadata as md
+
+    names = ["fpg-gym", "numpy", "torch"] + (
+        ["stable-baselines3", "gymnasium"] if kind == "rl" else []
+    )
+    out = {}
+    for name in names:
+        try:
+            out[name] = md.version(name)
+        except md.PackageNotFoundError:
+            out[name] = "unknown"
+    return out
+
+
+def config_dict(config: TrainConfig) -> dict[str, Any]:
+    """``config`` as plain data (for JSON summaries)."""
+    data = asdict(config)
+    data["total_timesteps"] = config.total_timesteps
+    return data
