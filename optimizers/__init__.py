@@ -18,6 +18,8 @@ Built-in optimisers (``make(name, **kwargs)``):
 ``random-search``  samples from the whitened latent prior N(0, I): the floor to beat
 ``cma-es``         CMA-ES warm-started at x0 (needs ``pip install 'fpg-gym[cma]'``)
 ``none``           no search: x0 (the previous reconstruction projected, or the best candidate)
+``closed-form``    beyond the papers: one point, the exact minimiser of the energy's quadratic
+                   terms (Ec, Em, a ridge for Es) in the latent space (1 evaluation)
 =================  =====================================================================
 
 Parametrised names ``PREFIX:ARGUMENT`` call a prefix factory with the argument (see
@@ -146,6 +148,7 @@ _BUILTINS: dict[str, str] = {
     "random-search": "optimizers.random_search:RandomSearch",
     "cma-es": "optimizers.cma_es:CMAES",
     "none": "optimizers.none:NoSearch",
+    "closed-form": "optimizers.closed_form:ClosedForm",
 }
 _REGISTRY: dict[str, OptimizerFactory] = {}
 # Parametrised names "PREFIX:ARGUMENT": the factory is called with ARGUMENT first.

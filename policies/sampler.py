@@ -160,8 +160,6 @@ def import_learn(module: str) -> Any:
 
 #: Anchors a sampler's Gaussian may be centred on (see :class:`FeatureMap`).
 ANCHORS: tuple[str, ...] = ("none", "quadratic")
-#: Weight of the whitened prior of :func:`quadratic_anchor` (keeps degenerate axes finite).
-_WHITENED_PRIOR = 1e-5
 #: The papers' energy weights (Shum Eq. 10): control, style, kinematic, motion.
 PAPER_WEIGHTS: tuple[float, float, float, float] = (1.0, 0.5, 1.5, 0.25)
 
@@ -174,16 +172,9 @@ def quadratic_anchor(
     energy_weights: Sequence[float] = PAPER_WEIGHTS,
     style: float = 2.0,
 ) -> np.ndarray:
-    """Closed-form minimiser of the energy's quadratic terms, from observation parts, as actions.
-
-    In each frame's latent space (unwhitened coordinates ``u``, pose ``x = mean + B^T u``) it
-    minimises ``w_c Ec + w_m Em + (w_s / J) * style * ||u||^2 + 1e-5 ||z||^2`` exactly
-    (``z = u / std`` the whitened coordinates; the last term only keeps the axes of tiny spread
-    finite): ``Ec`` (Shum Eq. 11)
-    and ``Em`` (Eq. 14, when the frame has a prediction) are quadratic in ``u``, and the ridge
-    stands in for the style term ``Es`` (Eq. 12, "stay near the candidates") by pulling toward
-    the candidates' mean. The kinematic term ``Ek`` is left out (not quadratic). One ``(L, L)``
-    solve per frame, batched.
+    """:func:`fpg_gym.reconstruct.closed_form.quadratic_minimiser` from observation parts, as
+    actions: the closed-form minimiser of the energy's quadratic terms (``Ec``, ``Em``, a ridge
+    standing in for ``Es``) in each frame's latent space, one batched ``(L, L)`` solve.
 
     Parameters
     ----------
@@ -204,34 +195,23 @@ def quadratic_anchor(
         observation's latent bounds.
     """
     from fpg_gym.env_observation import LATENT_LIMIT
+    from fpg_gym.reconstruct.closed_form import quadratic_minimiser
 
-    joints = parts["kinect"].shape[-2]
     n = parts["kinect"].shape[0]
-    w_c, w_s, _, w_m = (float(w) for w in energy_weights)
-    sensor = parts["kinect"].reshape(n, -1).astype(np.float64)
-    prediction = parts["prediction"].reshape(n, -1).astype(np.float64)
-    mean = parts["latent_mean"].reshape(n, -1).astype(np.float64)
-    basis = parts["latent_basis"].astype(np.float64)  # (n, L, 60)
-    std = parts["latent_std"].astype(np.float64)
     mask = parts["latent_mask"] > 0.5
-    has_prediction = parts["context"][:, CONTEXT_NAMES.index("has_prediction")] > 0.5
-    weights = w_c * np.repeat(parts["reliability"].astype(np.float64), 3, axis=1)  # (n, 60)
-    motion = np.where(has_prediction, w_m / joints, 0.0)  # (n,)
-    ridge = w_s / joints * style + 1e-9
-    size = basis.shape[1]
-    eye = np.eye(size)
-    a = np.einsum("nlk,nk,nmk->nlm", basis, weights, basis)
-    a += (motion + ridge)[:, None, None] * eye
-    # A faint prior in whitened units keeps axes of tiny spread (where z = u / std explodes)
-    # near the candidates; it is negligible on the others.
-    a += _WHITENED_PRIOR * eye / np.maximum(std, 1e-6)[:, :, None] ** 2
-    b = np.einsum("nlk,nk->nl", basis, weights * (sensor - mean))
-    b += motion[:, None] * np.einsum("nlk,nk->nl", basis, prediction - mean)
-    valid = mask[:, :, None] & mask[:, None, :]
-    a = np.where(valid, a, eye)
-    b = np.where(mask, b, 0.0)
-    u = np.linalg.solve(a, b[..., None])[..., 0]
-    z = np.where(mask, u / np.maximum(std, 1e-9), 0.0)
+    w_c, w_s, w_k, w_m = (float(w) for w in energy_weights)
+    z = quadratic_minimiser(
+        parts["kinect"].reshape(n, -1),
+        parts["reliability"],
+        parts["latent_mean"].reshape(n, -1),
+        parts["latent_basis"],
+        parts["latent_std"],
+        prediction=parts["prediction"].reshape(n, -1),
+        has_prediction=parts["context"][:, CONTEXT_NAMES.index("has_prediction")] > 0.5,
+        mask=mask,
+        weights=(w_c, w_s, w_k, w_m),
+        style=style,
+    )
     action = z / float(action_scale)
     if delta:
         action = action - parts["x0"].astype(np.float64)

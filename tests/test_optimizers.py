@@ -165,3 +165,41 @@ def test_unlimited_budget_with_a_stopping_optimizer() -> None:
     assert problem.remaining is None
     optimizers.run_optimizer(problem, optimizers.make("random-search", iterations=3), rng=0)
     assert problem.evaluations == 300
+
+
+def _quadratic_energy(problem: SearchProblem, points: np.ndarray, style: float) -> np.ndarray:
+    """w_c Ec + w_m Em + the ridge and the faint whitened prior of the closed form."""
+    terms = problem.evaluate_terms(points, count=False)
+    w = problem.weights
+    u = points * problem.latent.std
+    ridge = (w.style / 20) * style * (u**2).sum(axis=1)
+    faint = 1e-5 * (points**2).sum(axis=1)
+    return w.control * terms["Ec"] + w.motion * terms["Em"] + ridge + faint
+
+
+def test_closed_form_minimises_the_quadratic_energy_with_one_evaluation() -> None:
+    """The closed-form point has zero gradient of the quadratic energy (checked by central
+    differences) and costs exactly one evaluation."""
+    from fpg_gym.graph import FilteredPoseGraph
+    from fpg_gym.io import load_default_clips
+    from fpg_gym.reconstruct import Reconstructor
+    from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
+    from fpg_gym.simulate import simulate
+
+    clips = load_default_clips(["walk", "run", "kick", "punch"])
+    graph = FilteredPoseGraph.build(clips[1:], thres1=0.05, progress=False)
+    recording = simulate(clips[0], "front-many", seed=3)
+    rec = Reconstructor(graph)
+    for t in range(3):
+        problem = rec.prepare(recording.positions[t], recording.states[t], recording.timestamps[t])
+        z = optimizers.run_optimizer(problem, "closed-form", np.random.default_rng(0))
+        assert problem.evaluations == 1
+        h = 1e-4
+        steps = np.vstack([np.eye(problem.dim), -np.eye(problem.dim)]) * h
+        values = _quadratic_energy(problem, z[None] + steps, DEFAULT_STYLE)
+        gradient = (values[: problem.dim] - values[problem.dim :]) / (2 * h)
+        centre = _quadratic_energy(problem, z[None], DEFAULT_STYLE)[0]
+        assert np.abs(gradient).max() < 1e-6 * max(centre, 1.0), (t, np.abs(gradient).max())
+        # A step away in any direction raises it.
+        assert np.all(values >= centre - 1e-12)
+        rec.finish(z)
