@@ -5,7 +5,7 @@ One name picks everything a run of a Kinect stream needs; ``fpg-gym compare --me
 
 Grammar::
 
-    METHOD  = BASE [":" OPTION] ["+ragdoll"]
+    METHOD  = BASE [":" OPTION] ["+prior"] ["+ragdoll"]
 
 =========  ===================  =============================================================
 base       option               method
@@ -23,8 +23,11 @@ base       option               method
 The option of ``shum``/``fpg`` is a registered optimiser (``optimizers.available()``:
 ``local-search`` — the papers' search, the default —, ``random-search``, ``cma-es``, ``none``,
 or a parametrised name such as ``learned:PATH`` / ``learned+search:PATH``, so
-``fpg:learned+search:runs/sampler+ragdoll`` is valid: only a trailing ``+ragdoll`` is a suffix);
-the option of a filter is its preset (the SDK's documented default when omitted). ``+ragdoll``
+``fpg:learned+search:runs/sampler+ragdoll`` is valid: only trailing ``+prior``/``+ragdoll`` are
+suffixes); the option of a filter is its preset (the SDK's documented default when omitted).
+``+prior`` (``shum``/``fpg`` only, beyond the papers) adds the latent prior term ``Ep`` with
+the weight chosen on a validation split (:meth:`EnergyWeights.with_prior
+<fpg_gym.reconstruct.EnergyWeights.with_prior>`). ``+ragdoll``
 sends the method's output through the pybullet PD ragdoll (:class:`fpg_gym.ragdoll.Ragdoll`) as a
 final filter — for ``shum``/``fpg`` inside the :class:`~fpg_gym.reconstruct.Reconstructor`
 (Shum §VII, FPG §7), for a filter on its output (see :class:`RagdollStage`).
@@ -78,6 +81,7 @@ SELECTOR_OF_BASE: dict[str, str] = {"shum": "brute-force", "fpg": "graph"}
 BASE_OF_SELECTOR: dict[str, str] = {v: k for k, v in SELECTOR_OF_BASE.items()}
 DEFAULT_OPTIMIZER = "local-search"
 RAGDOLL_SUFFIX = "+ragdoll"
+PRIOR_SUFFIX = "+prior"
 
 
 @dataclass(frozen=True)
@@ -92,17 +96,22 @@ class Method:
         Filter preset (``""`` for the default) or optimiser name (reconstruction methods).
     ragdoll : bool
         Whether the output goes through the ragdoll.
+    prior : bool
+        Whether the energy has the latent prior term (``shum``/``fpg`` only).
     """
 
     base: str
     option: str = ""
     ragdoll: bool = False
+    prior: bool = False
 
     def __post_init__(self) -> None:
         if self.base not in METHOD_BASES:
             raise ValueError(
                 f"method: unknown base {self.base!r}; expected one of {', '.join(METHOD_BASES)}"
             )
+        if self.prior and self.base in FILTER_BASES:
+            raise ValueError(f"method {self.base}: '+prior' applies to shum and fpg only")
 
     @property
     def is_filter(self) -> bool:
@@ -132,11 +141,12 @@ class Method:
     def name(self) -> str:
         """Canonical name (optimiser spelled out, default filter preset omitted)."""
         core = self.filter_name if self.is_filter else f"{self.base}:{self.optimizer}"
-        return f"{core}{RAGDOLL_SUFFIX if self.ragdoll else ''}"
+        prior = PRIOR_SUFFIX if self.prior else ""
+        return f"{core}{prior}{RAGDOLL_SUFFIX if self.ragdoll else ''}"
 
     def with_ragdoll(self, ragdoll: bool) -> Method:
         """The same method with or without the ragdoll."""
-        return Method(self.base, self.option, ragdoll)
+        return Method(self.base, self.option, ragdoll, self.prior)
 
     def __str__(self) -> str:
         return self.name
@@ -159,14 +169,23 @@ def parse_method(text: str) -> Method:
     raw = str(text).strip()
     if not raw:
         raise ValueError("method: empty name")
-    # An optimiser option may hold '+' and ':' (learned+search:PATH): only a trailing
-    # '+ragdoll' is the suffix, and a '+' before the option is an error.
-    plus = raw.lower().endswith(RAGDOLL_SUFFIX)
-    body = raw[: -len(RAGDOLL_SUFFIX)] if plus else raw
+    # An optimiser option may hold '+' and ':' (learned+search:PATH): only trailing '+prior'
+    # and '+ragdoll' are suffixes, and a '+' before the option is an error.
+    body, plus, prior = raw, False, False
+    while True:
+        lowered = body.lower()
+        if lowered.endswith(RAGDOLL_SUFFIX) and not plus:
+            body, plus = body[: -len(RAGDOLL_SUFFIX)], True
+        elif lowered.endswith(PRIOR_SUFFIX) and not prior:
+            body, prior = body[: -len(PRIOR_SUFFIX)], True
+        else:
+            break
     head, _, rest = body.partition(":")
     if "+" in head or (head.strip().lower() in FILTER_BASES and "+" in rest):
         suffix = body[body.index("+") + 1 :]
-        raise ValueError(f"method {raw!r}: the only suffix is '+ragdoll', got '+{suffix}'")
+        raise ValueError(
+            f"method {raw!r}: the suffixes are '+prior' and '+ragdoll', got '+{suffix}'"
+        )
     base, _, option = body.partition(":")
     base, option = base.strip().lower(), option.strip()
     if base not in METHOD_BASES:
@@ -183,7 +202,9 @@ def parse_method(text: str) -> Method:
             raise ValueError(f"method {raw!r}: unknown {base} preset {option!r}; presets: {known}")
     elif option == DEFAULT_OPTIMIZER:
         option = ""
-    return Method(base, option if base in FILTER_BASES else (option or ""), bool(plus))
+    if prior and base in FILTER_BASES:
+        raise ValueError(f"method {raw!r}: '+prior' applies to shum and fpg only")
+    return Method(base, option if base in FILTER_BASES else (option or ""), plus, prior)
 
 
 def parse_methods(texts: Iterable[str]) -> list[Method]:
@@ -400,22 +421,25 @@ class MethodRunner:
         self.graph = graph
         self.budget = budget
         self.options = dict(reconstructor_options or {})
-        self._reconstructors: dict[tuple[str, bool], Any] = {}
+        self._reconstructors: dict[tuple[str, bool, bool], Any] = {}
         self._ragdoll_stage: RagdollStage | None = None
 
-    def _reconstructor(self, selector: str, ragdoll: bool) -> Any:
-        from fpg_gym.reconstruct import Reconstructor
+    def _reconstructor(self, selector: str, ragdoll: bool, prior: bool = False) -> Any:
+        from fpg_gym.reconstruct import EnergyWeights, Reconstructor
 
-        key = (selector, ragdoll)
+        key = (selector, ragdoll, prior)
         if key not in self._reconstructors:
             if self.graph is None:
                 raise ValueError("a pose graph is needed for the shum and fpg methods")
+            options = dict(self.options)
+            if prior:
+                options["weights"] = EnergyWeights.with_prior()
             self._reconstructors[key] = Reconstructor(
                 self.graph,
                 ragdoll=ragdoll,
                 selector=selector,
                 max_evaluations=self.budget,
-                **self.options,
+                **options,
             )
         return self._reconstructors[key]
 
@@ -474,7 +498,7 @@ class MethodRunner:
         from optimizers import make
 
         assert spec.selector is not None and spec.optimizer is not None
-        reconstructor = self._reconstructor(spec.selector, spec.ragdoll)
+        reconstructor = self._reconstructor(spec.selector, spec.ragdoll, spec.prior)
         rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
         result = reconstructor.reconstruct(
             recording, make(spec.optimizer), rng=rng, stop_on_interrupt=stop_on_interrupt

@@ -406,3 +406,24 @@ def test_count_events_across_counter_restarts() -> None:
     assert count_events([0, 1, 1, 3]) == 3
     assert count_events([2, 2, 0, 1]) == 3  # restarted (rebuilt) after two events
     assert count_events([]) == 0
+
+
+def test_prior_suffix() -> None:
+    from fpg_gym.methods import parse_method
+
+    method = parse_method("fpg+ragdoll+prior")
+    assert method.prior and method.ragdoll and method.name == "fpg:local-search+prior+ragdoll"
+    assert parse_method("shum:closed-form+prior").name == "shum:closed-form+prior"
+    assert not parse_method("fpg").prior
+    with pytest.raises(ValueError, match=r"'\+prior' applies to shum and fpg only"):
+        parse_method("holt+prior")
+
+
+def test_prior_method_uses_the_prior_energy(recording: Any, graph: Any) -> None:
+    with MethodRunner(graph, budget=300) as runner:
+        plain = runner.run("fpg:closed-form", recording, seed=1)
+        prior = runner.run("fpg:closed-form+prior", recording, seed=1)
+    assert plain.energy is not None and prior.energy is not None
+    # Same pose sought (closed form ignores Ep), so the prior's energy is the plain energy + w Ep.
+    assert np.all(prior.energy >= plain.energy - 1e-12)
+    assert np.any(prior.energy > plain.energy + 1e-9)
