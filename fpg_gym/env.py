@@ -36,6 +36,7 @@ from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
 from fpg_gym.metrics import frame_error
 from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem
+from fpg_gym.simulate import KinectSimulator
 
 __all__ = [
     "ACTION_MODES",
@@ -469,6 +470,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._human_disabled = False
         self._prepare_ms = self._observation_ms = 0.0
         self._simulated: dict[tuple[int, int, int], Recording] = {}
+        self._simulators: dict[int, KinectSimulator] = {}
 
     # ------------------------------------------------------------------ construction helpers
 
@@ -808,6 +810,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         reconstructor = getattr(self, "reconstructor", None)
         if reconstructor is not None:
             reconstructor.close()
+        for simulator in getattr(self, "_simulators", {}).values():
+            simulator.close()
+        self._simulators = {}
         if self._figure is not None:
             import matplotlib.pyplot as plt
 
@@ -891,12 +896,13 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     def _simulate(self, index: int, s_index: int, seed: int) -> Recording:
         """The simulated stream of clip ``index`` in scenario ``s_index`` (cached when the seed
         is below ``simulator_seeds``)."""
-        from fpg_gym.simulate import simulate
-
         key = (index, s_index, seed)
         recording = self._simulated.get(key)
         if recording is None:
-            recording = simulate(self._clips[index], self._scenarios[s_index], seed=seed)
+            simulator = self._simulators.get(s_index)
+            if simulator is None:  # one per scenario, reused: no new pybullet client per reset
+                simulator = self._simulators[s_index] = KinectSimulator(self._scenarios[s_index])
+            recording = simulator.simulate(self._clips[index], seed=seed)
             if self.simulator_seeds is not None and seed < self.simulator_seeds:
                 self._simulated[key] = recording
         return recording
