@@ -7,8 +7,9 @@
    occluders): 12 episodes with ground truth.
 3. Every method of :data:`DEMO_METHODS` on every episode (:func:`fpg_gym.compare.run_compare`):
    the sensor as is, the Kinect SDK and Kalman filters, the graph selection with no search,
-   random search and the papers' local search (the baseline), Shum's brute-force selection, and
-   the baseline with the ragdoll.
+   random search and the papers' local search (the baseline), Shum's brute-force selection, the
+   baseline with the ragdoll, and two methods beyond the papers: the closed-form minimiser of the
+   quadratic energy terms (one evaluation) and local search with the latent prior.
 4. The comparison table, the compare plots and an animated GIF of one episode: the simulated
    Kinect input (joints coloured by tracking state), the reconstruction and the ground truth
    side by side.
@@ -41,6 +42,8 @@ DEMO_METHODS: tuple[str, ...] = (
     "fpg:local-search",
     "shum:local-search",
     "fpg:local-search+ragdoll",
+    "fpg:closed-form",
+    "fpg:local-search+prior",
 )
 #: Methods of ``quick=True``.
 QUICK_METHODS: tuple[str, ...] = ("raw", "holt", "fpg:none", "fpg:local-search")
