@@ -130,7 +130,6 @@ def _load_data(settings: BenchSettings, progress: bool) -> _Data:
 
 
 def _episodes(data: _Data, settings: BenchSettings) -> list[Any]:
-    from fpg_gym.compare import _cap
     from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
     from fpg_gym.simulate import simulate
 
@@ -138,7 +137,7 @@ def _episodes(data: _Data, settings: BenchSettings) -> list[Any]:
     for i in range(settings.episodes):
         clip = data.episode_clips[i % len(data.episode_clips)]
         scenario = DEFAULT_EPISODE_SCENARIOS[i % len(DEFAULT_EPISODE_SCENARIOS)]
-        recordings.append(_cap(simulate(clip, scenario, seed=i), settings.max_frames))
+        recordings.append(simulate(clip, scenario, seed=i).head(settings.max_frames))
     return recordings
 
 

@@ -45,6 +45,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym import metrics, skeleton
+from fpg_gym.jsonable import jsonable
 from fpg_gym.methods import BASELINE, Method, MethodRunner, parse_method
 
 __all__ = [
@@ -341,21 +342,6 @@ def plan_episodes(
     return episodes
 
 
-def _cap(recording: Any, max_frames: int | None) -> Any:
-    from fpg_gym.io import Recording
-
-    if max_frames is None or recording.num_frames <= max_frames:
-        return recording
-    truth = recording.ground_truth
-    return Recording(
-        positions=recording.positions[:max_frames],
-        states=recording.states[:max_frames],
-        timestamps=recording.timestamps[:max_frames],
-        ground_truth=None if truth is None else truth[:max_frames],
-        metadata={**recording.metadata, "cut_to_frames": int(max_frames)},
-    )
-
-
 def _prepare_episodes(
     config: CompareConfig, folder: Path, progress: bool
 ) -> tuple[list[EpisodeSpec], list[str]]:
@@ -392,7 +378,7 @@ def _prepare_episodes(
                     simulators[episode.scenario] = KinectSimulator(episode.scenario)
                 clip = by_name[episode.clip]
                 recording = simulators[episode.scenario].simulate(clip, seed=episode.sim_seed)
-            recording = _cap(recording, config.max_frames)
+            recording = recording.head(config.max_frames)
             partial = target.with_name(target.name + ".part.npz")
             write_recording(partial, recording)
             os.replace(partial, target)
@@ -1007,18 +993,6 @@ def summarise(out: str | Path, baseline: str = BASELINE.name) -> dict[str, Any]:
     }
 
 
-def _plain(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.generic):
-        return _plain(value.item())
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 # --------------------------------------------------------------------------- report
 
 
@@ -1200,7 +1174,7 @@ def write_report(
     summary = summarise(out, baseline=baseline)
     summary["interrupted"] = bool(interrupted)
     summary["plots"] = _write_plots(out, summary) if plots and summary["method_order"] else {}
-    (out / "summary.json").write_text(json.dumps(_plain(summary), indent=2))
+    (out / "summary.json").write_text(json.dumps(jsonable(summary), indent=2))
     (out / "report.md").write_text(report_markdown(summary))
     return summary
 

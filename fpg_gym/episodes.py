@@ -310,17 +310,11 @@ def _run_filter_episode(
     recording: Any, method: Any, label: str, frames: int | None, reset_info: dict[str, Any]
 ) -> EpisodeResult:
     """A reference filter over the episode's recording (the env is not stepped)."""
-    from types import SimpleNamespace
-
     from fpg_gym import metrics
     from fpg_gym.methods import MethodRunner
 
-    count = recording.num_frames if frames is None else min(frames, recording.num_frames)
-    part = SimpleNamespace(
-        positions=recording.positions[:count],
-        states=recording.states[:count],
-        timestamps=recording.timestamps[:count],
-    )
+    part = recording.head(frames)
+    count = part.num_frames
     with MethodRunner() as runner:
         result = runner.run(method, part)
     truth = recording.ground_truth

@@ -46,6 +46,7 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io.clip import Clip
+from fpg_gym.jsonable import jsonable
 
 __all__ = [
     "DEFAULT_EMBEDDED_MIRROR",
@@ -72,19 +73,6 @@ DEFAULT_EMBEDDED_THRES1 = 0.1
 DEFAULT_EMBEDDED_MIRROR = True
 
 _ARRAYS = ("poses", "clip_index", "frame_index", "mirrored", "indptr", "indices", "clip_names")
-
-
-def _json_ready(value: Any) -> Any:
-    """``value`` with numpy scalars/arrays turned into plain Python (for ``json.dumps``)."""
-    if isinstance(value, dict):
-        return {str(key): _json_ready(item) for key, item in value.items()}
-    if isinstance(value, list | tuple):
-        return [_json_ready(item) for item in value]
-    if isinstance(value, np.ndarray):
-        return _json_ready(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    return value
 
 
 def _progress_bar(enabled: bool, total: int, desc: str, unit: str) -> Any:
@@ -405,7 +393,7 @@ class FilteredPoseGraph:
             "indptr": self.indptr,
             "indices": self.indices,
             "clip_names": np.array(self.clip_names, dtype=str).reshape(len(self.clip_names)),
-            "metadata": np.array(json.dumps(_json_ready(metadata))),
+            "metadata": np.array(json.dumps(jsonable(metadata))),
         }
         target.parent.mkdir(parents=True, exist_ok=True)
         # Write beside the target, then rename: readers never see a half-written file.

@@ -64,6 +64,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.env_observation import CONTEXT_NAMES, ObservationLayout
+from fpg_gym.jsonable import jsonable
 from optimizers import MissingDependency
 
 __all__ = [
@@ -540,7 +541,7 @@ class SamplerSpec:
         """Write the JSON to ``path``."""
         target = Path(path)
         target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_text(json.dumps(_plain(self.to_json()), indent=2) + "\n")
+        target.write_text(json.dumps(jsonable(self.to_json()), indent=2) + "\n")
         return target
 
     @classmethod
@@ -569,20 +570,6 @@ class SamplerSpec:
             return cls(**{k: v for k, v in data.items() if k in names})
         except TypeError as error:
             raise ValueError(f"{source}: incomplete sampler description ({error})") from None
-
-
-def _plain(value: Any) -> Any:
-    if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _plain(value.tolist())
-    if isinstance(value, np.generic):
-        return value.item()
-    if isinstance(value, Path):
-        return str(value)
-    return value
 
 
 def model_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:

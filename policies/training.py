@@ -125,7 +125,7 @@ def simulate_episodes(
     simulators = {name: KinectSimulator(name) for name in scenarios}
     try:
         return [
-            _first_frames(simulators[scenario].simulate(clip, seed=int(seed)), max_frames)
+            simulators[scenario].simulate(clip, seed=int(seed)).head(max_frames)
             for seed in seeds
             for clip in clips
             for scenario in scenarios
@@ -133,22 +133,6 @@ def simulate_episodes(
     finally:
         for simulator in simulators.values():
             simulator.close()
-
-
-def _first_frames(recording: Any, count: int | None) -> Any:
-    """``recording`` cut to its first ``count`` frames."""
-    from fpg_gym.io import Recording
-
-    if count is None or recording.num_frames <= count:
-        return recording
-    truth = recording.ground_truth
-    return Recording(
-        positions=recording.positions[:count],
-        states=recording.states[:count],
-        timestamps=recording.timestamps[:count],
-        ground_truth=None if truth is None else truth[:count],
-        metadata={**recording.metadata, "cut_to_frames": int(count)},
-    )
 
 
 # --------------------------------------------------------------------------- imitation data

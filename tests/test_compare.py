@@ -102,7 +102,7 @@ def recording() -> Any:
     from fpg_gym.simulate import simulate
 
     clip = load_default_clips(["walk"])[0]
-    return compare._cap(simulate(clip, "front-many", seed=3), 16)
+    return simulate(clip, "front-many", seed=3).head(16)
 
 
 @pytest.fixture(scope="module")

@@ -139,3 +139,18 @@ def test_load_errors_name_the_file_and_field(tmp_path: Path, rng: np.random.Gene
     text.write_text("not a zip archive")
     with pytest.raises(DataFormatError, match=r"not a readable \.npz"):
         load_recording(text)
+
+
+def test_head_keeps_the_first_frames() -> None:
+    from fpg_gym.io import load_default_clips
+    from fpg_gym.simulate import simulate
+
+    recording = simulate(load_default_clips(["punch"])[0], "front-few", seed=1)
+    part = recording.head(10)
+    assert part.num_frames == 10 and part.metadata["cut_to_frames"] == 10
+    assert part.ground_truth is not None and recording.ground_truth is not None
+    np.testing.assert_array_equal(part.ground_truth, recording.ground_truth[:10])
+    np.testing.assert_array_equal(part.timestamps, recording.timestamps[:10])
+    assert recording.head(None) is recording and recording.head(10_000) is recording
+    with pytest.raises(ValueError, match="count"):
+        recording.head(0)

@@ -50,7 +50,7 @@ import gzip
 import math
 import warnings
 from collections import Counter
-from collections.abc import Iterable, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -170,6 +170,25 @@ def _parse_numbers(fields: Sequence[str]) -> np.ndarray | None:
     return values
 
 
+def _numeric_lines(
+    lines: Iterable[tuple[int, Sequence[str]]], expected: int, log: _LineLog, *, finite: bool = True
+) -> Iterator[tuple[int, np.ndarray]]:
+    """``(line number, values)`` of the lines holding ``expected`` numbers (all finite when
+    ``finite``); every other line is logged as skipped, with the reason."""
+    for number, fields in lines:
+        if len(fields) != expected:
+            log.skip(number, f"expected {expected} fields, got {len(fields)}")
+            continue
+        values = _parse_numbers(fields)
+        if values is None:
+            log.skip(number, "a field is not a number")
+            continue
+        if finite and not np.all(np.isfinite(values)):
+            log.skip(number, "NaN or inf value")
+            continue
+        yield number, values
+
+
 def _timestamp_unit(ticks: np.ndarray, candidates: Iterable[float]) -> float:
     """The unit (seconds per tick) that makes the median frame step closest to 1/30 s."""
     steps = np.diff(ticks)
@@ -240,20 +259,8 @@ def read_msrc12(path: str | Path) -> Recording:
     log = _LineLog()
     rows: list[np.ndarray] = []
     last_tick = -math.inf
-    for number, text in enumerate(lines, start=1):
-        fields = text.split()
-        if not fields:
-            continue
-        if len(fields) != _V1_FIELDS:
-            log.skip(number, f"expected {_V1_FIELDS} fields, got {len(fields)}")
-            continue
-        values = _parse_numbers(fields)
-        if values is None:
-            log.skip(number, "a field is not a number")
-            continue
-        if not np.all(np.isfinite(values)):
-            log.skip(number, "NaN or inf value")
-            continue
+    numbered = ((n, text.split()) for n, text in enumerate(lines, start=1) if text.split())
+    for number, values in _numeric_lines(numbered, _V1_FIELDS, log):
         if values[0] < last_tick:
             log.skip(number, "timestamp goes back")
             continue
@@ -302,17 +309,7 @@ def read_kinect_v2(path: str | Path) -> Recording:
     log = _LineLog()
     rows: list[np.ndarray] = []
     last_tick = -math.inf
-    for number, fields in split:
-        if len(fields) != layout:
-            log.skip(number, f"expected {layout} fields, got {len(fields)}")
-            continue
-        values = _parse_numbers(fields)
-        if values is None:
-            log.skip(number, "a field is not a number")
-            continue
-        if not np.all(np.isfinite(values)):
-            log.skip(number, "NaN or inf value")
-            continue
+    for number, values in _numeric_lines(split, layout, log):
         if layout == _V2_FIELDS:
             tick, joints = values[0], values[1:].reshape(_V2_JOINTS, 4)
             state = joints[:, 3]
@@ -552,15 +549,10 @@ def read_csv(path: str | Path) -> Recording:
     log = _LineLog()
     rows: list[np.ndarray] = []
     stamps: list[float] = []
-    for number, text in body_lines[1:]:
-        fields = [f.strip() for f in text.strip().rstrip(",").split(",")]
-        if len(fields) != len(header):
-            log.skip(number, f"expected {len(header)} fields, got {len(fields)}")
-            continue
-        values = _parse_numbers(fields)
-        if values is None:
-            log.skip(number, "a field is not a number")
-            continue
+    numbered = (
+        (n, [f.strip() for f in text.strip().rstrip(",").split(",")]) for n, text in body_lines[1:]
+    )
+    for number, values in _numeric_lines(numbered, len(header), log, finite=False):
         if not np.all(np.isfinite(values[columns])) or (
             has_time and not math.isfinite(values[index["timestamp"]])
         ):

@@ -175,6 +175,22 @@ class Recording:
             "not_tracked": float(np.count_nonzero(self.states == NOT_TRACKED) / total),
         }
 
+    def head(self, count: int | None) -> Recording:
+        """The first ``count`` frames (the recording itself when it is not longer, or ``count``
+        is None); ``metadata["cut_to_frames"]`` records the cut."""
+        if count is None or self.num_frames <= count:
+            return self
+        if count < 1:
+            raise ValueError(f"count: expected at least 1 frame, got {count}")
+        truth = self.ground_truth
+        return Recording(
+            positions=self.positions[:count],
+            states=self.states[:count],
+            timestamps=self.timestamps[:count],
+            ground_truth=None if truth is None else truth[:count],
+            metadata={**self.metadata, "cut_to_frames": int(count)},
+        )
+
     def __repr__(self) -> str:
         truth = ", ground_truth" if self.ground_truth is not None else ""
         source = self.metadata.get("source", "")
