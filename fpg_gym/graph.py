@@ -56,6 +56,7 @@ __all__ = [
     "FilteredPoseGraph",
     "cache_directory",
     "default_graph",
+    "load_graph",
 ]
 
 #: Version of the ``.npz`` layout written by :meth:`FilteredPoseGraph.save`.
@@ -510,6 +511,34 @@ def _default_cache_key(
         sort_keys=True,
     )
     return hashlib.sha256(key.encode()).hexdigest()[:16]
+
+
+def load_graph(
+    graph: FilteredPoseGraph | str | os.PathLike[str] | None,
+    *,
+    exclude: Sequence[str] = (),
+    cache_dir: str | os.PathLike[str] | None = None,
+) -> FilteredPoseGraph:
+    """A pose graph from what a user names: None or ``"default"`` is :func:`default_graph`
+    without ``exclude``; a path is :meth:`FilteredPoseGraph.load`; a graph is itself.
+
+    Raises
+    ------
+    FileNotFoundError
+        If the path does not exist.
+    TypeError
+        If ``graph`` is none of these.
+    """
+    if graph is None or (isinstance(graph, str) and graph == "default"):
+        return default_graph(exclude=exclude, cache_dir=cache_dir)
+    if isinstance(graph, str | os.PathLike):
+        return FilteredPoseGraph.load(graph)
+    if not hasattr(graph, "poses"):
+        raise TypeError(
+            f"graph: expected a path, 'default', a FilteredPoseGraph or None, got "
+            f"{type(graph).__name__}"
+        )
+    return graph
 
 
 def default_graph(

@@ -371,3 +371,18 @@ def test_real_bandai_files_build_like_naive():
     assert_matches_naive(graph, naive_build(clips, 0.2))
     assert_csr_invariants(graph)
     assert 0.2 < graph.thres2 < 0.6
+
+
+def test_load_graph_resolves_names_paths_and_objects(tmp_path: Path) -> None:
+    from fpg_gym.graph import load_graph
+
+    embedded = load_graph("default", exclude=["walk"], cache_dir=tmp_path)
+    assert "walk" not in embedded.clip_names
+    path = tmp_path / "g.npz"
+    embedded.save(path)
+    assert load_graph(path).num_nodes == embedded.num_nodes
+    assert load_graph(embedded) is embedded
+    with pytest.raises(FileNotFoundError):
+        load_graph(tmp_path / "missing.npz")
+    with pytest.raises(TypeError, match="expected a path"):
+        load_graph(3)  # type: ignore[arg-type]
