@@ -13,15 +13,15 @@ Sections (each a list of rows, see :func:`run_bench`):
 ``build``
     Graph build time (FPG Alg. 1–4) against the number of input poses.
 ``env``
-    Environment steps per second (``fpg_gym/KinectPose-v0`` with random actions), through the
-    measuring function of :mod:`fpg_gym.episodes` when it provides one (:data:`ENV_HOOKS`).
+    Environment steps per second (``fpg_gym/KinectPose-v0`` with random actions), with and
+    without the ragdoll, measured by :func:`fpg_gym.episodes.measure_env_throughput`.
 ``read``
     Mocap read speed (frames per second).
 
 By default everything uses the embedded DeepMimic clips (no files needed); ``mocap=`` paths
 (e.g. ``../shared/data/bandai_namco/dataset-1``) use those takes instead: 20 % of the files are
-held out for the episodes with the split of ``scripts/holdout_split.py`` (seed 2016), the others
-build the graphs.
+held out for the episodes with the split of ``scripts/holdout_split.py``
+(:func:`fpg_gym.holdout.holdout_indices`, seed 2016), the others build the graphs.
 
 Timings are wall-clock on the machine that runs the bench, one process, BLAS as configured;
 they are noisy on a shared machine (each figure is a median over frames or repeats).
@@ -30,23 +30,16 @@ they are noisy on a shared machine (each figure is a median over frames or repea
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import datetime, timezone
 from typing import Any
 
 import numpy as np
 
-__all__ = ["ENV_HOOKS", "BenchSettings", "format_bench", "run_bench"]
+from fpg_gym.compare import markdown_table
 
-#: Names of a throughput function in :mod:`fpg_gym.episodes` that the bench calls when present
-#: (the first found): ``f(steps=N, ragdoll=bool, seed=S) -> dict`` with ``steps_per_second``.
-ENV_HOOKS: tuple[str, ...] = ("measure_env_throughput", "measure_throughput")
-
-
-#: Hold-out split of ``mocap`` takes (as ``scripts/holdout_split.py``).
-HOLDOUT_SEED = 2016
-HOLDOUT_SHARE = 0.2
+__all__ = ["BenchSettings", "format_bench", "run_bench"]
 
 
 @dataclass
@@ -92,6 +85,14 @@ class BenchSettings:
             settings.env_steps = 20
         return settings
 
+    @property
+    def graph_thres1(self) -> float:
+        """``thres1`` of the graph of the stage timing and of the build rows (metres): FPG's
+        0.2 for mocap takes, the embedded graph's 0.1 for the embedded clips."""
+        from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1
+
+        return DEFAULT_THRES1 if self.mocap else DEFAULT_EMBEDDED_THRES1
+
 
 # --------------------------------------------------------------------------- data
 
@@ -107,17 +108,17 @@ class _Data:
 
 def _load_data(settings: BenchSettings, progress: bool) -> _Data:
     from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.holdout import holdout_indices
     from fpg_gym.io import load_clips, load_default_clips
 
     start = time.perf_counter()
     if settings.mocap:
         clips = load_clips(settings.mocap, progress=progress)
         seconds = time.perf_counter() - start
-        # The split of scripts/holdout_split.py: shuffle with seed 2016, hold out 20 %.
-        order = np.random.default_rng(HOLDOUT_SEED).permutation(len(clips))
-        count = max(1, round(HOLDOUT_SHARE * len(clips))) if len(clips) > 1 else 0
-        held = [clips[i] for i in order[:count]] or clips[-1:]
-        graph = [clips[i] for i in sorted(order[count:])] or clips
+        # The split of scripts/holdout_split.py; a single take is both held out and in the graph.
+        graph_indices, held_indices = holdout_indices(len(clips))
+        held = [clips[i] for i in held_indices] or clips[-1:]
+        graph = [clips[i] for i in graph_indices] or clips
         source = f"{len(clips)} mocap clips from {', '.join(settings.mocap)}"
     else:
         clips = load_default_clips()
@@ -158,14 +159,17 @@ def _stages(graph: Any, recordings: list[Any]) -> list[dict[str, Any]]:
     rows = []
     per: dict[str, dict[str, np.ndarray]] = {}
     for selector in ("graph", "brute-force"):
-        stages: dict[str, list[float]] = {s: [] for s in (*STAGES, "total")}
+        ms: list[np.ndarray] = []
+        totals: list[np.ndarray] = []
         with Reconstructor(graph, selector=selector, ragdoll=True) as reconstructor:
             for i, recording in enumerate(recordings):
-                result = reconstructor.reconstruct(recording, "local-search", rng=i)
-                for record in result.records:
-                    for stage in stages:
-                        stages[stage].append(float(record.ms.get(stage, 0.0)))
-        per[selector] = {s: np.asarray(v) for s, v in stages.items()}
+                arrays = reconstructor.reconstruct(recording, "local-search", rng=i).arrays()
+                names = [str(n) for n in arrays["stage_names"]]
+                ms.append(arrays["ms_stages"][:, [names.index(s) for s in STAGES]])
+                totals.append(arrays["ms_per_frame"])
+        stages = np.concatenate(ms)
+        per[selector] = {s: stages[:, i] for i, s in enumerate(STAGES)}
+        per[selector]["total"] = np.concatenate(totals)
     for stage in (*STAGES, "total"):
         row: dict[str, Any] = {"stage": stage}
         for selector, values in per.items():
@@ -206,7 +210,7 @@ def _selection(
 
 def _build_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
     clips = data.graph_clips
-    thres1 = 0.2 if settings.mocap else 0.1
+    thres1 = settings.graph_thres1
     fractions = (0.5, 1.0) if settings.quick else (0.25, 0.5, 1.0)
     rows = []
     for mirror in (False, True):
@@ -231,52 +235,15 @@ def _build_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
 
 
 def _env_rows(settings: BenchSettings) -> list[dict[str, Any]]:
-    """Env steps per second: the :mod:`fpg_gym.episodes` hook if any, else a direct loop."""
-    import importlib
+    """Env steps per second, with and without the ragdoll (random actions)."""
+    from fpg_gym.episodes import measure_env_throughput
 
-    try:
-        episodes: Any = importlib.import_module("fpg_gym.episodes")
-    except ImportError:
-        episodes = None
-    if episodes is not None:
-        for name in ENV_HOOKS:
-            hook: Callable[..., Any] | None = getattr(episodes, name, None)
-            if callable(hook):
-                rows = []
-                for ragdoll in (True, False):
-                    result = hook(steps=settings.env_steps, ragdoll=ragdoll, seed=0)
-                    values = (
-                        dict(result) if isinstance(result, dict) else {"steps_per_second": result}
-                    )
-                    source = f"fpg_gym.episodes.{name}, random actions, ragdoll "
-                    rows.append({"source": source + ("on" if ragdoll else "off"), **values})
-                return rows
-    try:
-        from fpg_gym.env import KinectPoseEnv
-    except ImportError as error:
-        return [{"source": f"n/a ({error})", "steps_per_second": None}]
-    env = KinectPoseEnv()
-    try:
-        env.reset(seed=0)
-        env.action_space.seed(0)
-        steps = 0
-        start = time.perf_counter()
-        while steps < settings.env_steps:
-            _, _, terminated, truncated, _ = env.step(env.action_space.sample())
-            steps += 1
-            if terminated or truncated:
-                env.reset()
-        seconds = time.perf_counter() - start
-    finally:
-        env.close()
-    return [
-        {
-            "source": "KinectPoseEnv() default settings, random actions (resets included)",
-            "steps": steps,
-            "seconds": seconds,
-            "steps_per_second": steps / max(seconds, 1e-9),
-        }
-    ]
+    rows = []
+    for ragdoll in (True, False):
+        values = measure_env_throughput(steps=settings.env_steps, ragdoll=ragdoll, seed=0)
+        source = "fpg_gym.episodes.measure_env_throughput, random actions, ragdoll "
+        rows.append({"source": source + ("on" if ragdoll else "off"), **values})
+    return rows
 
 
 def _read_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
@@ -342,7 +309,7 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
         for section in settings.sections:
             bar.set_postfix_str(section)
             if section == "stages":
-                graph, _ = _build(data.graph_clips, 0.2 if settings.mocap else 0.1, mirror)
+                graph, _ = _build(data.graph_clips, settings.graph_thres1, mirror)
                 report["stages_graph"] = repr(graph)
                 report["stages"] = _stages(graph, recordings)
             elif section == "selection":
@@ -367,11 +334,6 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
 # --------------------------------------------------------------------------- printing
 
 
-def _table(columns: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    lines = ["| " + " | ".join(columns) + " |", "|" + "|".join(" --- " for _ in columns) + "|"]
-    return "\n".join(lines + ["| " + " | ".join(r) + " |" for r in rows])
-
-
 def format_bench(report: dict[str, Any]) -> str:
     """The bench report as markdown tables (what ``fpg-gym bench`` prints)."""
     out = [
@@ -384,7 +346,7 @@ def format_bench(report: dict[str, Any]) -> str:
             f"episode(s) of <= {report['settings']['max_frames']} frames; "
             f"{report['stages_graph']})",
             "",
-            _table(
+            markdown_table(
                 ["stage", "graph median", "graph p95", "brute-force median", "brute-force p95"],
                 [
                     [
@@ -403,7 +365,7 @@ def format_bench(report: dict[str, Any]) -> str:
         out += [
             "Selection time per frame against graph size (median ms; nodes scored per frame)",
             "",
-            _table(
+            markdown_table(
                 [
                     "thres1 (m)",
                     "nodes",
@@ -432,7 +394,7 @@ def format_bench(report: dict[str, Any]) -> str:
         out += [
             "Graph build time (FPG Alg. 1-4) against input size",
             "",
-            _table(
+            markdown_table(
                 ["clips", "mirror", "poses", "nodes", "edges", "seconds", "poses/s"],
                 [
                     [
@@ -463,14 +425,14 @@ def format_bench(report: dict[str, Any]) -> str:
         out += [
             "Environment throughput (resets included / step calls only)",
             "",
-            _table(["measured by", "steps/s", "step-only steps/s"], rows),
+            markdown_table(["measured by", "steps/s", "step-only steps/s"], rows),
             "",
         ]
     if "read" in report:
         out += [
             "Mocap read speed",
             "",
-            _table(
+            markdown_table(
                 ["source", "frames", "seconds", "frames/s"],
                 [
                     [

@@ -45,8 +45,9 @@ from typing import Any
 import numpy as np
 
 from fpg_gym import metrics, skeleton
+from fpg_gym.graph import load_graph
 from fpg_gym.jsonable import jsonable
-from fpg_gym.methods import BASELINE, Method, MethodRunner, parse_method
+from fpg_gym.methods import BASELINE, MethodRunner, parse_method
 
 __all__ = [
     "CSV_FIELDS",
@@ -54,7 +55,7 @@ __all__ = [
     "CompareConfig",
     "EpisodeSpec",
     "format_table",
-    "load_graph",
+    "markdown_table",
     "plan_episodes",
     "resolve_clips",
     "run_compare",
@@ -344,8 +345,12 @@ def plan_episodes(
 
 def _prepare_episodes(
     config: CompareConfig, folder: Path, progress: bool
-) -> tuple[list[EpisodeSpec], list[str]]:
-    """Plan the episodes and write their recordings (reusing ones already written)."""
+) -> tuple[list[EpisodeSpec], list[str], list[str]]:
+    """Plan the episodes and write their recordings (reusing ones already written).
+
+    Returns the episodes, the embedded clips to leave out of the default graph, and the
+    embedded clips the recording files (``--inputs``) were simulated from.
+    """
     from tqdm.auto import tqdm
 
     from fpg_gym.io import DEFAULT_CLIP_NAMES, read_recording, write_recording
@@ -387,12 +392,15 @@ def _prepare_episodes(
         for simulator in simulators.values():
             simulator.close()
     # A recording simulated from an embedded clip must be held out of the default graph too.
+    recorded: list[str] = []
     for episode in episodes:
         if episode.recording:
             clip_name = _recording_clip(folder / f"{episode.id}.npz")
+            if clip_name:
+                recorded.append(clip_name)
             if clip_name in DEFAULT_CLIP_NAMES:
                 embedded = sorted({*embedded, clip_name})
-    return episodes, embedded
+    return episodes, embedded, recorded
 
 
 def _recording_clip(path: Path) -> str:
@@ -403,15 +411,6 @@ def _recording_clip(path: Path) -> str:
     if metadata.get("format") == "simulated" and "pybullet_data" in source:
         return str(metadata.get("clip", ""))
     return ""
-
-
-def load_graph(graph: str, exclude: Sequence[str] = ()) -> Any:
-    """``"default"``: the embedded graph without ``exclude``; otherwise a graph ``.npz``."""
-    from fpg_gym.graph import FilteredPoseGraph, default_graph
-
-    if graph == "default":
-        return default_graph(exclude=list(exclude))
-    return FilteredPoseGraph.load(graph)
 
 
 # --------------------------------------------------------------------------- one task
@@ -515,7 +514,7 @@ def _init_worker(graph: str, exclude: list[str], budget: int, options: dict[str,
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
     warnings.simplefilter("ignore")
     _WORKER_RUNNER = MethodRunner(
-        load_graph(graph, exclude), budget=budget, reconstructor_options=options
+        load_graph(graph, exclude=exclude), budget=budget, reconstructor_options=options
     )
 
 
@@ -575,9 +574,30 @@ def _save_frames(path: Path, arrays: dict[str, np.ndarray]) -> None:
     os.replace(partial, path)
 
 
-def _load_frames(path: Path) -> dict[str, np.ndarray]:
+def _load_frames(path: Path, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
+    """The arrays of a per-frame file (only ``keys`` when given)."""
     with np.load(path, allow_pickle=False) as archive:
-        return {key: archive[key] for key in archive.files}
+        return {key: archive[key] for key in archive.files if keys is None or key in keys}
+
+
+#: The per-frame arrays the report reads (the poses are not among them).
+_REPORT_KEYS = ("errors", "per_joint_error", "ms", "stage_names", "stage_ms")
+
+
+class _FrameFiles:
+    """The per-frame files of a compare folder as the report reads them: each file once."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self._loaded: dict[tuple[str, str], dict[str, np.ndarray] | None] = {}
+
+    def get(self, episode: str, method: str) -> dict[str, np.ndarray] | None:
+        """The report's arrays of one task (:data:`_REPORT_KEYS`), None without its file."""
+        key = (episode, method)
+        if key not in self._loaded:
+            path = _frames_path(self.out, episode, method)
+            self._loaded[key] = _load_frames(path, _REPORT_KEYS) if path.is_file() else None
+        return self._loaded[key]
 
 
 # --------------------------------------------------------------------------- the run
@@ -688,11 +708,10 @@ def run_compare(
                 "--out or --fresh"
             )
 
-    episodes, embedded = _prepare_episodes(config, out / "episodes", progress)
+    episodes, embedded, recorded = _prepare_episodes(config, out / "episodes", progress)
     exclude = embedded if config.graph == "default" else []
-    graph = load_graph(config.graph, exclude)
-    recorded = [_recording_clip(out / "episodes" / f"{e.id}.npz") for e in episodes if e.recording]
-    warning = _held_out_warning(graph, episodes, [n for n in recorded if n])
+    graph = load_graph(config.graph, exclude=exclude)
+    warning = _held_out_warning(graph, episodes, recorded)
     if warning:
         say(f"warning: {warning}")
     config_path.write_text(
@@ -875,6 +894,10 @@ def summarise(out: str | Path, baseline: str = BASELINE.name) -> dict[str, Any]:
     Rows of interrupted tasks are left out. Returns the structure written to ``summary.json``.
     """
     out = Path(out)
+    return _summarise(out, baseline, _FrameFiles(out))
+
+
+def _summarise(out: Path, baseline: str, files: _FrameFiles) -> dict[str, Any]:
     rows = [r for r in _read_rows(out / "results.csv") if r.get("interrupted") in ("0", "")]
     latest: dict[tuple[str, str], dict[str, str]] = {}
     for row in rows:  # a task rerun after an interruption: the last row counts
@@ -899,10 +922,9 @@ def summarise(out: str | Path, baseline: str = BASELINE.name) -> dict[str, Any]:
         errors, ms, joints = [], [], []
         stage_sums: dict[str, list[np.ndarray]] = {}
         for r in mine:
-            path = _frames_path(out, r["episode"], method)
-            if not path.is_file():
+            frames = files.get(r["episode"], method)
+            if frames is None:
                 continue
-            frames = _load_frames(path)
             if "errors" in frames:
                 errors.append(frames["errors"])
                 joints.append((frames["per_joint_error"], len(frames["errors"])))
@@ -1033,7 +1055,9 @@ def table_rows(summary: dict[str, Any]) -> list[list[str]]:
     return rows
 
 
-def _markdown(columns: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+def markdown_table(columns: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    """A markdown table: a header row of ``columns``, a ``---`` row, then ``rows`` (cells as
+    given)."""
     lines = ["| " + " | ".join(columns) + " |", "|" + "|".join(" --- " for _ in columns) + "|"]
     lines += ["| " + " | ".join(row) + " |" for row in rows]
     return "\n".join(lines)
@@ -1041,7 +1065,7 @@ def _markdown(columns: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
 
 def format_table(summary: dict[str, Any]) -> str:
     """The main table (markdown) of a summary (:func:`summarise`)."""
-    return _markdown(TABLE_COLUMNS, table_rows(summary))
+    return markdown_table(TABLE_COLUMNS, table_rows(summary))
 
 
 def format_tests(summary: dict[str, Any]) -> str:
@@ -1069,7 +1093,7 @@ def format_tests(summary: dict[str, Any]) -> str:
                 p_text,
             ]
         )
-    return _markdown(TEST_COLUMNS, rows)
+    return markdown_table(TEST_COLUMNS, rows)
 
 
 def format_scenarios(summary: dict[str, Any]) -> str:
@@ -1082,7 +1106,7 @@ def format_scenarios(summary: dict[str, Any]) -> str:
         [s] + [_fmt(summary["methods"][m]["per_scenario_mean_error_m"].get(s)) for m in methods]
         for s in scenarios
     ]
-    return _markdown(["scenario", *methods], rows)
+    return markdown_table(["scenario", *methods], rows)
 
 
 def _plot_methods(summary: dict[str, Any], limit: int = 6) -> list[str]:
@@ -1103,7 +1127,7 @@ def _plot_methods(summary: dict[str, Any], limit: int = 6) -> list[str]:
     return [m for m in methods if m in chosen]
 
 
-def _write_plots(out: Path, summary: dict[str, Any]) -> dict[str, str]:
+def _write_plots(out: Path, summary: dict[str, Any], files: _FrameFiles) -> dict[str, str]:
     from fpg_gym import plots
 
     methods = summary["method_order"]
@@ -1112,9 +1136,8 @@ def _write_plots(out: Path, summary: dict[str, Any]) -> dict[str, str]:
     for method in methods:
         e, t = [], []
         for episode in summary["episodes"]:
-            path = _frames_path(out, episode, method)
-            if path.is_file():
-                frames = _load_frames(path)
+            frames = files.get(episode, method)
+            if frames is not None:
                 if "errors" in frames:
                     e.append(frames["errors"])
                 t.append(frames["ms"])
@@ -1132,9 +1155,8 @@ def _write_plots(out: Path, summary: dict[str, Any]) -> dict[str, str]:
             errors, out / "cumulative.png", colours=colours
         ).name
         chosen = _plot_methods(summary)
-        episode = _time_plot_episode(out, summary, chosen)
+        episode, series = _time_plot_series(summary, chosen, files)
         if episode:
-            series = {m: _load_frames(_frames_path(out, episode, m))["errors"] for m in chosen}
             written["error_over_time"] = plots.plot_error_over_time(
                 series,
                 out / "error_over_time.png",
@@ -1149,13 +1171,21 @@ def _write_plots(out: Path, summary: dict[str, Any]) -> dict[str, str]:
     return written
 
 
-def _time_plot_episode(out: Path, summary: dict[str, Any], methods: Sequence[str]) -> str:
-    """The first episode that every plotted method finished with ground truth."""
+def _time_plot_series(
+    summary: dict[str, Any], methods: Sequence[str], files: _FrameFiles
+) -> tuple[str, dict[str, np.ndarray]]:
+    """The first episode that every plotted method finished with ground truth, and the methods'
+    per-frame errors on it (``""`` and nothing when there is none)."""
     for episode in summary["episodes"]:
-        if all(_frames_path(out, episode, m).is_file() for m in methods):
-            if all("errors" in _load_frames(_frames_path(out, episode, m)) for m in methods):
-                return str(episode)
-    return ""
+        series: dict[str, np.ndarray] = {}
+        for method in methods:
+            frames = files.get(episode, method)
+            if frames is None or "errors" not in frames:
+                break
+            series[method] = frames["errors"]
+        else:
+            return str(episode), series
+    return "", {}
 
 
 def write_report(
@@ -1171,9 +1201,12 @@ def write_report(
     Returns the summary.
     """
     out = Path(out)
-    summary = summarise(out, baseline=baseline)
+    files = _FrameFiles(out)
+    summary = _summarise(out, baseline, files)
     summary["interrupted"] = bool(interrupted)
-    summary["plots"] = _write_plots(out, summary) if plots and summary["method_order"] else {}
+    summary["plots"] = (
+        _write_plots(out, summary, files) if plots and summary["method_order"] else {}
+    )
     (out / "summary.json").write_text(json.dumps(jsonable(summary), indent=2))
     (out / "report.md").write_text(report_markdown(summary))
     return summary
@@ -1253,8 +1286,3 @@ def report_markdown(summary: dict[str, Any]) -> str:
             lines += [f"![{captions.get(key, key)}]({name})", ""]
     lines += ["## Episodes", "", ", ".join(f"`{e}`" for e in summary["episodes"]), ""]
     return "\n".join(lines)
-
-
-def method_list(methods: Sequence[Method | str]) -> list[str]:
-    """Canonical names of ``methods``."""
-    return [m.name if isinstance(m, Method) else parse_method(m).name for m in methods]

@@ -17,6 +17,7 @@ The env is registered as ``fpg_gym/KinectPose-v0`` when :mod:`fpg_gym` is import
 
 from __future__ import annotations
 
+import functools
 import os
 import time
 import warnings
@@ -32,6 +33,7 @@ from gymnasium.utils import EzPickle
 from fpg_gym import skeleton
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.env_observation import ObservationLayout
+from fpg_gym.graph import load_graph
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
 from fpg_gym.metrics import frame_error
@@ -59,7 +61,6 @@ OBSERVATION_MODES: tuple[str, ...] = ("vector", "dict")
 #: Keys ``reset(options=...)`` accepts.
 RESET_OPTIONS: tuple[str, ...] = ("recording", "clip", "scenario", "seed")
 
-_REWARD_KEYS = ("reward_control", "reward_style", "reward_bone", "reward_temporal", "reward_prior")
 _NON_INTERACTIVE_BACKENDS = {"agg", "pdf", "ps", "svg", "pgf", "cairo", "template"}
 _PANEL = 320
 
@@ -98,16 +99,16 @@ class StageTimes(Mapping[str, float]):
 
 
 class _RagdollProbe:
-    """The env's ragdoll: a :class:`~fpg_gym.ragdoll.Ragdoll` that counts resets and divergences.
+    """The env's ragdoll: a :class:`~fpg_gym.ragdoll.Ragdoll` that counts resets and builds.
 
-    A divergence already resets the body to its target and is counted in the step's info, so its
-    :class:`~fpg_gym.ragdoll.PhysicsWarning` is not repeated as a Python warning.
+    A divergence already resets the body to its target and is counted in the step's info (from
+    the frame record's ``new_divergences``), so its :class:`~fpg_gym.ragdoll.PhysicsWarning` is
+    not repeated as a Python warning.
     """
 
     def __init__(self, ragdoll: Any, counts: dict[str, int]) -> None:
         self.ragdoll = ragdoll
         self.counts = counts
-        self._divergences = 0
 
     def reset(self, pose: np.ndarray) -> np.ndarray:
         self.counts["ragdoll_resets"] += 1
@@ -119,9 +120,6 @@ class _RagdollProbe:
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", PhysicsWarning)
             out = self.ragdoll.track(target_pose)
-        divergences = int(self.ragdoll.info["divergences"])
-        self.counts["ragdoll_divergences"] += divergences - self._divergences
-        self._divergences = divergences
         return np.asarray(out)
 
     @property
@@ -131,7 +129,6 @@ class _RagdollProbe:
     def rebuild(self, bone_lengths: np.ndarray) -> None:
         self.counts["ragdoll_builds"] += 1
         self.ragdoll.rebuild(bone_lengths)
-        self._divergences = 0  # the rebuilt body's counters start again
 
     def render(self, width: int = 320, height: int = 240) -> np.ndarray:
         return np.asarray(self.ragdoll.render(width, height))
@@ -174,6 +171,11 @@ def _energy_weights(value: Any) -> EnergyWeights:
             f"prior]), got {len(values)}"
         )
     return EnergyWeights(*(float(v) for v in values))
+
+
+def _recording_name(recording: Recording, fallback: object) -> str:
+    """A recording's name: its metadata's ``name``, else its ``clip``, else ``fallback``."""
+    return str(recording.metadata.get("name") or recording.metadata.get("clip") or fallback)
 
 
 def _unique(names: list[str]) -> list[str]:
@@ -279,12 +281,13 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     ## Arguments
 
     ``graph``: a pose graph file (``.npz`` from ``fpg-gym build-graph``), a
-    :class:`~fpg_gym.graph.FilteredPoseGraph`, or None for the embedded default (the DeepMimic
-    clips less :data:`~fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`, built once and cached, see
-    ``cache_dir``). Episodes: ``recordings`` (paths in any Kinect format or
-    :class:`~fpg_gym.io.Recording` objects) or ``clips`` (embedded clip names or
-    :class:`~fpg_gym.io.Clip` objects; default the held-out clips walk, punch, kick, dance_b) and
-    ``scenarios`` (simulator scenarios; default front-many, left45-many, right45-many).
+    :class:`~fpg_gym.graph.FilteredPoseGraph`, or None (or ``"default"``) for the embedded
+    default (the DeepMimic clips less :data:`~fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`, built
+    once and cached, see ``cache_dir``; :func:`fpg_gym.graph.load_graph`). Episodes:
+    ``recordings`` (paths in any Kinect format or :class:`~fpg_gym.io.Recording` objects) or
+    ``clips`` (embedded clip names or :class:`~fpg_gym.io.Clip` objects; default the held-out
+    clips walk, punch, kick, dance_b) and ``scenarios`` (simulator scenarios; default
+    front-many, left45-many, right45-many).
     ``selector`` ``"graph"`` (FPG) or ``"brute-force"`` (Shum); ``k`` = 30 candidates;
     ``latent_dim`` = 20; ``energy_weights`` (an ``EnergyWeights``, a mapping or 4 numbers; 1.0,
     0.5, 1.5, 0.25); ``reward_mode``, ``error_weight``; ``action_mode``, ``action_scale``,
@@ -410,7 +413,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             self._load_scenarios(DEFAULT_EPISODE_SCENARIOS if scenarios is None else scenarios)
 
         # Reconstruction core.
-        self.graph = self._load_graph(graph, cache_dir)
+        self.graph = load_graph(graph, exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=cache_dir)
         overrides: dict[str, Any] = dict(reconstructor_options or {})
         explicit: dict[str, Any] = {
             "selector": selector,
@@ -483,7 +486,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         for i, item in enumerate(recordings):
             if isinstance(item, Recording):
                 rec = item
-                names.append(str(rec.metadata.get("name") or rec.metadata.get("clip") or i))
+                names.append(_recording_name(rec, i))
             elif isinstance(item, (str, os.PathLike)):
                 rec = read_recording(Path(item))
                 names.append(Path(item).name)
@@ -542,20 +545,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._scenarios = [get_scenario(s) for s in scenarios]
         if not self._scenarios:
             raise ValueError("scenarios: expected at least one scenario, got none")
-
-    @staticmethod
-    def _load_graph(graph: Any, cache_dir: str | os.PathLike[str] | None) -> Any:
-        from fpg_gym.graph import FilteredPoseGraph, default_graph
-
-        if graph is None:
-            return default_graph(exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=cache_dir)
-        if isinstance(graph, (str, os.PathLike)):
-            return FilteredPoseGraph.load(graph)
-        if not hasattr(graph, "poses"):
-            raise TypeError(
-                f"graph: expected a path, a FilteredPoseGraph or None, got {type(graph).__name__}"
-            )
-        return graph
 
     # ------------------------------------------------------------------ public state
 
@@ -719,6 +708,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         assert recording is not None
         z, clipped = self._latent_point(action, problem)
         pose, record = self.reconstructor.finish(z)
+        if record.ragdoll:
+            self._counts["ragdoll_divergences"] += int(record.ragdoll.get("new_divergences", 0))
         t = self._t
         self._last_pose = pose
 
@@ -747,12 +738,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             reward = -info["frame_error"]
         else:
             reward = -(float(record.energy) + self.error_weight * info["frame_error"])
-        nodes = np.full(self.candidates, -1, dtype=np.int64)
-        nodes[: len(record.nodes)] = record.nodes[: self.candidates]
         info.update(
             {
-                "reliability": np.asarray(record.reliability, dtype=np.float32),
-                "nodes": nodes,
+                **self._candidate_info(record.reliability, record.nodes),
                 "recovered": bool(record.recovered),
                 "full_search": bool(record.full_search),
                 "first": bool(record.first),
@@ -840,7 +828,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         if isinstance(choice, Recording):  # any env plays a recording given here
             if set(options) - {"recording"}:
                 raise ValueError("reset options: a Recording comes alone (no clip/scenario/seed)")
-            name = str(choice.metadata.get("name") or choice.metadata.get("clip") or "given")
+            name = _recording_name(choice, "given")
             if self._needs_truth and choice.ground_truth is None:
                 raise ValueError(
                     f"reset options: recording {name!r} has no ground truth, which "
@@ -951,14 +939,17 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._observation_ms = 1e3 * (time.perf_counter() - t1)
         return obs
 
+    def _candidate_info(self, reliability: np.ndarray, nodes: np.ndarray) -> dict[str, Any]:
+        """``info``'s ``reliability`` (20,) float32 and ``nodes`` (K,) (-1 padded)."""
+        padded = np.full(self.candidates, -1, dtype=np.int64)
+        padded[: len(nodes)] = nodes[: self.candidates]
+        return {"reliability": np.asarray(reliability, dtype=np.float32), "nodes": padded}
+
     def _frame_info(self) -> dict[str, Any]:
         problem = self._require_problem("info")
-        nodes = np.full(self.candidates, -1, dtype=np.int64)
-        nodes[: len(problem.nodes)] = problem.nodes[: self.candidates]
         return {
             "frame": self._t,
-            "reliability": np.asarray(problem.reliability, dtype=np.float32),
-            "nodes": nodes,
+            **self._candidate_info(problem.reliability, problem.nodes),
             "full_search": bool(problem.selection.full_search),
             "recovered": bool(problem.selection.recovered),
         }
@@ -1037,7 +1028,14 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         plt.pause(1.0 / self.metadata["render_fps"])
 
 
-_STATE_RGB = {2: (42, 157, 75), 1: (244, 160, 32), 0: (214, 40, 40)}
+@functools.cache
+def _state_rgb() -> dict[int, tuple[int, int, int]]:
+    """:data:`fpg_gym.plots.STATE_COLOURS` as RGB tuples (imported on first render)."""
+    from fpg_gym.plots import STATE_COLOURS
+
+    return {
+        s: (int(c[1:3], 16), int(c[3:5], 16), int(c[5:7], 16)) for s, c in STATE_COLOURS.items()
+    }
 
 
 def _draw_skeleton(
@@ -1057,5 +1055,5 @@ def _draw_skeleton(
     for parent, child in skeleton.BONES:
         draw.line([tuple(points[parent]), tuple(points[child])], fill=colour, width=3)
     for j, (x, y) in enumerate(points):
-        fill = colour if states is None else _STATE_RGB.get(int(states[j]), colour)
+        fill = colour if states is None else _state_rgb().get(int(states[j]), colour)
         draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=fill)

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym.metrics import ERR_THRESHOLD_M
+from fpg_gym import metrics
 
 __all__ = ["EpisodeResult", "measure_env_throughput", "run_episode"]
 
@@ -122,7 +122,7 @@ class EpisodeResult:
         for prefix, errors in (("", self.frame_errors), ("raw_", self.raw_frame_errors)):
             if errors is not None and len(errors):
                 out[f"{prefix}mean_error"] = float(np.mean(errors))
-                out[f"{prefix}err02"] = float(np.mean(errors >= ERR_THRESHOLD_M))
+                out[f"{prefix}err02"] = metrics.err_ratio(errors)
         return out
 
 
@@ -310,14 +310,13 @@ def _run_filter_episode(
     recording: Any, method: Any, label: str, frames: int | None, reset_info: dict[str, Any]
 ) -> EpisodeResult:
     """A reference filter over the episode's recording (the env is not stepped)."""
-    from fpg_gym import metrics
     from fpg_gym.methods import MethodRunner
 
     part = recording.head(frames)
     count = part.num_frames
     with MethodRunner() as runner:
         result = runner.run(method, part)
-    truth = recording.ground_truth
+    truth = part.ground_truth
     nan = np.full(count, np.nan)
     return EpisodeResult(
         name=str(reset_info.get("recording", "")),
@@ -325,10 +324,8 @@ def _run_filter_episode(
         poses=result.poses,
         rewards=nan,
         energies=nan.copy(),
-        frame_errors=None if truth is None else metrics.frame_error(truth[:count], result.poses),
-        raw_frame_errors=(
-            None if truth is None else metrics.frame_error(truth[:count], part.positions)
-        ),
+        frame_errors=None if truth is None else metrics.frame_error(truth, result.poses),
+        raw_frame_errors=None if truth is None else metrics.frame_error(truth, part.positions),
         evaluations=np.zeros(count, dtype=np.int64),
         agent_ms=result.ms,
         step_ms=np.zeros(count),

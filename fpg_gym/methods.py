@@ -57,6 +57,8 @@ from typing import Any
 import numpy as np
 
 from fpg_gym import skeleton
+from fpg_gym.metrics import bones_tracked
+from fpg_gym.poses import bone_lengths
 
 __all__ = [
     "BASELINE",
@@ -202,9 +204,7 @@ def parse_method(text: str) -> Method:
             raise ValueError(f"method {raw!r}: unknown {base} preset {option!r}; presets: {known}")
     elif option == DEFAULT_OPTIMIZER:
         option = ""
-    if prior and base in FILTER_BASES:
-        raise ValueError(f"method {raw!r}: '+prior' applies to shum and fpg only")
-    return Method(base, option if base in FILTER_BASES else (option or ""), plus, prior)
+    return Method(base, option, plus, prior)  # Method rejects '+prior' on a filter
 
 
 def parse_methods(texts: Iterable[str]) -> list[Method]:
@@ -314,17 +314,6 @@ class MethodResult:
         return len(self.poses)
 
 
-def count_events(cumulative: Sequence[int]) -> int:
-    """Events in a run of cumulative counters that restart at 0 when their ragdoll is rebuilt.
-
-    Each frame adds the rise since the frame before, or the whole count when it dropped (a
-    rebuild restarted the counter).
-    """
-    values = np.asarray(cumulative, dtype=np.int64)
-    previous = np.concatenate([[0], values[:-1]])
-    return int(np.where(values >= previous, values - previous, values).sum())
-
-
 def reference_bone_lengths(positions: np.ndarray, states: np.ndarray) -> np.ndarray:
     """Median length of each bone over the frames where both its joints are tracked, ``(19,)``.
 
@@ -332,11 +321,8 @@ def reference_bone_lengths(positions: np.ndarray, states: np.ndarray) -> np.ndar
     of :class:`RagdollStage` for the filters; it looks at the whole stream (an offline
     calibration), where the reconstructor estimates the lengths online.
     """
-    pos = np.asarray(positions, dtype=np.float64)
-    vectors = pos[:, skeleton.BONES[:, 1]] - pos[:, skeleton.BONES[:, 0]]
-    lengths = np.linalg.norm(vectors, axis=-1)  # (T, 19)
-    tracked = np.asarray(states) >= skeleton.TRACKED
-    both = tracked[:, skeleton.BONES[:, 0]] & tracked[:, skeleton.BONES[:, 1]]
+    lengths = bone_lengths(positions)  # (T, 19)
+    both = bones_tracked(np.asarray(states) >= skeleton.TRACKED)
     masked = np.where(both, lengths, np.nan)
     seen = both.any(axis=0)
     result = np.median(lengths, axis=0)
@@ -363,7 +349,7 @@ class RagdollStage:
         self, poses: np.ndarray, lengths: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
         """Track ``poses`` ``(T, 20, 3)``; return the output poses, ms per frame and info."""
-        from fpg_gym.ragdoll import Ragdoll
+        from fpg_gym.ragdoll import FloorShift, Ragdoll
 
         lengths = np.asarray(lengths, dtype=np.float64)
         if self._ragdoll is None:
@@ -374,18 +360,14 @@ class RagdollStage:
         poses = np.asarray(poses, dtype=np.float64)
         out = np.empty(poses.shape, dtype=np.float32)
         ms = np.empty(len(poses))
-        floor: float | None = None
-        start_divergences = int(body.info["divergences"])
+        floor = FloorShift()
         for t, target in enumerate(poses):
             t0 = time.perf_counter()
-            lowest = float(target[:, 1].min())
-            floor = lowest if floor is None else min(floor, lowest)
-            shift = np.array([0.0, floor, 0.0])
-            world = target - shift
-            simulated = body.reset(world) if t == 0 else body.track(world)
-            out[t] = np.asarray(simulated, dtype=np.float64) + shift
+            world = floor.down(target)
+            out[t] = floor.up(body.reset(world) if t == 0 else body.track(world))
             ms[t] = 1000.0 * (time.perf_counter() - t0)
-        info = {"ragdoll_divergences": int(body.info["divergences"]) - start_divergences}
+        # Freshly rebuilt for this stream, so its counter holds this stream's divergences.
+        info = {"ragdoll_divergences": int(body.info["divergences"])}
         return out, ms, info
 
     def close(self) -> None:
@@ -507,9 +489,10 @@ class MethodRunner:
         names = [str(n) for n in arrays["stage_names"]]
         stages = np.asarray(arrays["ms_stages"], dtype=np.float64).reshape(len(result.poses), -1)
         info: dict[str, Any] = {"recoveries": int(np.sum(arrays["recovered"]))}
-        counts = [int(r.ragdoll.get("divergences", 0)) for r in result.records if r.ragdoll]
-        if counts:
-            info["ragdoll_divergences"] = count_events(counts)
+        if any(r.ragdoll for r in result.records):
+            info["ragdoll_divergences"] = sum(
+                int(r.ragdoll.get("new_divergences", 0)) for r in result.records if r.ragdoll
+            )
         return MethodResult(
             poses=np.asarray(result.poses, dtype=np.float32),
             ms=np.asarray(arrays["ms_per_frame"], dtype=np.float64),

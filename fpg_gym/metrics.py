@@ -10,6 +10,7 @@ metres (any space, as long as reference and estimate share it).
   whose error is at least 0.2 m (FPG Table 2).
 * :func:`bone_length_variation` — standard deviation over time of each bone's length: a clean
   skeleton has none, the Kinect has some because it estimates every joint independently.
+* :func:`bones_tracked` — which bones have both joints tracked, from a per-joint mask.
 * :func:`jitter` — mean acceleration magnitude per joint, from second differences.
 * :func:`error_histogram` / :func:`band_shares` — frames per error band of FPG §8
   (:data:`ERROR_BAND_EDGES`: 0–5, 5–10, 10–15, 15–20, 20–30, ≥ 30 cm).
@@ -33,13 +34,14 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import skeleton
+from fpg_gym import poses, skeleton
 
 __all__ = [
     "ERROR_BAND_EDGES",
     "ERR_THRESHOLD_M",
     "band_shares",
     "bone_length_variation",
+    "bones_tracked",
     "err_ratio",
     "error_histogram",
     "frame_error",
@@ -94,13 +96,17 @@ def frame_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarray
     ValueError
         If a shape is wrong, the shapes differ, or a value is NaN/inf.
     """
+    return _bone_errors(reference, estimate).mean(axis=1)
+
+
+def _bone_errors(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarray:
+    """Eq. 13 terms per frame and bone, ``(T, 19)``: ``||(r(j) - r(pa j)) - (x(j) - x(pa j))||``."""
     ref = _clip_array(reference, "reference")
     est = _clip_array(estimate, "estimate")
     if ref.shape != est.shape:
         raise ValueError(f"reference {ref.shape} and estimate {est.shape} differ in shape")
-    parents, children = skeleton.BONES[:, 0], skeleton.BONES[:, 1]
-    diff = (ref[:, children] - ref[:, parents]) - (est[:, children] - est[:, parents])
-    return np.sqrt(np.einsum("tbc,tbc->tb", diff, diff)).mean(axis=1)
+    diff = poses.bone_vectors(ref) - poses.bone_vectors(est)
+    return np.sqrt(np.einsum("tbc,tbc->tb", diff, diff))
 
 
 def mean_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> float:
@@ -123,12 +129,7 @@ def err_ratio(errors: npt.ArrayLike, threshold: float = ERR_THRESHOLD_M) -> floa
     float
         A share in [0, 1] (multiply by 100 for the paper's percentages).
     """
-    values = np.asarray(errors, dtype=np.float64).reshape(-1)
-    if values.size == 0:
-        raise ValueError("errors: empty")
-    if not np.all(np.isfinite(values)):
-        raise ValueError("errors: non-finite value")
-    return float(np.mean(values >= threshold))
+    return float(np.mean(_errors_array(errors) >= threshold))
 
 
 def bone_length_variation(
@@ -153,19 +154,26 @@ def bone_length_variation(
         ``np.nanmean`` of it is the summary the realism table reports.
     """
     pos = _clip_array(positions, "positions")
-    vectors = pos[:, skeleton.BONES[:, 1]] - pos[:, skeleton.BONES[:, 0]]
-    lengths = np.linalg.norm(vectors, axis=-1)  # (T, 19)
+    lengths = poses.bone_lengths(pos)  # (T, 19)
     if states is None:
         use = np.ones_like(lengths, dtype=bool)
     else:
-        st = _states_array(states, len(pos))
-        tracked = st == 2
-        use = tracked[:, skeleton.BONES[:, 0]] & tracked[:, skeleton.BONES[:, 1]]
+        use = bones_tracked(_states_array(states, len(pos)) == skeleton.TRACKED)
     count = use.sum(axis=0)
     safe = np.maximum(count, 1)
     mean = np.where(use, lengths, 0.0).sum(axis=0) / safe
     var = np.where(use, (lengths - mean) ** 2, 0.0).sum(axis=0) / safe
     return np.where(count >= min_frames, np.sqrt(var), np.nan)
+
+
+def bones_tracked(tracked: npt.ArrayLike) -> np.ndarray:
+    """Bones with both joints tracked: a per-joint mask ``(..., 20)`` -> per-bone ``(..., 19)``.
+
+    ``tracked`` says which joints count as tracked (e.g. ``states == skeleton.TRACKED``); a
+    bone's entry is True when its parent and child joints both are.
+    """
+    mask = np.asarray(tracked, dtype=bool)
+    return mask[..., skeleton.BONES[:, 0]] & mask[..., skeleton.BONES[:, 1]]
 
 
 def jitter(
@@ -313,14 +321,8 @@ def per_joint_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.nda
     the error of the bone that ends at ``j``; the root has no parent and gets NaN. The mean of
     the 19 finite entries is :func:`mean_error`.
     """
-    ref = _clip_array(reference, "reference")
-    est = _clip_array(estimate, "estimate")
-    if ref.shape != est.shape:
-        raise ValueError(f"reference {ref.shape} and estimate {est.shape} differ in shape")
-    parents, children = skeleton.BONES[:, 0], skeleton.BONES[:, 1]
-    diff = (ref[:, children] - ref[:, parents]) - (est[:, children] - est[:, parents])
     result = np.full(skeleton.NUM_JOINTS, np.nan)
-    result[children] = np.sqrt(np.einsum("tbc,tbc->tb", diff, diff)).mean(axis=0)
+    result[skeleton.BONES[:, 1]] = _bone_errors(reference, estimate).mean(axis=0)
     return result
 
 

@@ -218,10 +218,7 @@ def retarget(poses: FloatArray, lengths: FloatArray) -> np.ndarray:
     lengths64 = np.asarray(lengths, dtype=np.float64)
     if lengths64.shape[-1:] != (skeleton.NUM_BONES,):
         raise ValueError(f"lengths: expected shape (..., 19), got {lengths64.shape}")
-    vectors = bone_vectors(poses64)
-    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
-    safe = norms > 1e-9
-    directions = np.where(safe, vectors / np.where(safe, norms, 1.0), REST_DIRECTIONS)
+    directions = bone_directions(poses64)
     return _assemble(poses64[..., skeleton.ROOT, :], directions, lengths64).astype(np.float32)
 
 
@@ -351,3 +348,42 @@ DEFAULT_BONE_LENGTHS: np.ndarray = np.array(
     [_DEFAULT_LENGTH_BY_JOINT[skeleton.JOINT_NAMES[c]] for _, c in skeleton.BONES]
 )
 DEFAULT_BONE_LENGTHS.flags.writeable = False
+
+
+# --------------------------------------------------------------------------- shared helpers
+
+
+def into_placement(poses: FloatArray, placement: Placement) -> np.ndarray:
+    """Camera-space poses moved into a placement's frame: ``R_y(-yaw) (p - root)``, float64.
+
+    The inverse of :func:`denormalise` (without its cast to float32): with the placement that
+    :func:`normalise` returned for a pose, this is that pose's normalised form; with another
+    pose's placement, the pose seen from that frame (root at ``placement.root``, heading
+    ``placement.yaw`` turned to +Z).
+
+    Parameters
+    ----------
+    poses : array_like, shape (..., 20, 3)
+    placement : Placement
+        Root ``(..., 3)`` and yaw ``(...)``, broadcast against the poses' leading axes.
+
+    Returns
+    -------
+    ndarray, shape (..., 20, 3), float64
+    """
+    local = np.asarray(poses, dtype=np.float64) - np.asarray(placement.root)[..., None, :]
+    out: np.ndarray = local @ yaw_matrix(placement.yaw)
+    return out
+
+
+def bone_directions(poses: FloatArray) -> np.ndarray:
+    """Unit bone directions ``(..., 19, 3)`` float64 of poses ``(..., 20, 3)``.
+
+    Computed in the input's precision; a bone shorter than 1e-9 m takes its direction from
+    :data:`REST_DIRECTIONS`.
+    """
+    vectors = bone_vectors(poses)
+    norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
+    safe = norms > 1e-9
+    directions: np.ndarray = np.where(safe, vectors / np.where(safe, norms, 1.0), REST_DIRECTIONS)
+    return directions

@@ -91,6 +91,7 @@ from fpg_gym import poses, skeleton
 from fpg_gym.errors import FpgGymError
 from fpg_gym.pybullet_utils import connect_direct, pybullet
 from fpg_gym.ragdoll_model import GRAVITY, BodyModel, build_body_model
+from fpg_gym.rotations import shortest_arc
 
 __all__ = ["PhysicsError", "PhysicsWarning", "Ragdoll"]
 
@@ -196,25 +197,40 @@ def _matrix_to_quat(m: np.ndarray) -> np.ndarray:
     return out / np.linalg.norm(out)
 
 
-def _shortest_arc(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """Quaternions turning unit vectors ``a`` onto unit vectors ``b`` by the smallest angle
-    (a half turn about an axis perpendicular to ``a`` when they are opposite)."""
-    q = np.empty((*np.broadcast_shapes(a.shape[:-1], b.shape[:-1]), 4))
-    q[..., :3] = _cross(a, b)
-    q[..., 3] = 1.0 + np.sum(a * b, axis=-1)
-    norm = np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
-    opposite = norm[..., 0] < 1e-6
-    if np.any(opposite):
-        helper = np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-        axis = _cross(a, helper)
-        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
-        flip = np.concatenate([axis, np.zeros((*axis.shape[:-1], 1))], axis=-1)
-        q = np.where(opposite[..., None], flip, q)
-        norm = np.where(opposite[..., None], 1.0, norm)
-    return q / norm
-
-
 # --------------------------------------------------------------------------- the ragdoll
+
+
+class FloorShift:
+    """Camera space has no floor: a stream of camera-space poses is shifted down by the lowest
+    joint seen so far (a running minimum, the best floor estimate without a calibrated camera)
+    before the ragdoll, and back up after it.
+
+    Examples
+    --------
+    >>> floor = FloorShift()                                   # doctest: +SKIP
+    >>> out = floor.up(body.track(floor.down(target)))         # doctest: +SKIP
+    """
+
+    def __init__(self) -> None:
+        self.floor_y: float | None = None
+
+    def reset(self) -> None:
+        """A new stream: forget the floor."""
+        self.floor_y = None
+
+    def down(self, target: np.ndarray) -> np.ndarray:
+        """``target`` (20, 3) in the simulation world (float64); updates the floor estimate."""
+        target = np.asarray(target, dtype=np.float64)
+        lowest = float(target[:, 1].min())
+        self.floor_y = lowest if self.floor_y is None else min(self.floor_y, lowest)
+        return target - np.array([0.0, self.floor_y, 0.0])
+
+    def up(self, pose: np.ndarray) -> np.ndarray:
+        """A simulated pose back in camera space, float32."""
+        assert self.floor_y is not None, "down() first"
+        return (np.asarray(pose, dtype=np.float64) + np.array([0.0, self.floor_y, 0.0])).astype(
+            np.float32
+        )
 
 
 class Ragdoll:
@@ -345,7 +361,7 @@ class Ragdoll:
         self._rest_directions = np.array(poses.REST_DIRECTIONS, dtype=np.float64)
         # Each capsule body's frame at rest: centre of mass, Z along the bone (pybullet
         # capsules lie along Z), so its inertia is diagonal in it.
-        self._capsule_frames = _shortest_arc(
+        self._capsule_frames = shortest_arc(
             np.tile([0.0, 0.0, 1.0], (_NB, 1)), self._rest_directions
         )
         self.client = connect_direct()
@@ -548,12 +564,12 @@ class Ragdoll:
         world = np.empty((_NB, 4))
         world[0] = _quat_mul(
             _matrix_to_quat(frame),
-            _shortest_arc(np.array([0.0, 1.0, 0.0]), self._rest_directions[0]),
+            shortest_arc(np.array([0.0, 1.0, 0.0]), self._rest_directions[0]),
         )
         for level in _LEVELS:  # at most 5 groups, vectorised within each
             parent = world[_PARENT_BONE[level]]
             in_parent = _quat_rotate(_quat_conj(parent), directions[level])
-            local = _shortest_arc(self._rest_directions[level], in_parent)
+            local = shortest_arc(self._rest_directions[level], in_parent)
             world[level] = _quat_mul(parent, local)
         self._directions = directions
         self._root_frame = world[0]

@@ -28,9 +28,8 @@ import numpy as np
 
 from fpg_gym import poses, skeleton
 
-#: de Leva (1996) Table 4, male: mean body mass (kg) and stature (m) of the reference sample.
+#: de Leva (1996) Table 4, male: mean body mass (kg) of the reference sample (stature 1.741 m).
 REFERENCE_BODY_MASS_KG: Final[float] = 73.0
-REFERENCE_STATURE_M: Final[float] = 1.741
 #: Whole-body density used to size the capsules (kg/m³).
 BODY_DENSITY: Final[float] = 1050.0
 GRAVITY: Final[float] = 9.81

@@ -1,4 +1,9 @@
-"""Small vectorised rotation helpers used by the mocap readers (matrices act on column vectors)."""
+"""Small vectorised rotation helpers (matrices act on column vectors).
+
+Quaternions are in (w, x, y, z) order for the mocap readers (:func:`quaternion_to_matrix`) and
+in pybullet's (x, y, z, w) order for the simulator and the ragdoll (:func:`shortest_arc`,
+:func:`matrix_to_quaternion_xyzw`); :func:`slerp` takes either.
+"""
 
 from __future__ import annotations
 
@@ -80,3 +85,104 @@ def slerp(q0: FloatArray, q1: FloatArray, fraction: FloatArray) -> np.ndarray:
     w1 = np.where(small, t, np.sin(t * theta) / safe)
     out = w0 * q0 + w1 * q1
     return out / np.linalg.norm(out, axis=-1, keepdims=True)
+
+
+def axis_angle_matrix(axes: FloatArray, angles: FloatArray) -> np.ndarray:
+    """Rodrigues: rotation matrices ``(..., 3, 3)`` about unit ``axes`` ``(..., 3)`` by
+    ``angles`` ``(...)`` radians (right-handed)."""
+    axes = np.asarray(axes, dtype=np.float64)
+    x, y, z = axes[..., 0], axes[..., 1], axes[..., 2]
+    zero = np.zeros_like(x)
+    cross = np.stack(
+        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2
+    )
+    c, s = np.cos(angles)[..., None, None], np.sin(angles)[..., None, None]
+    return c * np.eye(3) + s * cross + (1.0 - c) * axes[..., :, None] * axes[..., None, :]
+
+
+def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    # Component by component: cheaper than np.cross on the small arrays used every frame.
+    out = np.empty(np.broadcast_shapes(u.shape, v.shape))
+    out[..., 0] = u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1]
+    out[..., 1] = u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2]
+    out[..., 2] = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
+    return out
+
+
+def shortest_arc(a: FloatArray, b: FloatArray) -> np.ndarray:
+    """Unit quaternions (x, y, z, w) turning unit vectors ``a`` onto unit vectors ``b``
+    (``(..., 3)``, broadcast) by the smallest angle.
+
+    When ``a`` and ``b`` are opposite, a half turn about an axis perpendicular to ``a``.
+    """
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    q = np.empty((*np.broadcast_shapes(a.shape[:-1], b.shape[:-1]), 4))
+    q[..., :3] = _cross(a, b)
+    q[..., 3] = 1.0 + np.sum(a * b, axis=-1)
+    norm = np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
+    opposite = norm[..., 0] < 1e-6
+    if np.any(opposite):
+        helper = np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
+        axis = _cross(a, helper)
+        axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
+        flip = np.concatenate([axis, np.zeros((*axis.shape[:-1], 1))], axis=-1)
+        q = np.where(opposite[..., None], flip, q)
+        norm = np.where(opposite[..., None], 1.0, norm)
+    return q / norm
+
+
+def matrix_to_quaternion_xyzw(matrices: FloatArray) -> np.ndarray:
+    """Rotation matrices ``(..., 3, 3)`` to unit quaternions ``(..., 4)`` in (x, y, z, w) order.
+
+    Shepperd's method, vectorised: each matrix uses whichever of the four classic formulas is
+    best conditioned for it (the largest of the trace and the diagonal entries). ``q`` and
+    ``-q`` are the same rotation; the sign is that of the chosen formula.
+    """
+    m = np.asarray(matrices, dtype=np.float64)
+    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
+    candidates = np.stack(
+        [
+            np.stack(
+                [
+                    m[..., 2, 1] - m[..., 1, 2],
+                    m[..., 0, 2] - m[..., 2, 0],
+                    m[..., 1, 0] - m[..., 0, 1],
+                    1.0 + trace,
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    1.0 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 0, 1] + m[..., 1, 0],
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 2, 1] - m[..., 1, 2],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 0, 1] + m[..., 1, 0],
+                    1.0 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    m[..., 0, 2] - m[..., 2, 0],
+                ],
+                -1,
+            ),
+            np.stack(
+                [
+                    m[..., 0, 2] + m[..., 2, 0],
+                    m[..., 1, 2] + m[..., 2, 1],
+                    1.0 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
+                    m[..., 1, 0] - m[..., 0, 1],
+                ],
+                -1,
+            ),
+        ],
+        axis=-2,
+    )  # (..., 4, 4): the four formulas, each well conditioned in its own region
+    diagonal = np.stack([trace, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], -1)
+    best = np.argmax(diagonal, axis=-1)
+    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
+    return q / np.linalg.norm(q, axis=-1, keepdims=True)

@@ -153,6 +153,8 @@ PATH_MATRIX.flags.writeable = False
 NOT_TRACKED: Final[int] = 0
 INFERRED: Final[int] = 1
 TRACKED: Final[int] = 2
+#: The valid tracking states, in value order.
+TRACKING_STATES: Final[tuple[int, ...]] = (NOT_TRACKED, INFERRED, TRACKED)
 
 #: Kinect v2 ``JointType`` names (25 joints), in SDK 2.0 order.
 KINECT_V2_JOINT_NAMES: Final[tuple[str, ...]] = (
@@ -199,24 +201,6 @@ FROM_KINECT_V2.flags.writeable = False
 #: For each Kinect-20 joint, its index in MSRC-12 / Kinect SDK v1 files (the same order).
 FROM_KINECT_V1: Final[npt.NDArray[np.intp]] = np.arange(NUM_JOINTS, dtype=np.intp)
 FROM_KINECT_V1.flags.writeable = False
-
-#: Joints on the body's centre line, left arm, right arm, left leg and right leg (for plots).
-CHAINS: Final[dict[str, tuple[int, ...]]] = {
-    "spine": tuple(_INDEX[n] for n in ("HipCenter", "Spine", "ShoulderCenter", "Head")),
-    "left_arm": tuple(
-        _INDEX[n] for n in ("ShoulderCenter", "ShoulderLeft", "ElbowLeft", "WristLeft", "HandLeft")
-    ),
-    "right_arm": tuple(
-        _INDEX[n]
-        for n in ("ShoulderCenter", "ShoulderRight", "ElbowRight", "WristRight", "HandRight")
-    ),
-    "left_leg": tuple(
-        _INDEX[n] for n in ("HipCenter", "HipLeft", "KneeLeft", "AnkleLeft", "FootLeft")
-    ),
-    "right_leg": tuple(
-        _INDEX[n] for n in ("HipCenter", "HipRight", "KneeRight", "AnkleRight", "FootRight")
-    ),
-}
 
 
 def is_left(joint: int) -> bool:

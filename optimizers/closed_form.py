@@ -51,7 +51,6 @@ class ClosedForm(BaseOptimizer):
         self._asked = True
         problem = self.problem
         latent = problem.latent
-        weights = problem.weights
         prediction = problem.prediction
         return quadratic_minimiser(
             np.asarray(problem.kinect_pose, dtype=np.float64).reshape(1, -1),
@@ -60,6 +59,6 @@ class ClosedForm(BaseOptimizer):
             np.asarray(latent.basis, dtype=np.float64)[None],
             np.asarray(latent.std, dtype=np.float64)[None],
             prediction=None if prediction is None else np.asarray(prediction).reshape(1, -1),
-            weights=(weights.control, weights.style, weights.kinematic, weights.motion),
+            weights=problem.weights.paper_terms(),
             style=self.style,
         )

@@ -30,6 +30,7 @@ from typing import Any
 
 import numpy as np
 
+from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from policies.sampler import (
     DEFAULT_FEATURES,
     GaussianSampler,
@@ -197,7 +198,7 @@ def train_rl(
     max_frames: int | None = None,
     features: Sequence[str] = DEFAULT_FEATURES,
     anchor: str = "quadratic",
-    anchor_style: float = 2.0,
+    anchor_style: float = DEFAULT_STYLE,
     hyperparameters: dict[str, Any] | None = None,
     evaluate: Callable[[GaussianSampler], dict[str, Any]] | None = None,
     eval_every: int | None = None,

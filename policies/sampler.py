@@ -65,6 +65,8 @@ import numpy as np
 
 from fpg_gym.env_observation import CONTEXT_NAMES, ObservationLayout
 from fpg_gym.jsonable import jsonable
+from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE, quadratic_minimiser
+from fpg_gym.reconstruct.energy import EnergyWeights
 from optimizers import MissingDependency
 
 __all__ = [
@@ -162,7 +164,7 @@ def import_learn(module: str) -> Any:
 #: Anchors a sampler's Gaussian may be centred on (see :class:`FeatureMap`).
 ANCHORS: tuple[str, ...] = ("none", "quadratic")
 #: The papers' energy weights (Shum Eq. 10): control, style, kinematic, motion.
-PAPER_WEIGHTS: tuple[float, float, float, float] = (1.0, 0.5, 1.5, 0.25)
+PAPER_WEIGHTS: tuple[float, float, float, float] = EnergyWeights().paper_terms()
 
 
 def quadratic_anchor(
@@ -171,7 +173,7 @@ def quadratic_anchor(
     action_scale: float,
     delta: bool,
     energy_weights: Sequence[float] = PAPER_WEIGHTS,
-    style: float = 2.0,
+    style: float = DEFAULT_STYLE,
 ) -> np.ndarray:
     """:func:`fpg_gym.reconstruct.closed_form.quadratic_minimiser` from observation parts, as
     actions: the closed-form minimiser of the energy's quadratic terms (``Ec``, ``Em``, a ridge
@@ -196,11 +198,9 @@ def quadratic_anchor(
         observation's latent bounds.
     """
     from fpg_gym.env_observation import LATENT_LIMIT
-    from fpg_gym.reconstruct.closed_form import quadratic_minimiser
 
     n = parts["kinect"].shape[0]
     mask = parts["latent_mask"] > 0.5
-    w_c, w_s, w_k, w_m = (float(w) for w in energy_weights)
     z = quadratic_minimiser(
         parts["kinect"].reshape(n, -1),
         parts["reliability"],
@@ -210,7 +210,7 @@ def quadratic_anchor(
         prediction=parts["prediction"].reshape(n, -1),
         has_prediction=parts["context"][:, CONTEXT_NAMES.index("has_prediction")] > 0.5,
         mask=mask,
-        weights=(w_c, w_s, w_k, w_m),
+        weights=energy_weights,
         style=style,
     )
     action = z / float(action_scale)
@@ -262,7 +262,7 @@ class FeatureMap:
         action_scale: float = 3.0,
         delta: bool = True,
         energy_weights: Sequence[float] = PAPER_WEIGHTS,
-        anchor_style: float = 2.0,
+        anchor_style: float = DEFAULT_STYLE,
     ) -> None:
         from fpg_gym.env_observation import LATENT_LIMIT
 
@@ -339,10 +339,6 @@ class FeatureMap:
     def __call__(self, observation: np.ndarray) -> np.ndarray:
         """Features ``(..., size)`` float32 of observations ``(..., layout.size)``."""
         return self.transform(observation)[0]
-
-    def anchor(self, observation: np.ndarray) -> np.ndarray:
-        """Anchor actions ``(..., L)`` of observations ``(..., layout.size)``."""
-        return self.transform(observation)[1]
 
     def wrap(self, env: Any) -> Any:
         """``env`` seen through this map (a Gymnasium wrapper): observations become features
@@ -442,7 +438,7 @@ class SamplerSpec:
     observation_size: int
     features: list[str] = field(default_factory=lambda: list(DEFAULT_FEATURES))
     anchor: str = "quadratic"
-    anchor_style: float = 2.0
+    anchor_style: float = DEFAULT_STYLE
     energy_weights: list[float] = field(default_factory=lambda: list(PAPER_WEIGHTS))
     action_mode: str = "delta"
     action_scale: float = 3.0
@@ -472,14 +468,13 @@ class SamplerSpec:
         """The spec of a model for ``env`` (a :class:`~fpg_gym.env.KinectPoseEnv`, wrapped or
         not)."""
         base = env.unwrapped
-        w = base.weights
         return cls(
             kind=kind,
             algo=algo,
             latent_dim=int(base.latent_dim),
             candidates=int(base.candidates),
             observation_size=int(base.layout.size),
-            energy_weights=[w.control, w.style, w.kinematic, w.motion],
+            energy_weights=list(base.weights.paper_terms()),
             action_mode=str(base.action_mode),
             action_scale=float(base.action_scale),
             frame_dt=float(base.reconstructor.config.frame_dt),

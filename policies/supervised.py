@@ -234,6 +234,7 @@ def fit_supervised(
     restore_best: bool = True,
     calibrate: bool = True,
     progress: bool = False,
+    transformed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[dict[str, Any]]:
     """Fit ``sampler``'s network to target ``actions`` (see the module docstring).
 
@@ -270,6 +271,9 @@ def fit_supervised(
         standardised offsets average 1 (``std_scale``).
     progress : bool
         A tqdm bar over the epochs.
+    transformed : (features, anchor), optional
+        ``sampler.features.transform(observations)`` when the caller has it already (it is
+        computed here otherwise).
 
     Returns
     -------
@@ -291,9 +295,14 @@ def fit_supervised(
     if epochs < 1 or batch_size < 1:
         raise ValueError(f"epochs, batch_size: expected >= 1, got {epochs}, {batch_size}")
 
-    def tensors(obs: np.ndarray, act: np.ndarray, mask: np.ndarray) -> tuple[Any, Any, Any]:
+    def tensors(
+        obs: np.ndarray,
+        act: np.ndarray,
+        mask: np.ndarray,
+        transformed: tuple[np.ndarray, np.ndarray] | None = None,
+    ) -> tuple[Any, Any, Any]:
         # The network outputs the mean relative to the anchor: fit the targets' offsets.
-        features, anchor = sampler.features.transform(obs)
+        features, anchor = sampler.features.transform(obs) if transformed is None else transformed
         offsets = np.asarray(act, dtype=np.float64) - anchor
         weights = np.asarray(mask, dtype=np.float64)
         if weighting == "pose":
@@ -312,7 +321,7 @@ def fit_supervised(
             return gaussian_nll(mean, log_std, target, mask)
         return masked_mse(mean, target, mask) + gaussian_nll(mean.detach(), log_std, target, mask)
 
-    x, y, m = tensors(observations, actions, masks)
+    x, y, m = tensors(observations, actions, masks, transformed)
     val = None
     if validation is not None and len(validation[0]):
         val = tensors(*validation)

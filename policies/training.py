@@ -23,6 +23,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.env_observation import ObservationLayout
+from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.reconstruct.energy import EnergyWeights
 from policies.sampler import (
     DEFAULT_FEATURES,
@@ -270,8 +271,7 @@ def collect_imitation_data(
                     # The truth in the frame's space: the sensor pose's root and heading, as
                     # the reconstructor normalises it (not the truth's own heading).
                     _, placement = pose_utils.normalise(recording.positions[t])
-                    local = (truth[t] - placement.root) @ pose_utils.yaw_matrix(placement.yaw)
-                    z_target = problem.encode(local)
+                    z_target = problem.encode(pose_utils.into_placement(truth[t], placement))
                 else:
                     z_target = z
                 origin = problem.x0 if delta else 0.0
@@ -329,14 +329,14 @@ def evaluate_agents(
                 energies.append(arrays["energy"])
                 evaluations.append(arrays["evaluations"])
                 ms.append(arrays["ms_per_frame"])
-                if recording.ground_truth is not None:
-                    count = len(result.poses)
-                    errors.append(metrics.frame_error(recording.ground_truth[:count], result.poses))
+                truth = recording.head(len(result.poses)).ground_truth
+                if truth is not None:
+                    errors.append(metrics.frame_error(truth, result.poses))
             err = np.concatenate(errors) if errors else np.array([np.nan])
             out[name] = {
                 "mean_energy": float(np.mean(np.concatenate(energies))),
                 "mean_error": float(np.mean(err)),
-                "err02": float(np.mean(err >= metrics.ERR_THRESHOLD_M)) if errors else np.nan,
+                "err02": metrics.err_ratio(err) if errors else np.nan,
                 "evaluations": float(np.mean(np.concatenate(evaluations))),
                 "ms": float(np.mean(np.concatenate(ms))),
                 "frames": int(sum(len(e) for e in energies)),
@@ -447,7 +447,7 @@ class TrainConfig:
     action_mode: str = "absolute"
     features: list[str] = field(default_factory=lambda: list(DEFAULT_FEATURES))
     anchor: str = "quadratic"
-    anchor_style: float = 2.0
+    anchor_style: float = DEFAULT_STYLE
     mirror: bool = True
     hyperparameters: dict[str, Any] = field(default_factory=dict)
     tensorboard: str | None = None
@@ -504,13 +504,11 @@ class TrainResult:
 
 def _load_graph(name: str) -> Any:
     from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-    from fpg_gym.graph import FilteredPoseGraph, default_graph
+    from fpg_gym.graph import load_graph
 
-    if name == "default":
-        return default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)
-    if not Path(name).is_file():
+    if name != "default" and not Path(name).is_file():
         raise FileNotFoundError(f"--graph: {name}: no such file")
-    return FilteredPoseGraph.load(name)
+    return load_graph(name, exclude=DEFAULT_HOLDOUT_CLIPS)
 
 
 def _held_out_clash(graph_name: str, clips: Sequence[Any]) -> list[str]:
@@ -720,8 +718,10 @@ def _train_supervised(
     held = rng.permutation(episode_ids)[: max(1, len(episode_ids) // 10)]
     is_val = np.isin(data.episodes, held) if len(episode_ids) > 1 else np.zeros(len(data), bool)
     train = ~is_val
-    feature_map = spec.feature_map()
-    features = feature_map(data.observations[train])
+    train_observations = data.observations[train]
+    # Features and anchors of the training pairs, computed once (fit_supervised reuses them).
+    transformed = spec.feature_map().transform(train_observations)
+    features = transformed[0]
     mean = features.mean(axis=0)
     scale = np.maximum(features.std(axis=0), 1e-3)
     sampler = SupervisedSampler.create(spec, mean, scale, seed=config.seed)
@@ -755,7 +755,7 @@ def _train_supervised(
     try:
         history = fit_supervised(
             sampler,
-            data.observations[train],
+            train_observations,
             data.actions[train],
             data.masks[train],
             epochs=config.epochs,
@@ -765,6 +765,7 @@ def _train_supervised(
             else None,
             on_epoch=on_epoch,
             progress=config.progress,
+            transformed=transformed,
             **fit_args,
         )
     finally:

@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from fpg_gym import poses
+from fpg_gym import metrics, poses
 from fpg_gym.io import BANDAI_NAMCO_MAP, Clip, load_default_clips, read_bvh
 from fpg_gym.ragdoll import PhysicsWarning, Ragdoll
 
@@ -34,17 +34,8 @@ DEFAULT_CLIPS = ("walk", "punch", "kick", "dance_a", "dance_b")
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
 
 
-def eq13(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:
-    """FPG Eq. 13 per frame (m): mean over bones of the bone-vector difference."""
-    diff = poses.bone_vectors(reference.astype(np.float64)) - poses.bone_vectors(
-        estimate.astype(np.float64)
-    )
-    return np.linalg.norm(diff, axis=-1).mean(axis=-1)
-
-
 def load(names: tuple[str, ...], bandai: int) -> list[Clip]:
-    by_name = {clip.name: clip for clip in load_default_clips()}
-    clips = [by_name[name] for name in names]
+    clips = load_default_clips(names) if names else []
     folder = SHARED / "bandai_namco" / "dataset-1"
     if bandai > 0:
         if not folder.is_dir():
@@ -73,7 +64,7 @@ def run_clip(clip: Clip, count: int) -> tuple[dict[str, float], np.ndarray, np.n
                     wall.append(time.perf_counter() - w0)
                     cpu.append(time.process_time() - c0)
         result = np.array(outputs[0])
-        errors = eq13(clip.positions, result)
+        errors = metrics.frame_error(clip.positions, result)
         figures = {
             "frames": float(clip.num_frames),
             "eq13_mean_m": float(errors.mean()),

@@ -38,6 +38,8 @@ from typing import Any
 
 import numpy as np
 
+from fpg_gym.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes
+
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data"
 SCENARIOS = ("front-many", "left45-many", "right45-many")
@@ -61,15 +63,6 @@ CONFIGS: dict[str, tuple[str, str, dict[str, Any]]] = {
 }
 
 
-def split_takes(files: list[Path], holdout: float, seed: int) -> tuple[list[Path], list[Path]]:
-    """Shuffle the sorted take files with ``seed``; the first ``holdout`` share is held out."""
-    order = np.random.default_rng(seed).permutation(len(files))
-    count = max(1, round(holdout * len(files)))
-    held = [files[i] for i in order[:count]]
-    train = sorted(files[i] for i in order[count:])
-    return train, held
-
-
 def make_optimizer(name: str) -> Any:
     """A registered optimiser; ``local-search-strict`` is local search with Shum's stop rule."""
     import optimizers
@@ -89,8 +82,8 @@ def summarise(truth: np.ndarray, estimate: np.ndarray) -> tuple[float, float]:
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
-    parser.add_argument("--holdout", type=float, default=0.2)
-    parser.add_argument("--split-seed", type=int, default=2016)
+    parser.add_argument("--holdout", type=float, default=HOLDOUT_SHARE)
+    parser.add_argument("--split-seed", type=int, default=HOLDOUT_SEED)
     parser.add_argument("--clips", type=int, default=8, help="held-out takes evaluated")
     parser.add_argument("--frames", type=int, default=240, help="frames per take (0: all)")
     parser.add_argument("--seed", type=int, default=0, help="simulator / optimiser seed")
@@ -285,7 +278,7 @@ def main(argv: list[str] | None = None) -> int:
                 row = {
                     "thres1": thres1,
                     "nodes": g.num_nodes,
-                    "mean_degree": 2 * g.num_edges / g.num_nodes,
+                    "mean_degree": g.stats["mean_degree"],
                     "selector": selector,
                     "nodes_scored_median": float(np.median(np.concatenate(scored))),
                     "selection_ms_median": float(np.median(s)),

@@ -4,7 +4,7 @@ Accuracy is only meaningful on takes the pose graph was not built from (``../sha
 README.md``: "split by take (whole files), with a fixed, documented seed or list, never by
 frame"). For each dataset folder, the sorted take files are shuffled with ``--seed`` and the
 first ``--eval-share`` of them are held out for evaluation; the rest build the graph. The
-algorithm and the default seed (2016) and share (0.2) are those of
+split is :func:`fpg_gym.holdout.split_takes` with its default seed (2016) and share (0.2), as in
 ``scripts/bench_reconstruct.py``, so both use the same held-out takes of ``dataset-1``.
 
 Writes two lists, one path per line, usable as ``@file`` arguments of every ``fpg-gym`` command::
@@ -23,23 +23,10 @@ import argparse
 import sys
 from pathlib import Path
 
-import numpy as np
+from fpg_gym.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "bandai_namco"
-
-
-def split_takes(files: list[Path], share: float, seed: int) -> tuple[list[Path], list[Path]]:
-    """Shuffle the sorted take files with ``seed``; the first ``share`` of them are held out.
-
-    Returns ``(graph_takes sorted, held_out in shuffled order)``.
-    """
-    files = sorted(files)
-    order = np.random.default_rng(seed).permutation(len(files))
-    count = max(1, round(share * len(files)))
-    held = [files[i] for i in order[:count]]
-    graph = sorted(files[i] for i in order[count:])
-    return graph, held
 
 
 def _takes(folder: Path) -> list[Path]:
@@ -52,8 +39,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--datasets", default="dataset-1", help="comma-separated subfolders (dataset-1,dataset-2)"
     )
-    parser.add_argument("--eval-share", type=float, default=0.2, help="held-out share (0.2)")
-    parser.add_argument("--seed", type=int, default=2016, help="shuffle seed (2016)")
+    parser.add_argument(
+        "--eval-share", type=float, default=HOLDOUT_SHARE, help="held-out share (0.2)"
+    )
+    parser.add_argument("--seed", type=int, default=HOLDOUT_SEED, help="shuffle seed (2016)")
     parser.add_argument("--eval-count", type=int, default=None, help="takes in eval_takes.txt")
     parser.add_argument("--out-dir", type=Path, required=True, help="folder for the lists")
     args = parser.parse_args(argv)

@@ -62,8 +62,7 @@ def choose_clips(data: Path | None, quick: bool = False) -> tuple[list[Clip], st
                 "style normal, take 001)"
             )
     names = DEFAULT_CLIPS[:2] if quick else DEFAULT_CLIPS
-    by_name = {c.name: c for c in load_default_clips()}
-    clips = [by_name[n] for n in names]
+    clips = load_default_clips(names)
     return clips, f"{len(clips)} embedded DeepMimic clips ({', '.join(names)})"
 
 

@@ -400,14 +400,6 @@ def test_holdout_split_script(tmp_path: Path) -> None:
     assert split(tmp_path / "b") == (graph, held)  # fixed seed, same lists
 
 
-def test_count_events_across_counter_restarts() -> None:
-    from fpg_gym.methods import count_events
-
-    assert count_events([0, 1, 1, 3]) == 3
-    assert count_events([2, 2, 0, 1]) == 3  # restarted (rebuilt) after two events
-    assert count_events([]) == 0
-
-
 def test_prior_suffix() -> None:
     from fpg_gym.methods import parse_method
 

@@ -121,3 +121,9 @@ def test_latent_prior_term(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(with_prior(z), plain(z) + 0.2 * terms["Ep"])
     with pytest.raises(ValueError, match="prior"):
         EnergyWeights(prior=-0.1)
+
+
+def test_paper_terms_are_the_papers_weights() -> None:
+    assert EnergyWeights().paper_terms() == (1.0, 0.5, 1.5, 0.25)
+    assert EnergyWeights.with_prior().paper_terms() == (1.0, 0.5, 1.5, 0.25)
+    assert EnergyWeights(style=2.0).paper_terms() == (1.0, 2.0, 1.5, 0.25)

@@ -72,6 +72,18 @@ def test_bone_length_variation_uses_only_tracked_frames(clip: np.ndarray) -> Non
     assert np.isnan(metrics.bone_length_variation(varied, states)[bone])
 
 
+def test_bones_tracked_needs_both_joints() -> None:
+    tracked = np.ones(skeleton.NUM_JOINTS, dtype=bool)
+    assert metrics.bones_tracked(tracked).shape == (skeleton.NUM_BONES,)
+    assert metrics.bones_tracked(tracked).all()
+    hand = skeleton.joint_index("HandLeft")
+    tracked[hand] = False
+    lost = metrics.bones_tracked(np.stack([tracked, ~tracked]))  # (2, 19)
+    touching = (skeleton.BONES == hand).any(axis=1)
+    assert np.array_equal(lost[0], ~touching)
+    assert not lost[1].any()
+
+
 def test_jitter_of_known_motions() -> None:
     times = np.arange(30) / 30.0
     pose = poses.rest_pose().astype(np.float64)

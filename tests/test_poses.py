@@ -128,3 +128,24 @@ def test_as_poses_names_argument_and_shape() -> None:
     bad[1, 4, 2] = np.nan
     with pytest.raises(ValueError, match=r"clip: non-finite value at index \(1, 4, 2\)"):
         poses.as_poses(bad, "clip")
+
+
+def test_into_placement_inverts_denormalise(clip_poses: np.ndarray) -> None:
+    normalised, placement = poses.normalise(clip_poses)
+    local = poses.into_placement(clip_poses, placement)
+    assert local.dtype == np.float64
+    assert np.allclose(local, normalised, atol=1e-5)
+    # Another frame's placement: the inverse of denormalise with that placement.
+    other = poses.Placement(root=placement.root[-1], yaw=placement.yaw[-1])
+    back = poses.denormalise(poses.into_placement(clip_poses[0], other), other)
+    assert np.allclose(back, clip_poses[0], atol=1e-5)
+
+
+def test_bone_directions_are_unit_with_rest_fallback(clip_poses: np.ndarray) -> None:
+    directions = poses.bone_directions(clip_poses[:5])
+    assert directions.shape == (5, skeleton.NUM_BONES, 3)
+    assert np.allclose(np.linalg.norm(directions, axis=-1), 1.0)
+    lengths = poses.bone_lengths(clip_poses[:5])[..., None]
+    assert np.allclose(directions * lengths, poses.bone_vectors(clip_poses[:5]), atol=1e-6)
+    collapsed = np.zeros((skeleton.NUM_JOINTS, 3))
+    assert np.array_equal(poses.bone_directions(collapsed), poses.REST_DIRECTIONS)

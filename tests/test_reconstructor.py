@@ -224,6 +224,43 @@ def test_ragdoll_stage_with_a_fake() -> None:
     assert calls[-1][0] == "close"
 
 
+def test_ragdoll_divergences_are_counted_per_frame_across_rebuilds() -> None:
+    """``new_divergences`` is each frame's count, also when a rebuild restarts the ragdoll's
+    cumulative counter (a new stream rebuilds it)."""
+
+    class Diverging:
+        """Diverges on every second tracked frame; ``rebuild`` restarts its counter."""
+
+        def __init__(self, lengths: np.ndarray) -> None:
+            self.info = {"divergences": 0}
+            self.frames = 0
+
+        def reset(self, pose: np.ndarray) -> np.ndarray:
+            return pose
+
+        def track(self, target: np.ndarray) -> np.ndarray:
+            self.frames += 1
+            self.info["divergences"] += self.frames % 2
+            return target
+
+        def rebuild(self, lengths: np.ndarray) -> None:
+            self.info = {"divergences": 0}
+
+        def close(self) -> None:
+            pass
+
+    rec = recording()
+    lengths = poses.bone_lengths(rec.ground_truth[0])
+    r = Reconstructor(graph(), ragdoll=Diverging, reference_lengths=tuple(lengths))
+    frames = SimpleNamespace(
+        positions=rec.positions[:7], states=rec.states[:7], timestamps=rec.timestamps[:7]
+    )
+    for _ in range(2):  # the second stream starts from a rebuilt (restarted) counter
+        out = r.reconstruct(frames, "none")
+        new = [record.ragdoll["new_divergences"] for record in out.records if record.ragdoll]
+        assert new == [0, 1, 0, 1, 0, 1, 0]
+
+
 def test_config_validation() -> None:
     with pytest.raises(TypeError, match="unknown setting"):
         Reconstructor(graph(), selektor="graph")

@@ -26,7 +26,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", required=True, metavar="FILE", help="graph file to write (.npz)")
     parser.add_argument(
-        "--thres1", type=_positive, default=0.2, help="filter threshold in metres (default 0.2)"
+        "--thres1", type=_positive, default=None, help="filter threshold in metres (default 0.2)"
     )
     parser.add_argument(
         "--thres2",
@@ -46,14 +46,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read the clips, build the graph, save it and print its statistics."""
     from fpg_gym.commands.output import emit_json
-    from fpg_gym.graph import FilteredPoseGraph
+    from fpg_gym.graph import DEFAULT_THRES1, FilteredPoseGraph
     from fpg_gym.io import load_clips
 
     start = time.perf_counter()
     clips = load_clips(args.inputs, workers=args.workers, units=args.units, progress=not args.quiet)
     read_seconds = time.perf_counter() - start
+    thres1 = DEFAULT_THRES1 if args.thres1 is None else args.thres1
     graph = FilteredPoseGraph.build(
-        clips, thres1=args.thres1, thres2=args.thres2, mirror=args.mirror, progress=not args.quiet
+        clips, thres1=thres1, thres2=args.thres2, mirror=args.mirror, progress=not args.quiet
     )
     path = graph.save(args.out)
     s = graph.stats

@@ -59,28 +59,49 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 
 
-def _load_graph(name: str) -> Any:
-    from fpg_gym.graph import FilteredPoseGraph, default_graph
-
-    if name == "default":
-        return default_graph()
-    return FilteredPoseGraph.load(name)
-
-
 def _histogram(errors: Any) -> list[int]:
-    import numpy as np
+    from fpg_gym.metrics import error_histogram
 
-    edges = [*HISTOGRAM_EDGES, np.inf]
-    counts, _ = np.histogram(np.asarray(errors), bins=edges)
-    return [int(c) for c in counts]
+    counts: list[int] = error_histogram(errors, (*HISTOGRAM_EDGES, float("inf"))).tolist()
+    return counts
+
+
+def _error_summary(recording: Any, poses: Any) -> tuple[dict[str, Any], dict[str, Any]]:
+    """Per-frame errors of the raw input and of ``poses`` against ``recording``'s ground truth:
+    the arrays (``frame_error_raw``, ``frame_error``) and the summary entries (mean error and
+    Err0.2 of each)."""
+    from fpg_gym import metrics
+
+    raw_errors = metrics.frame_error(recording.ground_truth, recording.positions)
+    errors = metrics.frame_error(recording.ground_truth, poses)
+    arrays = {"frame_error_raw": raw_errors, "frame_error": errors}
+    summary = {
+        "raw_mean_error_m": float(raw_errors.mean()),
+        "mean_error_m": float(errors.mean()),
+        "raw_err02_pct": 100.0 * metrics.err_ratio(raw_errors),
+        "err02_pct": 100.0 * metrics.err_ratio(errors),
+    }
+    return arrays, summary
+
+
+def _print_errors(summary: dict[str, Any], label: str) -> None:
+    """The raw input's and the output's mean error and Err0.2 lines."""
+    print(
+        f"raw input        mean error {summary['raw_mean_error_m']:.4f} m, "
+        f"Err0.2 {summary['raw_err02_pct']:.1f} %"
+    )
+    print(
+        f"{label:<16} mean error {summary['mean_error_m']:.4f} m, "
+        f"Err0.2 {summary['err02_pct']:.1f} %"
+    )
 
 
 def run(args: argparse.Namespace) -> int:
     """Reconstruct, write the ``.npz`` and print the summary (errors when ground truth exists)."""
     import numpy as np
 
-    from fpg_gym import metrics
     from fpg_gym.commands.output import emit_json
+    from fpg_gym.graph import load_graph
     from fpg_gym.io import read_recording
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
@@ -104,7 +125,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--graph: a pose graph is needed (a .npz file or 'default')")
     optimizer = make(args.optimizer)
     recording = read_recording(args.input)
-    graph = _load_graph(args.graph)
+    graph = load_graph(args.graph)
     reconstructor = Reconstructor(
         graph,
         ragdoll=not args.no_ragdoll,
@@ -148,20 +169,14 @@ def run(args: argparse.Namespace) -> int:
         "recoveries": int(arrays["recovered"].sum()),
         "seconds": round(seconds, 3),
     }
-    truth = recording.ground_truth
-    if truth is not None and frames:
-        raw_errors = metrics.frame_error(truth[:frames], recording.positions[:frames])
-        errors = metrics.frame_error(truth[:frames], result.poses)
-        arrays["frame_error_raw"] = raw_errors
-        arrays["frame_error"] = errors
+    if recording.ground_truth is not None and frames:
+        error_arrays, error_summary = _error_summary(recording.head(frames), result.poses)
+        arrays.update(error_arrays)
         summary.update(
-            raw_mean_error_m=float(raw_errors.mean()),
-            mean_error_m=float(errors.mean()),
-            raw_err02_pct=100.0 * metrics.err_ratio(raw_errors),
-            err02_pct=100.0 * metrics.err_ratio(errors),
+            error_summary,
             histogram_edges_m=list(HISTOGRAM_EDGES),
-            raw_histogram=_histogram(raw_errors),
-            histogram=_histogram(errors),
+            raw_histogram=_histogram(error_arrays["frame_error_raw"]),
+            histogram=_histogram(error_arrays["frame_error"]),
         )
     metadata = {
         "input": str(args.input),
@@ -195,14 +210,7 @@ def run(args: argparse.Namespace) -> int:
             f"recoveries {summary['recoveries']}"
         )
     if summary["mean_error_m"] is not None:
-        print(
-            f"raw input        mean error {summary['raw_mean_error_m']:.4f} m, "
-            f"Err0.2 {summary['raw_err02_pct']:.1f} %"
-        )
-        print(
-            f"reconstruction   mean error {summary['mean_error_m']:.4f} m, "
-            f"Err0.2 {summary['err02_pct']:.1f} %"
-        )
+        _print_errors(summary, "reconstruction")
         labels = [f"{lo:.2f}-{hi:.2f}" for lo, hi in itertools.pairwise(HISTOGRAM_EDGES)] + [
             f">={HISTOGRAM_EDGES[-1]:.2f}"
         ]
@@ -221,7 +229,6 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     """``--method raw|holt|kalman[+ragdoll]``: run a reference filter and write its output."""
     import numpy as np
 
-    from fpg_gym import metrics
     from fpg_gym.commands.output import emit_json
     from fpg_gym.io import read_recording
     from fpg_gym.methods import MethodRunner
@@ -245,15 +252,9 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
         "seconds": round(seconds, 3),
     }
     if recording.ground_truth is not None:
-        raw_errors = metrics.frame_error(recording.ground_truth, recording.positions)
-        errors = metrics.frame_error(recording.ground_truth, result.poses)
-        arrays.update(frame_error_raw=raw_errors, frame_error=errors)
-        summary.update(
-            raw_mean_error_m=float(raw_errors.mean()),
-            mean_error_m=float(errors.mean()),
-            raw_err02_pct=100.0 * metrics.err_ratio(raw_errors),
-            err02_pct=100.0 * metrics.err_ratio(errors),
-        )
+        error_arrays, error_summary = _error_summary(recording, result.poses)
+        arrays.update(error_arrays)
+        summary.update(error_summary)
     metadata = {"input": str(args.input), "method": method.name, "frames": result.num_frames}
     arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
     out = Path(args.out)
@@ -263,14 +264,7 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     print(f"method           {method.name}")
     print(f"ms per frame     median {summary['ms_per_frame_median']:.3f}")
     if summary["mean_error_m"] is not None:
-        print(
-            f"raw input        mean error {summary['raw_mean_error_m']:.4f} m, "
-            f"Err0.2 {summary['raw_err02_pct']:.1f} %"
-        )
-        print(
-            f"{method.name:<16} mean error {summary['mean_error_m']:.4f} m, "
-            f"Err0.2 {summary['err02_pct']:.1f} %"
-        )
+        _print_errors(summary, method.name)
     print(f"written          {out}")
     if args.json:
         emit_json({**summary, "out": str(out)})

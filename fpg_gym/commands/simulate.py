@@ -49,7 +49,7 @@ def _read_input(text: str, units: str) -> object:
             raise ValueError(
                 f"unknown embedded clip {name!r}; expected one of {', '.join(DEFAULT_CLIP_NAMES)}"
             )
-        return next(c for c in load_default_clips() if c.name == name)
+        return load_default_clips([name])[0]
     return read_clip(text, units=units)
 
 

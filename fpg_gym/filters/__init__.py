@@ -110,15 +110,12 @@ def make_filter(name: str, **params: Any) -> JointFilter:
                 f"filter: preset given twice ({name!r} and preset={params['preset']!r})"
             )
         params = {**params, "preset": preset}
-    if key == "holt":
-        return HoltFilter(**params)
-    if key == "kalman":
-        return KalmanFilter(**params)
-    if "preset" in params:
-        raise ValueError(f"preset: the raw filter has no presets, got {params['preset']!r}")
-    if params:
-        raise TypeError(f"raw filter takes no parameters, got {sorted(params)}")
-    return RawFilter()
+    if key == "raw":
+        if "preset" in params:
+            raise ValueError(f"preset: the raw filter has no presets, got {params['preset']!r}")
+        if params:
+            raise TypeError(f"raw filter takes no parameters, got {sorted(params)}")
+    return _FILTERS[key](**params)
 
 
 __all__ = [

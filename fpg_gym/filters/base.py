@@ -19,12 +19,12 @@ tracked whatever its state says.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from typing import Any, ClassVar, Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
+from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED, TRACKING_STATES
 
 #: Frame period used when no timestamps are given (Kinect v1 and v2 run at 30 Hz).
 DEFAULT_DT: Final[float] = 1.0 / 30.0
@@ -51,8 +51,8 @@ def _as_states(
     array = np.asarray(states)
     if array.shape != shape:
         raise ValueError(f"{name}: expected shape {shape} (one state per joint), got {array.shape}")
-    if array.size and not np.isin(array, (NOT_TRACKED, INFERRED, TRACKED)).all():
-        bad = np.unique(array[~np.isin(array, (NOT_TRACKED, INFERRED, TRACKED))])
+    if array.size and not np.isin(array, TRACKING_STATES).all():
+        bad = np.unique(array[~np.isin(array, TRACKING_STATES)])
         raise ValueError(
             f"{name}: tracking states must be 0 (not tracked), 1 (inferred) or 2 (tracked), "
             f"got {bad[:5].tolist()}"
@@ -84,9 +84,6 @@ class JointFilter(ABC):
     vectorised over joints and axes); this class does the validation, the time bookkeeping and
     the sequence loop, so ``filter_sequence`` and repeated ``update`` share one code path.
     """
-
-    #: Registry name of the filter.
-    name: ClassVar[str] = ""
 
     def __init__(self) -> None:
         self._num_joints: int | None = None
@@ -215,8 +212,6 @@ class JointFilter(ABC):
 
 class RawFilter(JointFilter):
     """The identity: returns the input frame as is (the ``raw`` reference method)."""
-
-    name: ClassVar[str] = "raw"
 
     def _start(self, num_joints: int) -> None:
         pass

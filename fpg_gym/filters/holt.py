@@ -53,7 +53,7 @@ f and led by p frames in the output.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar, Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -172,8 +172,6 @@ class HoltFilter(JointFilter):
     >>> out.shape
     (5, 20, 3)
     """
-
-    name: ClassVar[str] = "holt"
 
     def __init__(self, preset: str = "default", **overrides: float) -> None:
         super().__init__()

@@ -48,7 +48,7 @@ larger than its X/Y error.
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar, Final
+from typing import Any, Final
 
 import numpy as np
 import numpy.typing as npt
@@ -131,8 +131,6 @@ class KalmanFilter(JointFilter):
     settings : KalmanParams
         The effective parameters.
     """
-
-    name: ClassVar[str] = "kalman"
 
     def __init__(self, preset: str = "default", **params: Any) -> None:
         super().__init__()

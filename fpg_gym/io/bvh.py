@@ -13,7 +13,6 @@ another hierarchy.
 
 from __future__ import annotations
 
-import gzip
 import re
 from collections.abc import Mapping
 from dataclasses import dataclass
@@ -23,6 +22,7 @@ import numpy as np
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
+from fpg_gym.io._compression import maybe_gunzip
 from fpg_gym.io.clip import Clip
 from fpg_gym.poses import resample
 from fpg_gym.rotations import euler_to_matrix
@@ -117,11 +117,10 @@ def _read_text(path: Path) -> str:
         raw = path.read_bytes()
     except OSError as error:
         raise DataFormatError(path, f"cannot read the file ({error.strerror})") from None
-    if raw[:2] == b"\x1f\x8b":
-        try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError) as error:
-            raise DataFormatError(path, f"corrupt gzip data ({error})") from None
+    try:
+        raw = maybe_gunzip(raw)
+    except (OSError, EOFError) as error:
+        raise DataFormatError(path, f"corrupt gzip data ({error})") from None
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:

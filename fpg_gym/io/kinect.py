@@ -46,7 +46,6 @@ keep what the sensor reported.
 
 from __future__ import annotations
 
-import gzip
 import math
 import warnings
 from collections import Counter
@@ -58,13 +57,8 @@ import numpy as np
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
-from fpg_gym.io.recording import (
-    INFERRED,
-    NOT_TRACKED,
-    TRACKED,
-    Recording,
-    load_recording,
-)
+from fpg_gym.io._compression import maybe_gunzip
+from fpg_gym.io.recording import NOT_TRACKED, TRACKED, Recording, load_recording
 
 __all__ = [
     "KINECT_FORMATS",
@@ -102,14 +96,12 @@ class SkippedLinesWarning(UserWarning):
 def _read_text(path: Path) -> list[str]:
     """The file's lines (gzip-compressed files are accepted)."""
     try:
-        if path.name.lower().endswith(".gz"):
-            with gzip.open(path, "rt", encoding="utf-8", errors="replace") as handle:
-                return handle.read().splitlines()
-        return path.read_text(encoding="utf-8", errors="replace").splitlines()
+        raw = maybe_gunzip(path.read_bytes())
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: no such file") from None
     except (OSError, EOFError) as error:
         raise DataFormatError(path, f"cannot read the file ({error})") from None
+    return raw.decode("utf-8", errors="replace").splitlines()
 
 
 class _LineLog:
@@ -316,7 +308,7 @@ def read_kinect_v2(path: str | Path) -> Recording:
         else:
             tick, joints = values[1], values[2:].reshape(_V2_JOINTS, 8)
             state = joints[:, 0]
-        if not np.all(np.isin(state, (NOT_TRACKED, INFERRED, TRACKED))):
+        if not np.all(np.isin(state, skeleton.TRACKING_STATES)):
             log.skip(number, "tracking state not 0, 1 or 2")
             continue
         if tick < last_tick:
@@ -442,7 +434,7 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
                         ),
                         line=number,
                     )
-                if values[-1] not in (NOT_TRACKED, INFERRED, TRACKED):
+                if values[-1] not in skeleton.TRACKING_STATES:
                     raise DataFormatError(
                         path, f"tracking state must be 0, 1 or 2, got {values[-1]:g}", line=number
                     )
@@ -559,7 +551,7 @@ def read_csv(path: str | Path) -> Recording:
             log.skip(number, "NaN or inf value")
             continue
         joints = values[columns].reshape(skeleton.NUM_JOINTS, 4)
-        if not np.all(np.isin(joints[:, 3], (NOT_TRACKED, INFERRED, TRACKED))):
+        if not np.all(np.isin(joints[:, 3], skeleton.TRACKING_STATES)):
             log.skip(number, "tracking state not 0, 1 or 2")
             continue
         stamp = values[index["timestamp"]] if has_time else len(rows) / _DEFAULT_FPS

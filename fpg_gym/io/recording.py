@@ -119,8 +119,9 @@ class Recording:
                 np.issubdtype(states.dtype, np.floating) and np.all(states == np.round(states))
             ):
                 raise ValueError(f"states: expected integers 0, 1, 2, got dtype {states.dtype}")
-        if states.size and (states.min() < NOT_TRACKED or states.max() > TRACKED):
-            frame, joint = (int(i) for i in np.argwhere((states < 0) | (states > 2))[0])
+        invalid = ~np.isin(states, skeleton.TRACKING_STATES)
+        if invalid.any():
+            frame, joint = (int(i) for i in np.argwhere(invalid)[0])
             raise ValueError(
                 f"states: expected 0 (not tracked), 1 (inferred) or 2 (tracked), got "
                 f"{states[frame, joint]} at frame {frame}, joint {skeleton.JOINT_NAMES[joint]}"

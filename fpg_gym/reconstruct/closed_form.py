@@ -17,7 +17,11 @@ learned samplers of :mod:`policies` centre their Gaussians on it).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
+
+from fpg_gym.reconstruct.energy import EnergyWeights
 
 __all__ = ["DEFAULT_STYLE", "quadratic_minimiser"]
 
@@ -37,7 +41,7 @@ def quadratic_minimiser(
     prediction: np.ndarray | None = None,
     has_prediction: np.ndarray | None = None,
     mask: np.ndarray | None = None,
-    weights: tuple[float, float, float, float] = (1.0, 0.5, 1.5, 0.25),
+    weights: Sequence[float] = EnergyWeights().paper_terms(),
     style: float = DEFAULT_STYLE,
 ) -> np.ndarray:
     """Whitened latent points ``(n, L)`` minimising the quadratic energy, batched over frames.
@@ -60,7 +64,8 @@ def quadratic_minimiser(
     mask : ndarray of bool, shape (n, L), optional
         Axes the frame has (others get 0). Default: all.
     weights : 4 floats
-        ``w_c, w_s, w_k, w_m`` of the energy (``w_k`` is not used).
+        ``w_c, w_s, w_k, w_m`` of the energy (``w_k`` is not used); the papers' by default
+        (:meth:`EnergyWeights.paper_terms`).
     style : float
         Ridge weight as a multiple of ``w_s / J``.
 

@@ -36,6 +36,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpg_gym import skeleton
+from fpg_gym.poses import bone_lengths
 from fpg_gym.reconstruct.latent import POSE_SIZE, LatentSpace
 
 #: The papers' terms (computable from a pose alone) and all terms, in weight order.
@@ -77,6 +78,11 @@ class EnergyWeights:
         """The weights in :data:`TERM_NAMES` order, ``(5,)``."""
         return np.array([self.control, self.style, self.kinematic, self.motion, self.prior])
 
+    def paper_terms(self) -> tuple[float, float, float, float]:
+        """The weights of the papers' four terms (:data:`POSE_TERM_NAMES` order): ``w_c, w_s,
+        w_k, w_m``."""
+        return (self.control, self.style, self.kinematic, self.motion)
+
 
 # --------------------------------------------------------------------------- direct terms
 
@@ -95,9 +101,7 @@ def style_energy(poses: np.ndarray, neighbours: np.ndarray) -> np.ndarray:
 
 def kinematic_energy(poses: np.ndarray, lengths: np.ndarray) -> np.ndarray:
     """``Ek`` (Eq. 13): ``mean_b (l_x(b) - l_db(b))^2``, ``(n, 20, 3) -> (n,)``."""
-    poses = np.asarray(poses, dtype=np.float64)
-    bones = poses[:, skeleton.BONES[:, 1]] - poses[:, skeleton.BONES[:, 0]]
-    return ((np.linalg.norm(bones, axis=-1) - np.asarray(lengths)) ** 2).mean(axis=1)
+    return ((bone_lengths(poses) - np.asarray(lengths)) ** 2).mean(axis=1)
 
 
 def motion_energy(poses: np.ndarray, target: np.ndarray | None) -> np.ndarray:
@@ -147,6 +151,10 @@ def pose_energy_terms(
 
 # --------------------------------------------------------------------------- latent fast path
 
+# Ek: bone vectors are linear in the flat pose x (60,): child minus parent coordinates.
+_CHILD_COORDS = (3 * skeleton.BONES[:, 1][:, None] + np.arange(3)).reshape(-1)
+_PARENT_COORDS = (3 * skeleton.BONES[:, 0][:, None] + np.arange(3)).reshape(-1)
+
 
 class EnergyModel:
     """The energy of one frame as a function of whitened latent points.
@@ -190,8 +198,6 @@ class EnergyModel:
         self.reliability = np.asarray(reliability, dtype=np.float64)
         self.lengths = np.asarray(lengths, dtype=np.float64)
         self.target = None if target is None else np.asarray(target, dtype=np.float64).reshape(-1)
-        self._mean = latent.mean
-        self._components = latent.components  # (d, 60)
         self._joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
         # Es: neighbours' unwhitened coordinates y_n (K, d) and squared residuals |r_n|^2 (K,).
         flat = np.asarray(neighbours, dtype=np.float64).reshape(len(neighbours), POSE_SIZE)
@@ -201,15 +207,13 @@ class EnergyModel:
         residual = centred - self._y @ latent.basis
         self._r_sq = np.einsum("kd,kd->k", residual, residual)
         self._std = latent.std
-        # Ek: bone vectors are linear in x, child minus parent coordinates.
-        self._child = (3 * skeleton.BONES[:, 1][:, None] + np.arange(3)).reshape(-1)
-        self._parent = (3 * skeleton.BONES[:, 0][:, None] + np.arange(3)).reshape(-1)
         # Working copies in the arithmetic precision.
         t = self.dtype
         self._w_sensor = self.sensor.astype(t)
         self._w_target = None if self.target is None else self.target.astype(t)
         self._w_lengths = self.lengths.astype(t)
-        self._mean, self._components = self._mean.astype(t), self._components.astype(t)
+        self._mean = latent.mean.astype(t)
+        self._components = latent.components.astype(t)  # (d, 60)
         self._joint_weights = self._joint_weights.astype(t)
         self._y, self._y_sq, self._r_sq = (
             self._y.astype(t),
@@ -235,7 +239,7 @@ class EnergyModel:
             np.einsum("nd,nd->n", u, u)[:, None] - 2.0 * (u @ self._y.T) + self._y_sq + self._r_sq
         )
         es = np.maximum(dist.min(axis=1), 0.0) / joints  # Eq. 12
-        bones = (x[:, self._child] - x[:, self._parent]).reshape(len(x), skeleton.NUM_BONES, 3)
+        bones = (x[:, _CHILD_COORDS] - x[:, _PARENT_COORDS]).reshape(len(x), skeleton.NUM_BONES, 3)
         length = np.sqrt(np.einsum("nbc,nbc->nb", bones, bones))
         ek = ((length - self._w_lengths) ** 2).mean(axis=1)  # Eq. 13
         if self._w_target is None:

@@ -15,6 +15,7 @@ evaluation budget is spent or ``time_budget_s`` has elapsed since the first eval
 
 from __future__ import annotations
 
+import functools
 import time
 from dataclasses import dataclass
 
@@ -144,7 +145,6 @@ class SearchProblem:
         self.dt = context.dt
         self.z_kinect = self.latent.encode(self.kinect_pose)
         self.z_prediction = None if prediction is None else self.latent.encode(prediction)
-        self.z_previous = None if previous is None else self.latent.encode(previous)
         x0 = np.asarray(x0, dtype=np.float64)
         if x0.shape != (self.dim,):
             raise ValueError(f"x0: expected shape ({self.dim},), got {x0.shape}")
@@ -177,6 +177,12 @@ class SearchProblem:
     def std(self) -> np.ndarray:
         """Per-axis spread ``(d,)`` of the candidates (the whitening scale)."""
         return self.latent.std
+
+    @functools.cached_property
+    def z_previous(self) -> np.ndarray | None:
+        """The previous reconstruction projected into the space (None on a first frame;
+        computed on first use)."""
+        return None if self.previous is None else self.latent.encode(self.previous)
 
     def decode(self, z: np.ndarray) -> np.ndarray:
         """Normalised poses ``(n, 20, 3)`` of latent points ``(n, d)`` (no budget)."""
@@ -260,14 +266,7 @@ class SearchProblem:
         BudgetExhausted
             If the budget was already spent (a partly over-budget batch is clipped instead).
         """
-        z = self._check(z)
-        n = len(z)
-        admitted = self._admit(n)
-        energies = self.energy(z[:admitted])
-        if admitted < n:
-            energies = np.concatenate([energies, np.full(n - admitted, np.inf)])
-        self._record(z, energies, admitted)
-        return energies
+        return self.evaluate_terms(z)["E"]
 
     def _record(self, z: np.ndarray, energies: np.ndarray, admitted: int) -> None:
         self.evaluations += admitted

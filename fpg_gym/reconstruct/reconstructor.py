@@ -60,6 +60,7 @@ import numpy as np
 
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
+from fpg_gym.ragdoll import FloorShift
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights, motion_target
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
@@ -131,7 +132,10 @@ def left_right_costs(
     local = positions - positions[skeleton.ROOT]
     target = np.asarray(prediction, dtype=np.float64)
     target = target - target[skeleton.ROOT]
-    weights = np.where(np.asarray(states) >= 2, 1.0, np.where(np.asarray(states) == 1, 0.5, 0.0))
+    states = np.asarray(states)
+    weights = np.where(
+        states >= skeleton.TRACKED, 1.0, np.where(states == skeleton.INFERRED, 0.5, 0.0)
+    )
     relabelled = local[_LABEL_PERMUTATIONS]  # (H, 20, 3)
     w = weights[_LABEL_PERMUTATIONS]  # (H, 20)
     dist = np.linalg.norm(relabelled - target, axis=-1)
@@ -373,7 +377,7 @@ class ReconstructionResult:
             "no_body": np.array([r.no_body for r in records], dtype=bool),
             "labelling": np.array([LABELLINGS.index(r.labelling) for r in records], dtype=np.int8),
             "labelling_names": np.array(LABELLINGS),
-            "ms_per_frame": np.array([r.ms["total"] for r in records]),
+            "ms_per_frame": self.ms_per_frame,
             "ms_stages": np.array([[r.ms[s] for s in STAGES] for r in records]).reshape(
                 t, len(STAGES)
             ),
@@ -400,9 +404,8 @@ class _Pending:
 
 def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
     """A camera-space pose, root-relative and turned by ``-yaw`` (the current frame's heading)."""
-    local = np.asarray(pose, dtype=np.float64) - np.asarray(pose, dtype=np.float64)[skeleton.ROOT]
-    out: np.ndarray = local @ pose_utils.yaw_matrix(yaw)
-    return out
+    pose = np.asarray(pose, dtype=np.float64)
+    return pose_utils.into_placement(pose, pose_utils.Placement(root=pose[skeleton.ROOT], yaw=yaw))
 
 
 class Reconstructor:
@@ -513,7 +516,7 @@ class Reconstructor:
         self._pending: _Pending | None = None
         self._index = 0
         self._last_timestamp: float | None = None
-        self._floor: float | None = None
+        self._floor = FloorShift()
         self._ragdoll_needs_reset = True
         # A new stream starts from scratch: the retargeted-database cache and the ragdoll's
         # physics (rebuilt at the first tracked frame) carry nothing over, so the output does
@@ -616,11 +619,7 @@ class Reconstructor:
         kinect, placement = pose_utils.normalise(positions)
         if no_body and self._placement is not None:
             placement = self._placement
-            kinect = np.einsum(
-                "jc,cd->jd",
-                positions.astype(np.float64) - placement.root,
-                pose_utils.yaw_matrix(placement.yaw),
-            ).astype(np.float32)
+            kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
         t1 = time.perf_counter()
 
         terms = self.reliability.update(positions, states)
@@ -792,10 +791,8 @@ class Reconstructor:
                 self.ragdoll_rebuilds += 1
             self._ragdoll_lengths = lengths64.copy()
             self._ragdoll_needs_reset = True
-        lowest = float(target[:, 1].min())
-        self._floor = lowest if self._floor is None else min(self._floor, lowest)
-        shift = np.array([0.0, self._floor, 0.0])
-        world = np.asarray(target, dtype=np.float64) - shift
+        before = int((getattr(self._ragdoll, "info", {}) or {}).get("divergences", 0))
+        world = self._floor.down(target)
         if self._ragdoll_needs_reset:
             out = self._ragdoll.reset(world)
             self._ragdoll_needs_reset = False
@@ -803,8 +800,10 @@ class Reconstructor:
             out = self._ragdoll.track(world)
         info = dict(getattr(self._ragdoll, "info", {}) or {})
         info["rebuilds"] = self.ragdoll_rebuilds
-        info["floor_y"] = self._floor
-        return (np.asarray(out, dtype=np.float64) + shift).astype(np.float32), info
+        info["floor_y"] = self._floor.floor_y
+        # The ragdoll's counter is cumulative and restarts with a rebuild: report this frame's.
+        info["new_divergences"] = int(info.get("divergences", 0)) - before
+        return self._floor.up(out), info
 
     # ------------------------------------------------------------------ drivers
 

@@ -52,9 +52,7 @@ import numpy as np
 
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
-
-TRACKED = 2
-"""Kinect tracking state of a tracked joint (1 = inferred, 0 = not tracked)."""
+from fpg_gym.skeleton import TRACKED
 
 # (20, 19) incidence matrix, rows normalised: Rk(j) = 1 - INCIDENCE @ deviation (mean over bones).
 _INCIDENCE = np.zeros((skeleton.NUM_JOINTS, skeleton.NUM_BONES))
@@ -357,13 +355,14 @@ class ReliabilityEstimator:
 
     # ------------------------------------------------------------------ update
 
-    def _update_reference(self, positions: np.ndarray, states: np.ndarray) -> bool:
+    def _update_reference(
+        self, positions: np.ndarray, states: np.ndarray, lengths: np.ndarray
+    ) -> bool:
         if self._fixed is not None:
             self._reference = self._fixed
             self._source = "given"
             return False
         cap = self.config.max_reference_frames
-        lengths = pose_utils.bone_lengths(positions)
         tracked = states >= TRACKED
         calibration = bool(tracked.all()) and is_neutral_pose(
             positions, self.config.neutral_tolerance_deg
@@ -423,7 +422,8 @@ class ReliabilityEstimator:
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
         cfg = self.config
         history = self._history
-        calibration = self._update_reference(positions, states)
+        lengths = pose_utils.bone_lengths(positions)
+        calibration = self._update_reference(positions, states, lengths)
         assert self._reference is not None
 
         # Behaviour (Shum §IV-A): root-relative displacements, the root's own in camera space.
@@ -445,7 +445,7 @@ class ReliabilityEstimator:
         behaviour = behaviour_reliability(mean_angle, cfg)
 
         # Kinematic (Shum §IV-B) and tracking state (FPG §5).
-        kinematic = kinematic_reliability(pose_utils.bone_lengths(positions), self._reference)
+        kinematic = kinematic_reliability(lengths, self._reference)
         tracking = tracking_reliability(states)
         minimum = np.minimum(np.minimum(behaviour, kinematic), tracking)
 

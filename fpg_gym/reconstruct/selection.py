@@ -25,13 +25,13 @@ the user's proportions (:class:`NodeDatabase`).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Protocol, runtime_checkable
 
 import numpy as np
 
 from fpg_gym import skeleton
-from fpg_gym.poses import REST_DIRECTIONS, as_poses
+from fpg_gym.poses import as_poses, bone_directions
 
 # --------------------------------------------------------------------------- scores
 
@@ -120,11 +120,7 @@ class NodeDatabase:
         self.poses = as_poses(poses, "poses", ndim=3)
         if len(self.poses) == 0:
             raise ValueError("poses: the database is empty (0 nodes)")
-        vectors = self.poses[:, skeleton.BONES[:, 1]] - self.poses[:, skeleton.BONES[:, 0]]
-        norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
-        safe = norms > 1e-9
-        self._directions = np.where(safe, vectors / np.where(safe, norms, 1.0), REST_DIRECTIONS)
-        self._directions = self._directions.astype(np.float32)
+        self._directions = bone_directions(self.poses).astype(np.float32)
         self._roots = self.poses[:, skeleton.ROOT].copy()
         self._path = skeleton.PATH_MATRIX.astype(np.float32)
         self.refresh_tolerance_m = refresh_tolerance_m
@@ -315,8 +311,10 @@ class GraphSelector:
         if not 0.0 < recovery_smoothing <= 1.0:
             raise ValueError(f"recovery_smoothing: expected in (0, 1], got {recovery_smoothing}")
         self.graph = graph
-        self.database = database or NodeDatabase(np.asarray(graph.poses))  # type: ignore[attr-defined]
+        self.database = _database(graph, database)
         self.k = k
+        # The first frame's and the recovery's full search: FPG's score over every node.
+        self.full_search = BruteForceSelector(self.database, k, score="fpg")
         self.recovery_factor = recovery_factor
         self.recovery_min_score = recovery_min_score
         self.recovery_smoothing = recovery_smoothing
@@ -342,48 +340,43 @@ class GraphSelector:
             neighbours = indices[offsets + np.arange(counts.sum())].astype(np.int64)
         return np.union1d(nodes, neighbours)
 
-    def _full(self, query: SelectionQuery) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        candidates = self.database.all_poses(query.lengths)
-        scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
-        best = _best_k(scores, self.k)
-        return best.astype(np.int64), candidates[best], scores[best].astype(np.float64)
-
     def select(self, query: SelectionQuery) -> Selection:
         """The K best of the previous nodes' neighbourhood (full search on the first frame)."""
-        recovered = False
         if self._previous is None:
-            nodes, poses, scores = self._full(query)
-            full, scored = True, len(self.database)
+            selection = self.full_search.select(query)
         else:
             pool = self.neighbourhood(self._previous)
             candidates = self.database.poses_for(pool, query.lengths)
-            all_scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
-            best = _best_k(all_scores, self.k)
-            nodes, poses, scores = pool[best], candidates[best], all_scores[best].astype(np.float64)
-            full, scored = False, len(pool)
+            scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
+            best = _best_k(scores, self.k)
+            selection = Selection(
+                nodes=pool[best],
+                poses=candidates[best],
+                scores=scores[best].astype(np.float64),
+                num_scored=len(pool),
+                full_search=False,
+            )
             if (
                 self.recovery_factor is not None
                 and self._average is not None
-                and scores[0] > self.recovery_min_score
-                and scores[0] > self.recovery_factor * self._average
+                and selection.scores[0] > self.recovery_min_score
+                and selection.scores[0] > self.recovery_factor * self._average
             ):
-                nodes, poses, scores = self._full(query)
-                full, recovered, scored = True, True, scored + len(self.database)
+                full = self.full_search.select(query)
+                selection = replace(full, num_scored=len(pool) + full.num_scored, recovered=True)
                 self.recoveries += 1
-        self._previous = nodes
+        self._previous = selection.nodes
         a = self.recovery_smoothing
-        best_score = float(scores[0])
+        best_score = float(selection.scores[0])
         self._average = (
             best_score if self._average is None else (1 - a) * self._average + a * best_score
         )
-        return Selection(
-            nodes=nodes,
-            poses=np.asarray(poses, dtype=np.float32),
-            scores=scores,
-            num_scored=scored,
-            full_search=full,
-            recovered=recovered,
-        )
+        return replace(selection, poses=np.asarray(selection.poses, dtype=np.float32))
+
+
+def _database(graph: object, database: NodeDatabase | None) -> NodeDatabase:
+    """``database``, or a new one of the graph's node poses."""
+    return database or NodeDatabase(np.asarray(graph.poses))  # type: ignore[attr-defined]
 
 
 def make_selector(
@@ -393,9 +386,9 @@ def make_selector(
 
     Extra keyword arguments go to the selector's constructor.
     """
-    database = database or NodeDatabase(np.asarray(graph.poses))  # type: ignore[attr-defined]
+    database = _database(graph, database)
     if name == "graph":
         return GraphSelector(graph, k, database=database, **kwargs)  # type: ignore[arg-type]
-    if name in ("brute-force", "brute_force", "brute"):
+    if name == "brute-force":
         return BruteForceSelector(database, k, **kwargs)  # type: ignore[arg-type]
     raise ValueError(f"selector: expected 'graph' or 'brute-force', got {name!r}")

@@ -24,8 +24,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import skeleton
+from fpg_gym import poses, skeleton
 from fpg_gym.pybullet_utils import connect_direct, pybullet
+from fpg_gym.rotations import matrix_to_quaternion_xyzw, shortest_arc
 
 __all__ = ["Box", "RayCaster", "TraceResult", "body_shape_poses", "box_poses"]
 
@@ -67,6 +68,8 @@ LIMB_BONES: np.ndarray = np.array(
 NUM_BODY_SHAPES = len(LIMB_BONES) + 2  # + head sphere + torso box
 _HEAD_SHAPE = len(LIMB_BONES)
 _TORSO_SHAPE = len(LIMB_BONES) + 1
+#: A pybullet capsule lies along its local +Z.
+_CAPSULE_AXIS = np.array([0.0, 0.0, 1.0])
 
 #: How far (metres) each joint's ray targets are pulled towards the camera: the radius of the
 #: body part around the joint, so that rays aim at the visible surface, not the joint centre.
@@ -148,66 +151,6 @@ class Box:
 # --------------------------------------------------------------------------- poses of shapes
 
 
-def _quaternion_z_to(direction: np.ndarray) -> np.ndarray:
-    """Quaternions (x, y, z, w) turning +Z onto each unit ``direction`` ``(..., 3)``."""
-    x, y, z = direction[..., 0], direction[..., 1], direction[..., 2]
-    # q = (z_axis x d, 1 + z_axis . d), normalised; z_axis x d = (-y, x, 0).
-    q = np.stack([-y, x, np.zeros_like(z), 1.0 + z], axis=-1)
-    flipped = (1.0 + z) < 1e-9
-    q[flipped] = (1.0, 0.0, 0.0, 0.0)
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
-def _matrix_to_quaternion(m: np.ndarray) -> np.ndarray:
-    """Rotation matrices ``(..., 3, 3)`` -> quaternions (x, y, z, w), vectorised."""
-    trace = m[..., 0, 0] + m[..., 1, 1] + m[..., 2, 2]
-    candidates = np.stack(
-        [
-            np.stack(
-                [
-                    m[..., 2, 1] - m[..., 1, 2],
-                    m[..., 0, 2] - m[..., 2, 0],
-                    m[..., 1, 0] - m[..., 0, 1],
-                    1.0 + trace,
-                ],
-                -1,
-            ),
-            np.stack(
-                [
-                    1.0 + m[..., 0, 0] - m[..., 1, 1] - m[..., 2, 2],
-                    m[..., 0, 1] + m[..., 1, 0],
-                    m[..., 0, 2] + m[..., 2, 0],
-                    m[..., 2, 1] - m[..., 1, 2],
-                ],
-                -1,
-            ),
-            np.stack(
-                [
-                    m[..., 0, 1] + m[..., 1, 0],
-                    1.0 - m[..., 0, 0] + m[..., 1, 1] - m[..., 2, 2],
-                    m[..., 1, 2] + m[..., 2, 1],
-                    m[..., 0, 2] - m[..., 2, 0],
-                ],
-                -1,
-            ),
-            np.stack(
-                [
-                    m[..., 0, 2] + m[..., 2, 0],
-                    m[..., 1, 2] + m[..., 2, 1],
-                    1.0 - m[..., 0, 0] - m[..., 1, 1] + m[..., 2, 2],
-                    m[..., 1, 0] - m[..., 0, 1],
-                ],
-                -1,
-            ),
-        ],
-        axis=-2,
-    )  # (..., 4, 4): the four classic formulas, each well conditioned in its own region
-    diagonal = np.stack([trace, m[..., 0, 0], m[..., 1, 1], m[..., 2, 2]], -1)
-    best = np.argmax(diagonal, axis=-1)
-    q = np.take_along_axis(candidates, best[..., None, None], axis=-2)[..., 0, :]
-    return q / np.linalg.norm(q, axis=-1, keepdims=True)
-
-
 def _yaw_quaternion(yaw: np.ndarray) -> np.ndarray:
     half = np.asarray(yaw, dtype=np.float64) / 2
     zero = np.zeros_like(half)
@@ -231,15 +174,14 @@ def body_shape_poses(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """
     joints = np.asarray(joints, dtype=np.float64)
     count = len(joints)
-    parents = joints[:, skeleton.BONES[LIMB_BONES, 0]]
-    children = joints[:, skeleton.BONES[LIMB_BONES, 1]]
-    vectors = children - parents
+    vectors = poses.bone_vectors(joints)[:, LIMB_BONES]
     norms = np.linalg.norm(vectors, axis=-1, keepdims=True)
     directions = np.where(norms > 1e-9, vectors / np.maximum(norms, 1e-9), (0.0, 1.0, 0.0))
     positions = np.empty((count, NUM_BODY_SHAPES, 3))
     quaternions = np.empty((count, NUM_BODY_SHAPES, 4))
-    positions[:, : len(LIMB_BONES)] = (parents + children) / 2
-    quaternions[:, : len(LIMB_BONES)] = _quaternion_z_to(directions)
+    ends = joints[:, skeleton.BONES[LIMB_BONES]]  # (T, L, 2, 3): parent and child joints
+    positions[:, : len(LIMB_BONES)] = ends.mean(axis=2)
+    quaternions[:, : len(LIMB_BONES)] = shortest_arc(_CAPSULE_AXIS, directions)
     positions[:, _HEAD_SHAPE] = joints[:, _J("Head")]
     quaternions[:, _HEAD_SHAPE] = (0.0, 0.0, 0.0, 1.0)
     # Torso box: Y along hips -> shoulders, X towards the body's left, Z forward.
@@ -255,7 +197,7 @@ def body_shape_poses(joints: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     left /= np.linalg.norm(left, axis=-1, keepdims=True)
     forward = np.cross(left, up)
     positions[:, _TORSO_SHAPE] = (bottom + top) / 2
-    quaternions[:, _TORSO_SHAPE] = _matrix_to_quaternion(np.stack([left, up, forward], axis=-1))
+    quaternions[:, _TORSO_SHAPE] = matrix_to_quaternion_xyzw(np.stack([left, up, forward], axis=-1))
     return positions, quaternions
 
 
@@ -269,7 +211,7 @@ def box_poses(
     count = len(joints)
     positions = np.empty((count, len(boxes), 3))
     quaternions = np.empty((count, len(boxes), 4))
-    c, s = np.cos(heading), np.sin(heading)
+    turn = poses.yaw_matrix(heading)  # heading frame -> stage (rotation about +Y)
     for index, box in enumerate(boxes):  # a handful of boxes; vectorised over frames
         offset = np.asarray(box.center, dtype=np.float64)
         if box.carried:
@@ -277,15 +219,7 @@ def box_poses(
                 anchor = (joints[:, _J("HandLeft")] + joints[:, _J("HandRight")]) / 2
             else:
                 anchor = joints[:, _J(box.carried_by)]
-            # heading frame -> stage: x' = c x + s z, z' = -s x + c z (rotation about +Y)
-            positions[:, index] = anchor + np.stack(
-                [
-                    c * offset[0] + s * offset[2],
-                    np.full(count, offset[1]),
-                    -s * offset[0] + c * offset[2],
-                ],
-                axis=-1,
-            )
+            positions[:, index] = anchor + turn @ offset
             quaternions[:, index] = _yaw_quaternion(heading + np.radians(box.yaw_deg))
         else:
             positions[:, index] = offset
@@ -378,13 +312,7 @@ class RayCaster:
     def build(self, joints: np.ndarray, boxes: Sequence[Box]) -> None:
         """Create the body shapes (sized from ``joints`` ``(T, 20, 3)``) and the boxes."""
         self._reset_scene()
-        lengths = np.median(
-            np.linalg.norm(
-                joints[:, skeleton.BONES[LIMB_BONES, 1]] - joints[:, skeleton.BONES[LIMB_BONES, 0]],
-                axis=-1,
-            ),
-            axis=0,
-        )
+        lengths = np.median(poses.bone_lengths(joints)[:, LIMB_BONES], axis=0)
         client = self.client
         for bone, length in zip(LIMB_BONES, lengths, strict=True):
             radius = LIMB_RADIUS[skeleton.JOINT_NAMES[skeleton.BONES[bone, 1]]]

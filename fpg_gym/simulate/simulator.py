@@ -38,6 +38,7 @@ from fpg_gym import skeleton
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
 from fpg_gym.poses import as_poses, facing_yaw, yaw_matrix
+from fpg_gym.rotations import axis_angle_matrix
 from fpg_gym.simulate.camera import Camera
 from fpg_gym.simulate.models import JOINT_GROUP
 from fpg_gym.simulate.scenarios import Scenario, get_scenario
@@ -323,17 +324,6 @@ _LEVELS = _depth_levels()
 _LEVEL_PARENTS = [skeleton.PARENTS[level] for level in _LEVELS]
 
 
-def _rotations(axes: np.ndarray, angles: np.ndarray) -> np.ndarray:
-    """Rodrigues: rotation matrices ``(..., 3, 3)`` about unit ``axes`` by ``angles`` (rad)."""
-    x, y, z = axes[..., 0], axes[..., 1], axes[..., 2]
-    zero = np.zeros_like(x)
-    cross = np.stack(
-        [np.stack([zero, -z, y], -1), np.stack([z, zero, -x], -1), np.stack([-y, x, zero], -1)], -2
-    )
-    c, s = np.cos(angles)[..., None, None], np.sin(angles)[..., None, None]
-    return c * np.eye(3) + s * cross + (1.0 - c) * axes[..., :, None] * axes[..., None, :]
-
-
 def _occlusion_effects(
     scenario: Scenario,
     rng: np.random.Generator,
@@ -415,7 +405,7 @@ def _occlusion_effects(
             axis = np.cross(bone_t, axis_draw[t])
             norm = np.linalg.norm(axis, axis=-1, keepdims=True)
             axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
-            turn = np.where(begin[:, None, None], _rotations(axis, angle_draw[t]), turn)
+            turn = np.where(begin[:, None, None], axis_angle_matrix(axis, angle_draw[t]), turn)
             shrink = np.where(begin, shrink_draw[t], shrink)
             limit = np.where(
                 begin,
@@ -441,7 +431,7 @@ def _occlusion_effects(
             norm = np.linalg.norm(axis, axis=-1, keepdims=True)
             axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
             turned = np.einsum(
-                "jab,jb->ja", _rotations(axis, glitch_angle[t, jumps]), bone_rep[jumps]
+                "jab,jb->ja", axis_angle_matrix(axis, glitch_angle[t, jumps]), bone_rep[jumps]
             )
             bone_rep[jumps] = turned
         own = bone_rep - bone_t  # this joint's own bone error
