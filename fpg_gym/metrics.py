@@ -12,6 +12,10 @@ metres (any space, as long as reference and estimate share it).
   skeleton has none, the Kinect has some because it estimates every joint independently.
 * :func:`bones_tracked` — which bones have both joints tracked, from a per-joint mask.
 * :func:`jitter` — mean acceleration magnitude per joint, from second differences.
+* :func:`lag` — the time shift (frames) that best aligns an estimate with the ground truth
+  (least-squares cross-correlation, sub-frame by parabolic interpolation).
+* :func:`settled_bone_spread` — each bone's length range (max − min) after the first second of
+  a stream: bones that keep moving once the user's lengths should be known.
 * :func:`error_histogram` / :func:`band_shares` — frames per error band of FPG §8
   (:data:`ERROR_BAND_EDGES`: 0–5, 5–10, 10–15, 15–20, 20–30, ≥ 30 cm).
 * :func:`frames_above` — the share of frames whose error is at least each threshold, the
@@ -47,10 +51,17 @@ __all__ = [
     "frame_error",
     "frames_above",
     "jitter",
+    "lag",
     "mean_error",
     "per_joint_error",
+    "settled_bone_spread",
     "time_summary",
 ]
+
+#: Frames searched on each side by :func:`lag` (a third of a second at 30 Hz).
+MAX_LAG_FRAMES = 10
+#: Seconds at the start of a stream that :func:`settled_bone_spread` leaves out.
+SETTLE_S = 1.0
 
 #: The threshold of Err0.2 (FPG Table 2), metres.
 ERR_THRESHOLD_M = 0.2
@@ -343,3 +354,138 @@ def time_summary(milliseconds: npt.ArrayLike) -> dict[str, float]:
         "mean": float(values.mean()),
         "max": float(values.max()),
     }
+
+
+def _times(count: int, fps: float, timestamps: npt.ArrayLike | None) -> np.ndarray:
+    """Frame times in seconds: ``timestamps`` validated, else ``arange(count) / fps``."""
+    if timestamps is None:
+        if not fps > 0:
+            raise ValueError(f"fps: expected a positive frame rate, got {fps}")
+        return np.arange(count) / float(fps)
+    times = np.asarray(timestamps, dtype=np.float64).reshape(-1)
+    if times.shape != (count,):
+        raise ValueError(f"timestamps: expected shape ({count},), got {times.shape}")
+    if not np.all(np.isfinite(times)):
+        raise ValueError("timestamps: non-finite value")
+    return times
+
+
+def lag(
+    estimate: npt.ArrayLike,
+    reference: npt.ArrayLike,
+    *,
+    max_frames: int = MAX_LAG_FRAMES,
+    valid: npt.ArrayLike | None = None,
+) -> float:
+    """How many frames ``estimate`` runs behind ``reference`` (negative: ahead).
+
+    The shift ``s`` that best aligns the two streams in the least-squares sense,
+    ``argmin_s mean_t ||x(t) - r(t - s)||^2`` over the frames both cover; the expanded square
+    is ``|x|^2 + |r|^2 - 2 x . r``, the energy-normalised form of the cross-correlation
+    ``sum_t x(t) . r(t - s)``. The plain cross-correlation of a steady motion (a ramp) grows
+    with the overlap and peaks nowhere; the least-squares form is exact on it. The signal is
+    the root's position and every other joint's position relative to the root, so a lag of the
+    limbs counts as much as a lag of the whole body. Integer shifts in ``[-max_frames,
+    max_frames]`` are scored, then the minimum is refined to a fraction of a frame by a parabola
+    through it and its two neighbours.
+
+    Parameters
+    ----------
+    estimate, reference : array_like, shape (T, 20, 3)
+        Output and ground truth in the same space, same frame times (T >= 3).
+    max_frames : int
+        Largest shift tried, frames (10).
+    valid : array_like of bool, shape (T,), optional
+        Frames to use (e.g. frames with a body); a pair of frames counts when both are valid.
+
+    Returns
+    -------
+    float
+        Frames (multiply by the frame interval for seconds); NaN when fewer than 3 frames
+        overlap at some shift.
+    """
+    est = _clip_array(estimate, "estimate")
+    ref = _clip_array(reference, "reference")
+    if est.shape != ref.shape:
+        raise ValueError(f"estimate {est.shape} and reference {ref.shape} differ in shape")
+    if max_frames < 1:
+        raise ValueError(f"max_frames: expected >= 1, got {max_frames}")
+    count = len(est)
+    ok = np.ones(count, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
+    if ok.shape != (count,):
+        raise ValueError(f"valid: expected shape ({count},), got {ok.shape}")
+
+    def local(p: np.ndarray) -> np.ndarray:
+        out = p - p[:, skeleton.ROOT : skeleton.ROOT + 1]
+        out[:, skeleton.ROOT] = p[:, skeleton.ROOT]
+        return out.reshape(count, -1)
+
+    x, r = local(est), local(ref)
+    shifts = np.arange(-max_frames, max_frames + 1)
+    cost = np.full(len(shifts), np.nan)
+    for i, s in enumerate(shifts):  # 2 * max_frames + 1 shifts, each vectorised over frames
+        lo, hi = max(0, s), min(count, count + s)  # x(t), r(t - s) for t in [lo, hi)
+        if hi - lo < 3:
+            continue
+        use = ok[lo:hi] & ok[lo - s : hi - s]
+        if use.sum() < 3:
+            continue
+        diff = x[lo:hi][use] - r[lo - s : hi - s][use]
+        cost[i] = float(np.linalg.norm(diff.reshape(len(diff), -1, 3), axis=-1).mean())
+    if np.isnan(cost).any():
+        return float("nan")
+    best = int(np.argmin(cost))
+    offset = 0.0
+    if 0 < best < len(shifts) - 1:
+        left, mid, right = cost[best - 1], cost[best], cost[best + 1]
+        curvature = left - 2.0 * mid + right
+        if curvature > 0:
+            offset = float(np.clip(0.5 * (left - right) / curvature, -0.5, 0.5))
+    return float(shifts[best] + offset)
+
+
+def settled_bone_spread(
+    positions: npt.ArrayLike,
+    *,
+    fps: float = 30.0,
+    timestamps: npt.ArrayLike | None = None,
+    settle_s: float = SETTLE_S,
+    valid: npt.ArrayLike | None = None,
+) -> np.ndarray:
+    """Each bone's length range (max − min, metres) after the first ``settle_s`` seconds.
+
+    A reconstruction knows its user's bone lengths after a short calibration; from then on a
+    bone that changes length is an artefact (a rigid body does not grow). The first second is
+    left out so that a fast first estimate is not counted against the settled one.
+
+    Parameters
+    ----------
+    positions : array_like, shape (T, 20, 3)
+    fps : float
+        Frame rate used when ``timestamps`` is omitted.
+    timestamps : array_like, shape (T,), optional
+        Seconds; the stream starts at the first one.
+    settle_s : float
+        Seconds left out at the start (1.0).
+    valid : array_like of bool, shape (T,), optional
+        Frames to use (e.g. frames with a body).
+
+    Returns
+    -------
+    ndarray, shape (19,), float64
+        NaN for every bone when fewer than two frames remain.
+    """
+    pos = _clip_array(positions, "positions")
+    times = _times(len(pos), fps, timestamps)
+    if settle_s < 0:
+        raise ValueError(f"settle_s: expected >= 0, got {settle_s}")
+    use = times - times[0] >= settle_s - 1e-9
+    if valid is not None:
+        ok = np.asarray(valid, dtype=bool)
+        if ok.shape != (len(pos),):
+            raise ValueError(f"valid: expected shape ({len(pos)},), got {ok.shape}")
+        use &= ok
+    if use.sum() < 2:
+        return np.full(skeleton.NUM_BONES, np.nan)
+    lengths = poses.bone_lengths(pos[use])
+    return np.asarray(lengths.max(axis=0) - lengths.min(axis=0))

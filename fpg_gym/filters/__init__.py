@@ -7,6 +7,8 @@ name       method
 ``holt``   the Kinect SDK joint filter, Holt double-exponential smoothing with jitter and
            max-deviation clamps (:class:`HoltFilter`; presets in :data:`HOLT_PRESETS`)
 ``kalman`` constant-velocity Kalman filter per joint (:class:`KalmanFilter`)
+``one-euro`` speed-adaptive low-pass filter per joint (:class:`OneEuroFilter`, Casiez et al.
+           2012; used as the reconstruction's optional output stage)
 =========  ================================================================================
 
 Make one by name with :func:`make_filter`; a preset may follow the name after a colon, as on the
@@ -38,6 +40,7 @@ from fpg_gym.filters.base import (
     RawFilter,
 )
 from fpg_gym.filters.holt import HOLT_PRESETS, HoltFilter, HoltParams, holt_preset
+from fpg_gym.filters.one_euro import ONE_EURO_PRESETS, OneEuroFilter, OneEuroParams
 from fpg_gym.filters.kalman import (
     DEFAULT_KALMAN,
     KALMAN_PRESETS,
@@ -50,6 +53,7 @@ _FILTERS: Final[dict[str, type[JointFilter]]] = {
     "raw": RawFilter,
     "holt": HoltFilter,
     "kalman": KalmanFilter,
+    "one-euro": OneEuroFilter,
 }
 
 #: Preset names per filter (``make_filter(name, preset=...)`` or ``"name:preset"``).
@@ -57,6 +61,7 @@ PRESETS: Final[dict[str, tuple[str, ...]]] = {
     "raw": (),
     "holt": tuple(HOLT_PRESETS),
     "kalman": tuple(KALMAN_PRESETS),
+    "one-euro": tuple(ONE_EURO_PRESETS),
 }
 
 
@@ -132,6 +137,9 @@ __all__ = [
     "JointFilter",
     "KalmanFilter",
     "KalmanParams",
+    "ONE_EURO_PRESETS",
+    "OneEuroFilter",
+    "OneEuroParams",
     "RawFilter",
     "available_filters",
     "available_presets",

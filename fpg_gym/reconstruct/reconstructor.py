@@ -61,6 +61,7 @@ import numpy as np
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
 from fpg_gym.ragdoll import FloorShift
+from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights, motion_target
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
@@ -75,6 +76,12 @@ from fpg_gym.reconstruct.selection import (
     Selection,
     SelectionQuery,
     make_selector,
+)
+from fpg_gym.reconstruct.temporal import (
+    OutputSmoother,
+    PlacementSmoother,
+    TemporalConfig,
+    align_basis,
 )
 
 STAGES: tuple[str, ...] = (
@@ -206,6 +213,12 @@ class ReconstructorConfig:
     left_right_margin : float
         A relabelling is used only when it brings the sensor at least this factor closer to
         the prediction than the reported labels (0.6), and by more than 3 cm.
+    temporal : TemporalConfig
+        Temporal coherence beyond the papers: smoothed placement, aligned latent basis,
+        optional output filter (:mod:`fpg_gym.reconstruct.temporal`; ``TemporalConfig.off()``
+        is the papers' pipeline).
+    bones : BoneSettlingConfig
+        Settling rule of the user's bone lengths (:mod:`fpg_gym.reconstruct.bones`).
     """
 
     k: int = 30
@@ -227,6 +240,8 @@ class ReconstructorConfig:
     left_right_fix: bool = True
     length_prior: str = "database"
     left_right_margin: float = 0.6
+    temporal: TemporalConfig = field(default_factory=TemporalConfig)
+    bones: BoneSettlingConfig = field(default_factory=BoneSettlingConfig)
 
     def __post_init__(self) -> None:
         if self.k < 1:
@@ -281,6 +296,8 @@ class FrameRecord:
         The ragdoll's ``info`` after the frame (None without a ragdoll).
     labelling : str
         The left/right labelling used (:data:`LABELLINGS`; ``"as-reported"`` unless fixed).
+    bone_lengths : ndarray, shape (19,) or None
+        The user's bone lengths used in this frame (after the settling rule).
     """
 
     index: int
@@ -304,6 +321,7 @@ class FrameRecord:
     ms: dict[str, float]
     ragdoll: dict[str, Any] | None = None
     labelling: str = "as-reported"
+    bone_lengths: np.ndarray | None = None
 
 
 @dataclass
@@ -317,11 +335,15 @@ class ReconstructionResult:
     records : list of FrameRecord
     interrupted : bool
         True when the run stopped early (Ctrl-C); ``poses`` then holds the frames done.
+    bones : dict
+        When the bone lengths settled and how much they changed afterwards
+        (:meth:`fpg_gym.reconstruct.bones.BoneSettler.report`).
     """
 
     poses: np.ndarray
     records: list[FrameRecord]
     interrupted: bool = False
+    bones: dict[str, Any] = field(default_factory=dict)
 
     @property
     def num_frames(self) -> int:
@@ -383,6 +405,8 @@ class ReconstructionResult:
             ),
             "stage_names": np.array(STAGES),
         }
+        if t and all(r.bone_lengths is not None for r in records):
+            out["bone_lengths"] = np.stack([np.asarray(r.bone_lengths) for r in records])
         return out
 
 
@@ -400,6 +424,7 @@ class _Pending:
     ms: dict[str, float]
     prepared_at: float
     labelling: str = "as-reported"
+    lengths: np.ndarray | None = None
 
 
 def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -483,6 +508,13 @@ class Reconstructor:
         self._ragdoll: RagdollLike | None = None
         self._ragdoll_lengths: np.ndarray | None = None
         self.ragdoll_rebuilds = 0
+        self._placement_smoother = (
+            PlacementSmoother(config.temporal) if config.temporal.placement else None
+        )
+        self._output_smoother = (
+            OutputSmoother(config.temporal) if config.temporal.output else None
+        )
+        self.bones = BoneSettler(config.bones)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -518,11 +550,22 @@ class Reconstructor:
         self._last_timestamp: float | None = None
         self._floor = FloorShift()
         self._ragdoll_needs_reset = True
+        self._ragdoll_settle = False
         # A new stream starts from scratch: the retargeted-database cache and the ragdoll's
         # physics (rebuilt at the first tracked frame) carry nothing over, so the output does
         # not depend on what was reconstructed before.
         self.database.clear_cache()
         self._ragdoll_lengths = None
+        self.bones.reset()
+        self._restart_temporal()
+
+    def _restart_temporal(self) -> None:
+        """Restart the temporal filters (a new stream or a gap; the bone lengths stay)."""
+        if self._placement_smoother is not None:
+            self._placement_smoother.reset()
+        if self._output_smoother is not None:
+            self._output_smoother.reset()
+        self._previous_latent: LatentSpace | None = None
 
     def close(self) -> None:
         """Release the ragdoll, if any."""
@@ -587,6 +630,7 @@ class Reconstructor:
             self.selector.reset()
             self.reliability.forget_motion()
             self._ragdoll_needs_reset = True
+            self._restart_temporal()
         first = not self._history
         dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
 
@@ -617,13 +661,23 @@ class Reconstructor:
 
         # Normalise (root to origin, facing +Z); without a body keep the last placement.
         kinect, placement = pose_utils.normalise(positions)
+        output_placement = placement
         if no_body and self._placement is not None:
-            placement = self._placement
+            placement = output_placement = self._placement
+            kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
+        elif self._placement_smoother is not None:
+            # Temporal coherence (not in the papers): the pose is estimated around the sensor's
+            # root but with a smoothed heading, and put back at a smoothed root and heading.
+            output_placement = self._placement_smoother.update(placement, timestamp)
+            placement = pose_utils.Placement(root=placement.root, yaw=output_placement.yaw)
             kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
         t1 = time.perf_counter()
 
         terms = self.reliability.update(positions, states)
-        lengths = terms.reference_lengths
+        was_settled = self.bones.settled
+        lengths = self.bones.update(terms.reference_lengths, timestamp)
+        if self.bones.settled and not was_settled:
+            self._ragdoll_settle = True
         t2 = time.perf_counter()
 
         # Previous reconstructions in this frame; continuity prediction (FPG Eq. 6) which is also
@@ -635,6 +689,9 @@ class Reconstructor:
                 before = _rotate_into(self._history[-2][0], placement.yaw)
                 dt_prev = self._history[-1][1] - self._history[-2][1]
                 prediction = motion_target(previous, before, dt, dt_prev)
+                damping = cfg.temporal.velocity_damping
+                if damping != 1.0:
+                    prediction = previous + damping * (prediction - previous)
             else:
                 prediction = previous.copy()
         selection = self.selector.select(
@@ -648,6 +705,12 @@ class Reconstructor:
         t3 = time.perf_counter()
 
         latent = LatentSpace.fit(selection.poses, max_dim=cfg.latent_dim)
+        if cfg.temporal.align_basis:
+            latent = align_basis(latent, self._previous_latent)
+        self._previous_latent = latent
+        weights = cfg.weights
+        if cfg.temporal.motion_weight is not None:
+            weights = replace(weights, motion=cfg.temporal.motion_weight)
         energy = EnergyModel(
             latent,
             kinect,
@@ -655,7 +718,7 @@ class Reconstructor:
             selection.poses,
             lengths,
             prediction,
-            cfg.weights,
+            weights,
             dtype=cfg.energy_dtype,
         )
         x0 = latent.encode(previous if previous is not None else selection.poses[0])
@@ -680,7 +743,7 @@ class Reconstructor:
         }
         self._pending = _Pending(
             problem,
-            placement,
+            output_placement,
             terms,
             selection,
             first,
@@ -689,6 +752,7 @@ class Reconstructor:
             ms,
             t4,
             LABELLINGS[labelling],
+            np.asarray(lengths, dtype=np.float64),
         )
         return problem
 
@@ -730,9 +794,16 @@ class Reconstructor:
         ragdoll_info = None
         if self._ragdoll_factory is not None:
             pose, ragdoll_info = self._track(pose, problem.lengths)
+        history_pose = pose
+        if self._output_smoother is not None:
+            # Light output filter (not in the papers); the bone lengths stay the output's.
+            out_lengths = (
+                problem.lengths if self._ragdoll_lengths is None else self._ragdoll_lengths
+            )
+            pose = self._output_smoother.update(pose, out_lengths, pending.timestamp)
         t2 = time.perf_counter()
 
-        self._history.append((pose.astype(np.float64), pending.timestamp))
+        self._history.append((np.asarray(history_pose, dtype=np.float64), pending.timestamp))
         del self._history[:-2]
         self._placement = pending.placement
         self._last_timestamp = pending.timestamp
@@ -765,6 +836,7 @@ class Reconstructor:
             ms=ms,
             ragdoll=ragdoll_info,
             labelling=pending.labelling,
+            bone_lengths=pending.lengths,
         )
         self._pending = None
         self._index += 1
@@ -774,10 +846,12 @@ class Reconstructor:
         """Send a camera-space target through the ragdoll (floor shifted to y = 0)."""
         assert self._ragdoll_factory is not None
         new_stream = self._ragdoll_lengths is None
+        settle, self._ragdoll_settle = self._ragdoll_settle, False
         if (
             self._ragdoll is None
             or new_stream
             or np.max(np.abs(self._ragdoll_lengths - lengths)) > self.config.ragdoll_rebuild_m
+            or (settle and np.max(np.abs(self._ragdoll_lengths - lengths)) > 1e-3)
         ):
             lengths64 = np.asarray(lengths, dtype=np.float64)
             rebuild = getattr(self._ragdoll, "rebuild", None)
@@ -905,4 +979,6 @@ class Reconstructor:
         finally:
             if bar is not None:
                 bar.close()
-        return ReconstructionResult(poses[: len(records)], records, interrupted)
+        return ReconstructionResult(
+            poses[: len(records)], records, interrupted, bones=self.bones.report()
+        )

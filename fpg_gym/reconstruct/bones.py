@@ -1,0 +1,163 @@
+"""A settling rule for the user's bone lengths: a fast first estimate, then bounded change.
+
+The reliability estimator (:mod:`fpg_gym.reconstruct.reliability`) refines its reference bone
+lengths whenever a new calibration frame arrives (the median of the recent calibration frames, or
+a scaled prior before the first one). Used as they are, the output's bones change length during
+the whole stream (issue 15 measured one bone spanning 62 mm), which a real body never does.
+
+:class:`BoneSettler` sits between that estimate and everything that uses the lengths (candidate
+retargeting, ``Ek``, the output's retargeting and the ragdoll, which therefore all see the same
+lengths, with or without the ragdoll):
+
+1. **Settling** (the first ``settle_s`` seconds of a stream, 1 s): the lengths follow the
+   estimate as it is (fast first estimate).
+2. **Settled** (afterwards): each bone may move toward the estimate by at most
+   ``max_rate_m_s * dt`` per frame, and its range since the end of settling (largest minus
+   smallest length) never exceeds ``max_spread_m`` (4 mm). A user's bones do not grow: a
+   later, better calibration can only nudge them.
+
+Every frame's lengths, the end of settling and every later change are reported
+(:attr:`BoneSettler.events`, summarised by :meth:`BoneSettler.report`). A stream restart after a
+gap keeps the settled lengths (the same user); :meth:`reset` forgets them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from fpg_gym import skeleton
+
+__all__ = ["BoneSettler", "BoneSettlingConfig"]
+
+
+@dataclass(frozen=True)
+class BoneSettlingConfig:
+    """Parameters of :class:`BoneSettler`.
+
+    Attributes
+    ----------
+    enabled : bool
+        Apply the rule (True); False passes the estimate through (the papers' behaviour).
+    settle_s : float
+        Seconds from the stream's start during which the lengths follow the estimate (1.0).
+    max_spread_m : float
+        Largest range of a bone's length after settling, metres (0.004).
+    max_rate_m_s : float
+        Largest speed of that change, metres per second (0.002).
+    """
+
+    enabled: bool = True
+    settle_s: float = 1.0
+    max_spread_m: float = 0.004
+    max_rate_m_s: float = 0.002
+
+    def __post_init__(self) -> None:
+        for name in ("settle_s", "max_spread_m", "max_rate_m_s"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name}: expected a finite value >= 0, got {value!r}")
+
+
+class BoneSettler:
+    """Applies the settling rule to a stream of bone-length estimates (module docstring).
+
+    Parameters
+    ----------
+    config : BoneSettlingConfig, optional
+    """
+
+    def __init__(self, config: BoneSettlingConfig | None = None) -> None:
+        self.config = config or BoneSettlingConfig()
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget the user: the next frame starts settling again."""
+        self._start: float | None = None
+        self._last_time: float | None = None
+        self._lengths: np.ndarray | None = None
+        self._settled: np.ndarray | None = None
+        self._low = self._high = np.zeros(skeleton.NUM_BONES)
+        self.settled_at: float | None = None
+        self.events: list[dict[str, Any]] = []
+
+    @property
+    def lengths(self) -> np.ndarray | None:
+        """The current lengths ``(19,)`` (None before the first frame)."""
+        return None if self._lengths is None else self._lengths.copy()
+
+    @property
+    def settled(self) -> bool:
+        """Whether the settling period is over."""
+        return self._settled is not None
+
+    def update(self, estimate: np.ndarray, timestamp: float) -> np.ndarray:
+        """The lengths to use in the frame at ``timestamp`` (seconds), given the estimate.
+
+        Returns
+        -------
+        ndarray, shape (19,), float64
+        """
+        estimate = np.asarray(estimate, dtype=np.float64)
+        if estimate.shape != (skeleton.NUM_BONES,):
+            raise ValueError(f"estimate: expected shape (19,), got {estimate.shape}")
+        timestamp = float(timestamp)
+        cfg = self.config
+        if not cfg.enabled:
+            self._lengths = estimate.copy()
+            return estimate.copy()
+        if self._start is None or self._lengths is None:
+            self._start = timestamp
+            self._lengths = estimate.copy()
+            self._last_time = timestamp
+            return estimate.copy()
+        dt = max(timestamp - (self._last_time if self._last_time is not None else timestamp), 0.0)
+        self._last_time = timestamp
+        if self._settled is None:
+            if timestamp - self._start < cfg.settle_s:
+                self._lengths = estimate.copy()
+                return estimate.copy()
+            self._settled = self._lengths.copy()
+            self._low, self._high = self._settled.copy(), self._settled.copy()
+            self.settled_at = timestamp
+            self.events.append(
+                {"time_s": timestamp, "kind": "settled", "lengths_m": self._settled.tolist()}
+            )
+        step = np.clip(estimate - self._lengths, -cfg.max_rate_m_s * dt, cfg.max_rate_m_s * dt)
+        moved = np.clip(
+            self._lengths + step, self._high - cfg.max_spread_m, self._low + cfg.max_spread_m
+        )
+        self._low, self._high = np.minimum(self._low, moved), np.maximum(self._high, moved)
+        change = moved - self._lengths
+        if np.any(np.abs(change) > 1e-9):
+            self.events.append(
+                {
+                    "time_s": timestamp,
+                    "kind": "changed",
+                    "max_change_mm": float(1000.0 * np.abs(change).max()),
+                    "bones": np.flatnonzero(np.abs(change) > 1e-9).tolist(),
+                }
+            )
+        self._lengths = moved
+        return moved.copy()
+
+    def report(self) -> dict[str, Any]:
+        """When the lengths settled and how much they moved afterwards.
+
+        ``settled_at_s`` (None while settling), ``changes_after_settling`` (frames in which a
+        bone moved), ``max_spread_mm`` (largest range of a bone's length since settling),
+        ``settled_lengths_m`` and ``lengths_m`` (current).
+        """
+        spread = (
+            None if self._settled is None else float(1000.0 * (self._high - self._low).max())
+        )
+        return {
+            "enabled": self.config.enabled,
+            "settled_at_s": self.settled_at,
+            "changes_after_settling": sum(1 for e in self.events if e["kind"] == "changed"),
+            "max_spread_mm": spread,
+            "settled_lengths_m": None if self._settled is None else self._settled.tolist(),
+            "lengths_m": None if self._lengths is None else self._lengths.tolist(),
+        }

@@ -1,0 +1,186 @@
+"""Temporal coherence of the reconstruction: pieces beyond the papers, each switchable.
+
+The papers' pipeline solves every frame on its own, in a frame of reference taken from that
+frame's sensor pose, and relies on the motion term ``Em`` (Shum Eq. 14) and the ragdoll for
+continuity. Measured on simulated and real streams that is not enough: the output shakes more
+than its own input (issue 15). The causes, and the piece that answers each:
+
+* **Placement** (:class:`PlacementSmoother`). Each frame is normalised with the sensor's root
+  and a heading from the sensor's hip line (:func:`fpg_gym.poses.normalise`), and the
+  reconstruction is put back in camera space with the same root and heading. A centimetre of
+  noise on each hip joint turns the heading by a few degrees, which swings the hands by
+  centimetres, whatever the reconstruction does; the root's own noise moves every joint. A
+  One-Euro filter on the root position and on the heading (as a unit vector) steadies both; the
+  pose is still estimated around the sensor's root, only the heading and the output placement
+  are smoothed.
+* **Latent basis** (:func:`align_basis`). The natural posture space is a PCA of a candidate set
+  that changes every frame; an SVD returns each axis with an arbitrary sign. Each new axis is
+  given the sign that points it the same way as the previous frame's axis of the same rank, so
+  the same latent point means a similar pose from frame to frame (what a policy or a learned
+  sampler acting in the space needs). The search of the papers starts from the previous pose
+  projected, so it does not depend on the signs.
+* **Output** (:class:`OutputSmoother`). A light One-Euro filter on the output joints (root-
+  relative; the root is the smoothed placement's), then the user's bone lengths restored
+  (:func:`fpg_gym.poses.retarget`), so the filter never changes a bone's length.
+
+Lag is the cost of any causal smoothing; :func:`fpg_gym.metrics.lag` measures it against the
+ground truth, and the defaults were chosen on validation takes under a one-frame bound (README,
+"Temporal coherence").
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from fpg_gym import poses as pose_utils
+from fpg_gym import skeleton
+from fpg_gym.filters.one_euro import OneEuroFilter
+from fpg_gym.reconstruct.latent import LatentSpace
+
+__all__ = [
+    "OutputSmoother",
+    "PlacementSmoother",
+    "TemporalConfig",
+    "align_basis",
+]
+
+
+@dataclass(frozen=True)
+class TemporalConfig:
+    """Switches and parameters of the temporal pieces (see the module docstring).
+
+    Attributes
+    ----------
+    placement : bool
+        Smooth the root position and the heading (True).
+    root_min_cutoff, root_beta : float
+        One-Euro parameters of the root position (Hz, s/m).
+    heading_min_cutoff, heading_beta : float
+        One-Euro parameters of the heading unit vector (Hz, s).
+    align_basis : bool
+        Keep the latent axes' signs aligned with the previous frame's (True).
+    output : str
+        Filter of the output stage (a :func:`fpg_gym.filters.make_filter` name such as
+        ``"kalman"``, ``"one-euro:output"`` or ``"holt"``), applied to the output joints
+        root-relative with the bone lengths restored; ``""``: no output stage.
+    velocity_damping : float
+        Factor on the velocity of the motion target of ``Em`` (Shum Eq. 14): 1 is the papers'
+        constant-velocity target ``2 p_{x-1} - p_{x-2}``, 0 the previous pose (0: a continuity
+        prior anchored on the previous reconstruction; extrapolating a noisy velocity feeds
+        the noise back).
+    motion_weight : float or None
+        Weight of ``Em`` replacing the configured one (the papers' 0.25) when not None (2.0).
+    """
+
+    placement: bool = False
+    root_min_cutoff: float = 1.0
+    root_beta: float = 1.0
+    heading_min_cutoff: float = 1.0
+    heading_beta: float = 1.0
+    align_basis: bool = True
+    output: str = "kalman"
+    velocity_damping: float = 0.0
+    motion_weight: float | None = 2.0
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.velocity_damping) and 0.0 <= self.velocity_damping <= 1.0):
+            raise ValueError(
+                f"velocity_damping: expected a value in [0, 1], got {self.velocity_damping!r}"
+            )
+        if self.motion_weight is not None and not (
+            np.isfinite(self.motion_weight) and self.motion_weight >= 0.0
+        ):
+            raise ValueError(
+                f"motion_weight: expected None or a finite value >= 0, got {self.motion_weight!r}"
+            )
+        for name in ("root_min_cutoff", "root_beta", "heading_min_cutoff", "heading_beta"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise ValueError(f"{name}: expected a finite value >= 0, got {value!r}")
+
+    @classmethod
+    def off(cls) -> TemporalConfig:
+        """Every piece off: the papers' pipeline."""
+        return cls(
+            placement=False, align_basis=False, output="", velocity_damping=1.0, motion_weight=None
+        )
+
+
+class PlacementSmoother:
+    """One-Euro filters on a stream of placements (root position, heading).
+
+    The heading is filtered as the unit vector ``(sin yaw, 0, cos yaw)`` (no wrap-around at
+    ±pi) and turned back into an angle.
+    """
+
+    def __init__(self, config: TemporalConfig) -> None:
+        self._root = OneEuroFilter(min_cutoff=config.root_min_cutoff, beta=config.root_beta)
+        self._heading = OneEuroFilter(
+            min_cutoff=config.heading_min_cutoff, beta=config.heading_beta
+        )
+
+    def reset(self) -> None:
+        """Start a new stream."""
+        self._root.reset()
+        self._heading.reset()
+
+    def update(self, placement: pose_utils.Placement, timestamp: float) -> pose_utils.Placement:
+        """The smoothed placement of the next frame (``timestamp`` in seconds)."""
+        yaw = float(np.asarray(placement.yaw))
+        root = self._root.update(np.asarray(placement.root, dtype=np.float64)[None], None, timestamp)
+        heading = np.array([[np.sin(yaw), 0.0, np.cos(yaw)]])
+        smooth = self._heading.update(heading, None, timestamp)[0].astype(np.float64)
+        if np.hypot(smooth[0], smooth[2]) < 1e-6:  # a half turn within one filter step
+            smooth = heading[0]
+        return pose_utils.Placement(
+            root=root[0].astype(np.float64), yaw=np.asarray(np.arctan2(smooth[0], smooth[2]))
+        )
+
+
+class OutputSmoother:
+    """A per-joint filter on camera-space output poses, root-relative, bone lengths restored."""
+
+    def __init__(self, config: TemporalConfig) -> None:
+        from fpg_gym.filters import make_filter
+
+        self._filter = make_filter(config.output)
+
+    def reset(self) -> None:
+        """Start a new stream."""
+        self._filter.reset()
+
+    def update(self, pose: np.ndarray, lengths: np.ndarray, timestamp: float) -> np.ndarray:
+        """Filter one pose ``(20, 3)`` (camera space) and give it ``lengths`` ``(19,)``."""
+        pose = np.asarray(pose, dtype=np.float64)
+        root = pose[skeleton.ROOT]
+        local = self._filter.update(pose - root, None, timestamp).astype(np.float64)
+        local -= local[skeleton.ROOT]
+        out = pose_utils.retarget(local, lengths).astype(np.float64) + root
+        return out.astype(np.float32)
+
+
+def align_basis(latent: LatentSpace, previous: LatentSpace | None) -> LatentSpace:
+    """``latent`` with each axis's sign chosen to agree with ``previous``'s axis of the same rank.
+
+    Axis ``i`` is flipped when ``basis[i] . previous.basis[i] < 0``. A flip changes no pose the
+    space can express (``decode`` of the flipped coordinates is the same pose), only which
+    latent point names it. Returns ``latent`` itself when nothing flips or there is no previous
+    space.
+    """
+    if previous is None or latent.dim == 0 or previous.basis.shape[1] != latent.basis.shape[1]:
+        return latent
+    rank = min(latent.dim, previous.dim)
+    dots = np.einsum("dc,dc->d", latent.basis[:rank], previous.basis[:rank])
+    signs = np.ones(latent.dim)
+    signs[:rank] = np.where(dots < 0.0, -1.0, 1.0)
+    if np.all(signs > 0):
+        return latent
+    return LatentSpace(
+        latent.mean,
+        latent.basis * signs[:, None],
+        latent.std,
+        latent.degenerate,
+        latent.explained_variance_ratio,
+    )
