@@ -95,6 +95,10 @@ CSV_FIELDS: tuple[str, ...] = (
     "recoveries",
     "ragdoll_divergences",
     "seconds",
+    "lag_frames",
+    "lag_ms",
+    "settled_bone_spread_mm",
+    "bone_changes_after_settling",
 )
 
 #: Columns of the main table of ``report.md`` (and of what ``compare``/``demo`` print).
@@ -105,6 +109,8 @@ TABLE_COLUMNS: tuple[str, ...] = (
     "Err0.2 (%) min / mean / max",
     "bone-length spread (mm)",
     "jitter (m/s²)",
+    "lag (frames)",
+    "bone spread after 1 s, max (mm)",
     "ms/frame median / p95",
     "evaluations/frame",
     "mean energy",
@@ -437,6 +443,22 @@ def _jitter(poses: np.ndarray, timestamps: np.ndarray) -> float:
     return _nanmean(metrics.jitter(poses))
 
 
+def _settled_spread_mm(poses: np.ndarray, timestamps: np.ndarray) -> float:
+    """Largest bone-length range (mm) after the first second (:func:`metrics.
+    settled_bone_spread`); NaN for a stream shorter than that."""
+    stamps = np.asarray(timestamps, dtype=np.float64)
+    spread = metrics.settled_bone_spread(poses, timestamps=stamps)
+    finite = spread[np.isfinite(spread)]
+    return float(1000.0 * finite.max()) if finite.size else float("nan")
+
+
+def _frame_interval(timestamps: np.ndarray) -> float:
+    """Median frame interval in seconds (1/30 without usable timestamps)."""
+    steps = np.diff(np.asarray(timestamps, dtype=np.float64))
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if steps.size else 1.0 / 30.0
+
+
 def _execute(
     runner: MethodRunner, task: _Task, recording: Any
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
@@ -483,6 +505,10 @@ def _execute(
         spread = metrics.bone_length_variation(poses)
         row["bone_length_spread_mm"] = 1000.0 * _nanmean(spread)
         row["jitter_ms2"] = _jitter(poses, recording.timestamps[:count])
+        row["settled_bone_spread_mm"] = _settled_spread_mm(poses, recording.timestamps[:count])
+    bones = result.info.get("bone_settling")
+    if isinstance(bones, dict):
+        row["bone_changes_after_settling"] = bones.get("changes_after_settling", "")
     if result.evaluations is not None and count:
         row["evaluations_mean"] = float(result.evaluations.mean())
         arrays["evaluations"] = result.evaluations
@@ -502,6 +528,10 @@ def _execute(
         )
         arrays["errors"] = errors
         arrays["per_joint_error"] = metrics.per_joint_error(truth[:count], poses)
+        if count >= 3:
+            frames_lag = metrics.lag(poses, truth[:count])
+            row["lag_frames"] = frames_lag
+            row["lag_ms"] = 1000.0 * frames_lag * _frame_interval(recording.timestamps[:count])
     return row, arrays
 
 
@@ -845,6 +875,13 @@ def _num(value: Any) -> float:
         return float("nan")
 
 
+def _max_column(rows: Sequence[dict[str, str]], column: str) -> float | None:
+    """Largest finite value of a CSV column (None without one; older files lack the column)."""
+    values = np.array([_num(r.get(column)) for r in rows])
+    values = values[np.isfinite(values)]
+    return float(values.max()) if values.size else None
+
+
 def _paired_test(rows: dict[str, dict[str, float]], method: str, baseline: str) -> dict[str, Any]:
     """Wilcoxon signed-rank test of per-episode mean errors, ``method`` vs ``baseline``."""
     from scipy.stats import wilcoxon
@@ -964,6 +1001,9 @@ def _summarise(out: Path, baseline: str, files: _FrameFiles) -> dict[str, Any]:
             "band_shares": (metrics.band_shares(all_errors).tolist() if all_errors.size else None),
             "bone_length_spread_mm": weighted("bone_length_spread_mm"),
             "jitter_ms2": weighted("jitter_ms2"),
+            "lag_frames": weighted("lag_frames"),
+            "lag_ms": weighted("lag_ms"),
+            "settled_bone_spread_mm": _max_column(mine, "settled_bone_spread_mm"),
             "ms_per_frame": metrics.time_summary(all_ms) if all_ms.size else None,
             "stage_ms_median": {
                 s: float(np.median(np.concatenate(v))) for s, v in stage_sums.items()
@@ -1047,6 +1087,8 @@ def table_rows(summary: dict[str, Any]) -> list[list[str]]:
                 err_text,
                 _fmt(m["bone_length_spread_mm"], 1),
                 _fmt(m["jitter_ms2"], 1),
+                _fmt(m.get("lag_frames"), 2),
+                _fmt(m.get("settled_bone_spread_mm"), 1),
                 ms_text,
                 _fmt(m["evaluations_per_frame"], 0),
                 _fmt(m["mean_energy"], 4),
@@ -1255,7 +1297,11 @@ def report_markdown(summary: dict[str, Any]) -> str:
         "each bone's length over an episode, mean over bones and episodes. Jitter: mean "
         "acceleration magnitude over joints and frames"
         + (f" (ground truth: {truth_jitter:.1f} m/s²)" if truth_jitter is not None else "")
-        + ". ms/frame: computation time of one frame on this machine, ragdoll included, "
+        + ". Lag: the shift (frames) that best aligns the output with the ground truth "
+        "(`fpg_gym.metrics.lag`), mean over episodes; positive is late. Bone spread after 1 s: "
+        "the largest range (max − min) of a bone's length after the first second of an episode "
+        "(`fpg_gym.metrics.settled_bone_spread`), max over bones and episodes. ms/frame: "
+        "computation time of one frame on this machine, ragdoll included, "
         "median / 95th percentile (noisy when workers share cores). Evaluations and energy "
         f"(Shum Eq. 10, lower is better): reconstruction methods only. Bold: the baseline "
         f"`{summary['baseline']}`.",

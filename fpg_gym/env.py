@@ -37,7 +37,7 @@ from fpg_gym.graph import load_graph
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
 from fpg_gym.metrics import frame_error
-from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem
+from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem, TemporalConfig
 from fpg_gym.simulate import KinectSimulator
 
 __all__ = [
@@ -432,6 +432,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             dict(ragdoll) if isinstance(ragdoll, Mapping) else ({} if ragdoll else None)
         )
         self._counts = {"ragdoll_resets": 0, "ragdoll_divergences": 0, "ragdoll_builds": 0}
+        # The per-frame problem keeps the papers' energy (the reward's meaning); see
+        # fpg_gym.reconstruct.temporal. reconstructor_options={"temporal": ...} overrides it.
+        overrides.setdefault("temporal", TemporalConfig.per_frame())
         self.reconstructor = Reconstructor(
             self.graph,
             ragdoll=(

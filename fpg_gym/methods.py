@@ -488,7 +488,10 @@ class MethodRunner:
         arrays = result.arrays()
         names = [str(n) for n in arrays["stage_names"]]
         stages = np.asarray(arrays["ms_stages"], dtype=np.float64).reshape(len(result.poses), -1)
-        info: dict[str, Any] = {"recoveries": int(np.sum(arrays["recovered"]))}
+        info: dict[str, Any] = {
+            "recoveries": int(np.sum(arrays["recovered"])),
+            "bone_settling": dict(result.bones),
+        }
         if any(r.ragdoll for r in result.records):
             info["ragdoll_divergences"] = sum(
                 int(r.ragdoll.get("new_divergences", 0)) for r in result.records if r.ragdoll

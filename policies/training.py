@@ -25,6 +25,7 @@ import numpy as np
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.reconstruct.energy import EnergyWeights
+from fpg_gym.reconstruct.temporal import TemporalConfig
 from policies.sampler import (
     DEFAULT_FEATURES,
     GaussianSampler,
@@ -231,6 +232,7 @@ def collect_imitation_data(
         ragdoll=False,
         max_evaluations=None,
         weights=EnergyWeights(**weights),
+        temporal=TemporalConfig.per_frame(),  # the env's per-frame problem
     )
     search = make("local-search")
     anchored = None
@@ -313,9 +315,11 @@ def evaluate_agents(
     ground truth (NaN otherwise).
     """
     from fpg_gym import metrics
-    from fpg_gym.reconstruct import Reconstructor
+    from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 
-    reconstructor = Reconstructor(graph, k=k, latent_dim=latent_dim, ragdoll=False)
+    reconstructor = Reconstructor(
+        graph, k=k, latent_dim=latent_dim, ragdoll=False, temporal=TemporalConfig.per_frame()
+    )
     out: dict[str, dict[str, float]] = {}
     try:
         for name, agent in agents.items():

@@ -57,7 +57,7 @@ def holt_transfer(s: float, c: float, p: float) -> tuple[np.ndarray, np.ndarray]
 
 
 def test_registry_names_presets_and_errors() -> None:
-    assert available_filters() == ("raw", "holt", "kalman")
+    assert available_filters() == ("raw", "holt", "kalman", "one-euro")
     assert set(available_presets("holt")) >= {"default", "smoothed", "very-smoothed"}
     assert available_presets("kalman") == tuple(KALMAN_PRESETS)
     assert available_presets("raw") == ()

@@ -40,7 +40,6 @@ from fpg_gym.filters.base import (
     RawFilter,
 )
 from fpg_gym.filters.holt import HOLT_PRESETS, HoltFilter, HoltParams, holt_preset
-from fpg_gym.filters.one_euro import ONE_EURO_PRESETS, OneEuroFilter, OneEuroParams
 from fpg_gym.filters.kalman import (
     DEFAULT_KALMAN,
     KALMAN_PRESETS,
@@ -48,6 +47,7 @@ from fpg_gym.filters.kalman import (
     KalmanParams,
     fit_noise,
 )
+from fpg_gym.filters.one_euro import ONE_EURO_PRESETS, OneEuroFilter, OneEuroParams
 
 _FILTERS: Final[dict[str, type[JointFilter]]] = {
     "raw": RawFilter,
@@ -130,6 +130,7 @@ __all__ = [
     "INFERRED",
     "KALMAN_PRESETS",
     "NOT_TRACKED",
+    "ONE_EURO_PRESETS",
     "PRESETS",
     "TRACKED",
     "HoltFilter",
@@ -137,7 +138,6 @@ __all__ = [
     "JointFilter",
     "KalmanFilter",
     "KalmanParams",
-    "ONE_EURO_PRESETS",
     "OneEuroFilter",
     "OneEuroParams",
     "RawFilter",

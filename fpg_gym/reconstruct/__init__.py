@@ -7,6 +7,7 @@ See :mod:`fpg_gym.reconstruct.reconstructor` for the data flow of one frame and
 
 from __future__ import annotations
 
+from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import (
     POSE_TERM_NAMES,
     TERM_NAMES,
@@ -48,12 +49,20 @@ from fpg_gym.reconstruct.selection import (
     make_selector,
     shum_score,
 )
+from fpg_gym.reconstruct.temporal import (
+    OutputSmoother,
+    PlacementSmoother,
+    TemporalConfig,
+    align_basis,
+)
 
 __all__ = [
     "LABELLINGS",
     "POSE_TERM_NAMES",
     "STAGES",
     "TERM_NAMES",
+    "BoneSettler",
+    "BoneSettlingConfig",
     "BruteForceSelector",
     "BudgetExhausted",
     "CandidateSelector",
@@ -64,6 +73,8 @@ __all__ = [
     "GraphSelector",
     "LatentSpace",
     "NodeDatabase",
+    "OutputSmoother",
+    "PlacementSmoother",
     "ReconstructionResult",
     "Reconstructor",
     "ReconstructorConfig",
@@ -73,6 +84,8 @@ __all__ = [
     "SearchProblem",
     "Selection",
     "SelectionQuery",
+    "TemporalConfig",
+    "align_basis",
     "control_energy",
     "fpg_score",
     "is_neutral_pose",

@@ -150,9 +150,7 @@ class BoneSettler:
         bone moved), ``max_spread_mm`` (largest range of a bone's length since settling),
         ``settled_lengths_m`` and ``lengths_m`` (current).
         """
-        spread = (
-            None if self._settled is None else float(1000.0 * (self._high - self._low).max())
-        )
+        spread = None if self._settled is None else float(1000.0 * (self._high - self._low).max())
         return {
             "enabled": self.config.enabled,
             "settled_at_s": self.settled_at,

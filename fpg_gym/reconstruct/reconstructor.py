@@ -511,9 +511,7 @@ class Reconstructor:
         self._placement_smoother = (
             PlacementSmoother(config.temporal) if config.temporal.placement else None
         )
-        self._output_smoother = (
-            OutputSmoother(config.temporal) if config.temporal.output else None
-        )
+        self._output_smoother = OutputSmoother(config.temporal) if config.temporal.output else None
         self.bones = BoneSettler(config.bones)
         self.reset()
 
@@ -691,6 +689,8 @@ class Reconstructor:
                 prediction = motion_target(previous, before, dt, dt_prev)
                 damping = cfg.temporal.velocity_damping
                 if damping != 1.0:
+                    # Temporal coherence (not in the papers): a continuity prior anchored on the
+                    # previous reconstruction rather than on its noisy extrapolation.
                     prediction = previous + damping * (prediction - previous)
             else:
                 prediction = previous.copy()
@@ -709,8 +709,8 @@ class Reconstructor:
             latent = align_basis(latent, self._previous_latent)
         self._previous_latent = latent
         weights = cfg.weights
-        if cfg.temporal.motion_weight is not None:
-            weights = replace(weights, motion=cfg.temporal.motion_weight)
+        if cfg.temporal.motion_scale != 1.0:
+            weights = replace(weights, motion=weights.motion * cfg.temporal.motion_scale)
         energy = EnergyModel(
             latent,
             kinect,

@@ -70,41 +70,52 @@ class TemporalConfig:
         constant-velocity target ``2 p_{x-1} - p_{x-2}``, 0 the previous pose (0: a continuity
         prior anchored on the previous reconstruction; extrapolating a noisy velocity feeds
         the noise back).
-    motion_weight : float or None
-        Weight of ``Em`` replacing the configured one (the papers' 0.25) when not None (2.0).
+    motion_scale : float
+        Factor on the configured weight of ``Em`` (8: the papers' 0.25 becomes 2.0; 1 is the
+        papers'). A weight set to 0 stays 0.
     """
 
-    placement: bool = False
+    placement: bool = True
     root_min_cutoff: float = 1.0
-    root_beta: float = 1.0
+    root_beta: float = 10.0
     heading_min_cutoff: float = 1.0
-    heading_beta: float = 1.0
+    heading_beta: float = 3.0
     align_basis: bool = True
     output: str = "kalman"
+    output_options: tuple[tuple[str, float], ...] = ()
     velocity_damping: float = 0.0
-    motion_weight: float | None = 2.0
+    motion_scale: float = 8.0
 
     def __post_init__(self) -> None:
         if not (np.isfinite(self.velocity_damping) and 0.0 <= self.velocity_damping <= 1.0):
             raise ValueError(
                 f"velocity_damping: expected a value in [0, 1], got {self.velocity_damping!r}"
             )
-        if self.motion_weight is not None and not (
-            np.isfinite(self.motion_weight) and self.motion_weight >= 0.0
+        for name in (
+            "motion_scale",
+            "root_min_cutoff",
+            "root_beta",
+            "heading_min_cutoff",
+            "heading_beta",
         ):
-            raise ValueError(
-                f"motion_weight: expected None or a finite value >= 0, got {self.motion_weight!r}"
-            )
-        for name in ("root_min_cutoff", "root_beta", "heading_min_cutoff", "heading_beta"):
             value = getattr(self, name)
             if not (np.isfinite(value) and value >= 0.0):
                 raise ValueError(f"{name}: expected a finite value >= 0, got {value!r}")
 
     @classmethod
+    def per_frame(cls) -> TemporalConfig:
+        """The per-frame problem of the env and the learned samplers: the papers' energy and no
+        output stage (an agent's reward and a trained sampler's targets keep their meaning),
+        with the aligned latent basis (the same action means a similar pose frame to frame)."""
+        return cls(
+            placement=False, align_basis=True, output="", velocity_damping=1.0, motion_scale=1.0
+        )
+
+    @classmethod
     def off(cls) -> TemporalConfig:
         """Every piece off: the papers' pipeline."""
         return cls(
-            placement=False, align_basis=False, output="", velocity_damping=1.0, motion_weight=None
+            placement=False, align_basis=False, output="", velocity_damping=1.0, motion_scale=1.0
         )
 
 
@@ -129,7 +140,9 @@ class PlacementSmoother:
     def update(self, placement: pose_utils.Placement, timestamp: float) -> pose_utils.Placement:
         """The smoothed placement of the next frame (``timestamp`` in seconds)."""
         yaw = float(np.asarray(placement.yaw))
-        root = self._root.update(np.asarray(placement.root, dtype=np.float64)[None], None, timestamp)
+        root = self._root.update(
+            np.asarray(placement.root, dtype=np.float64)[None], None, timestamp
+        )
         heading = np.array([[np.sin(yaw), 0.0, np.cos(yaw)]])
         smooth = self._heading.update(heading, None, timestamp)[0].astype(np.float64)
         if np.hypot(smooth[0], smooth[2]) < 1e-6:  # a half turn within one filter step
@@ -145,7 +158,7 @@ class OutputSmoother:
     def __init__(self, config: TemporalConfig) -> None:
         from fpg_gym.filters import make_filter
 
-        self._filter = make_filter(config.output)
+        self._filter = make_filter(config.output, **dict(config.output_options))
 
     def reset(self) -> None:
         """Start a new stream."""
