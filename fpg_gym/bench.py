@@ -153,20 +153,51 @@ def _build(clips: list[Any], thres1: float, mirror: bool) -> tuple[Any, float]:
 # --------------------------------------------------------------------------- sections
 
 
-def _stages(graph: Any, recordings: list[Any]) -> list[dict[str, Any]]:
+def _quality(outputs: list[np.ndarray], recordings: list[Any]) -> dict[str, float | None]:
+    """Error, Err0.2, jitter, lag and bone spread after 1 s of outputs on their recordings."""
+    from fpg_gym import metrics
+
+    errors, jitters, lags, spreads = [], [], [], []
+    for poses, recording in zip(outputs, recordings, strict=True):
+        stamps = np.asarray(recording.timestamps, dtype=np.float64)
+        jitters.append(float(np.nanmean(metrics.jitter(poses, timestamps=stamps))))
+        spread = metrics.settled_bone_spread(poses, timestamps=stamps)
+        if np.isfinite(spread).any():
+            spreads.append(float(np.nanmax(spread)))
+        if recording.ground_truth is not None:
+            errors.append(metrics.frame_error(recording.ground_truth, poses))
+            lags.append(metrics.lag(poses, recording.ground_truth))
+    pooled = np.concatenate(errors) if errors else np.zeros(0)
+    return {
+        "mean_error_m": float(pooled.mean()) if pooled.size else None,
+        "err02_pct": 100.0 * metrics.err_ratio(pooled) if pooled.size else None,
+        "jitter_ms2": float(np.nanmean(jitters)) if jitters else None,
+        "lag_frames": float(np.nanmean(lags)) if np.isfinite(lags).any() else None,
+        "settled_bone_spread_mm": 1000.0 * max(spreads) if spreads else None,
+    }
+
+
+def _stages(
+    graph: Any, recordings: list[Any]
+) -> tuple[list[dict[str, Any]], dict[str, dict[str, float | None]]]:
     from fpg_gym.reconstruct import STAGES, Reconstructor
 
     rows = []
     per: dict[str, dict[str, np.ndarray]] = {}
+    quality: dict[str, dict[str, float | None]] = {}
     for selector in ("graph", "brute-force"):
         ms: list[np.ndarray] = []
         totals: list[np.ndarray] = []
+        outputs: list[np.ndarray] = []
         with Reconstructor(graph, selector=selector, ragdoll=True) as reconstructor:
             for i, recording in enumerate(recordings):
-                arrays = reconstructor.reconstruct(recording, "local-search", rng=i).arrays()
+                result = reconstructor.reconstruct(recording, "local-search", rng=i)
+                arrays = result.arrays()
                 names = [str(n) for n in arrays["stage_names"]]
                 ms.append(arrays["ms_stages"][:, [names.index(s) for s in STAGES]])
                 totals.append(arrays["ms_per_frame"])
+                outputs.append(result.poses)
+        quality[selector] = _quality(outputs, recordings)
         stages = np.concatenate(ms)
         per[selector] = {s: stages[:, i] for i, s in enumerate(STAGES)}
         per[selector]["total"] = np.concatenate(totals)
@@ -176,7 +207,7 @@ def _stages(graph: Any, recordings: list[Any]) -> list[dict[str, Any]]:
             row[f"{selector}_median_ms"] = float(np.median(values[stage]))
             row[f"{selector}_p95_ms"] = float(np.percentile(values[stage], 95))
         rows.append(row)
-    return rows
+    return rows, quality
 
 
 def _selection(
@@ -311,7 +342,7 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
             if section == "stages":
                 graph, _ = _build(data.graph_clips, settings.graph_thres1, mirror)
                 report["stages_graph"] = repr(graph)
-                report["stages"] = _stages(graph, recordings)
+                report["stages"], report["stages_quality"] = _stages(graph, recordings)
             elif section == "selection":
                 report["selection"] = _selection(data, recordings, settings, mirror)
             elif section == "build":
@@ -357,6 +388,38 @@ def format_bench(report: dict[str, Any]) -> str:
                         f"{r['brute-force_p95_ms']:.3f}",
                     ]
                     for r in report["stages"]
+                ],
+            ),
+            "",
+        ]
+    if report.get("stages_quality"):
+
+        def cell(value: float | None, digits: int) -> str:
+            return "–" if value is None else f"{value:.{digits}f}"
+
+        out += [
+            "Output of the same runs (FPG Eq. 13 error, jitter = mean acceleration, lag against "
+            "the ground truth, largest bone-length range after the first second)",
+            "",
+            markdown_table(
+                [
+                    "selector",
+                    "mean error (m)",
+                    "Err0.2 (%)",
+                    "jitter (m/s²)",
+                    "lag (frames)",
+                    "bone spread after 1 s (mm)",
+                ],
+                [
+                    [
+                        selector,
+                        cell(q["mean_error_m"], 3),
+                        cell(q["err02_pct"], 1),
+                        cell(q["jitter_ms2"], 1),
+                        cell(q["lag_frames"], 2),
+                        cell(q["settled_bone_spread_mm"], 1),
+                    ]
+                    for selector, q in report["stages_quality"].items()
                 ],
             ),
             "",

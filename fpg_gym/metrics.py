@@ -423,7 +423,7 @@ def lag(
     x, r = local(est), local(ref)
     shifts = np.arange(-max_frames, max_frames + 1)
     cost = np.full(len(shifts), np.nan)
-    for i, s in enumerate(shifts):  # 2 * max_frames + 1 shifts, each vectorised over frames
+    for i, s in enumerate(shifts.tolist()):  # 2 * max_frames + 1 shifts, vectorised over frames
         lo, hi = max(0, s), min(count, count + s)  # x(t), r(t - s) for t in [lo, hi)
         if hi - lo < 3:
             continue

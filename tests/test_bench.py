@@ -20,6 +20,10 @@ def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:
         assert stage in stages
         assert stages[stage]["graph_median_ms"] > 0
     assert stages["total"]["graph_median_ms"] >= stages["search"]["graph_median_ms"]
+    quality = report["stages_quality"]["graph"]
+    assert quality["jitter_ms2"] > 0 and quality["mean_error_m"] > 0
+    assert quality["lag_frames"] is not None and abs(quality["lag_frames"]) <= 10
+    assert any(line.startswith("| graph |") for line in lines)
     selection = report["selection"]
     assert [row["nodes"] for row in selection] == sorted(row["nodes"] for row in selection)
     for row in selection:  # brute force scores every node; graph selection a neighbourhood

@@ -70,17 +70,27 @@ def _error_summary(recording: Any, poses: Any) -> tuple[dict[str, Any], dict[str
     """Per-frame errors of the raw input and of ``poses`` against ``recording``'s ground truth:
     the arrays (``frame_error_raw``, ``frame_error``) and the summary entries (mean error and
     Err0.2 of each)."""
+    import numpy as np
+
     from fpg_gym import metrics
 
     raw_errors = metrics.frame_error(recording.ground_truth, recording.positions)
     errors = metrics.frame_error(recording.ground_truth, poses)
     arrays = {"frame_error_raw": raw_errors, "frame_error": errors}
-    summary = {
+    summary: dict[str, Any] = {
         "raw_mean_error_m": float(raw_errors.mean()),
         "mean_error_m": float(errors.mean()),
         "raw_err02_pct": 100.0 * metrics.err_ratio(raw_errors),
         "err02_pct": 100.0 * metrics.err_ratio(errors),
+        "raw_jitter_ms2": float(np.nanmean(metrics.jitter(recording.positions))),
+        "jitter_ms2": float(np.nanmean(metrics.jitter(poses))),
+        "truth_jitter_ms2": float(np.nanmean(metrics.jitter(recording.ground_truth))),
+        "lag_frames": metrics.lag(poses, recording.ground_truth),
     }
+    spread = metrics.settled_bone_spread(poses, timestamps=recording.timestamps)
+    summary["settled_bone_spread_mm"] = (
+        float(1000.0 * np.nanmax(spread)) if np.isfinite(spread).any() else None
+    )
     return arrays, summary
 
 
@@ -93,6 +103,13 @@ def _print_errors(summary: dict[str, Any], label: str) -> None:
     print(
         f"{label:<16} mean error {summary['mean_error_m']:.4f} m, "
         f"Err0.2 {summary['err02_pct']:.1f} %"
+    )
+    spread = summary["settled_bone_spread_mm"]
+    print(
+        f"jitter (m/s²)    input {summary['raw_jitter_ms2']:.1f}, output "
+        f"{summary['jitter_ms2']:.1f}, truth {summary['truth_jitter_ms2']:.1f}; lag "
+        f"{summary['lag_frames']:.2f} frames; bone spread after 1 s "
+        + ("–" if spread is None else f"{spread:.1f} mm")
     )
 
 
@@ -168,6 +185,7 @@ def run(args: argparse.Namespace) -> int:
         "evaluations_mean": float(arrays["evaluations"].mean()) if frames else None,
         "recoveries": int(arrays["recovered"].sum()),
         "seconds": round(seconds, 3),
+        "bone_settling": {k: v for k, v in result.bones.items() if not k.endswith("lengths_m")},
     }
     if recording.ground_truth is not None and frames:
         error_arrays, error_summary = _error_summary(recording.head(frames), result.poses)
@@ -187,6 +205,7 @@ def run(args: argparse.Namespace) -> int:
         "interrupted": result.interrupted,
         "frames": frames,
         "input_frames": total,
+        "bone_settling": result.bones,
     }
     arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
     out = Path(args.out)
