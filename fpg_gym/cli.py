@@ -20,6 +20,8 @@ COMMAND_MODULES: tuple[str, ...] = (
     "build_graph",
     "reconstruct",
     "simulate",
+    "import_uiprmd",
+    "fit_map",
     "compare",
     "demo",
     "bench",

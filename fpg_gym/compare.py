@@ -25,6 +25,7 @@ embedded graph without the evaluated embedded clips; for a graph file, build it 
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
 import os
@@ -199,6 +200,11 @@ class CompareConfig:
         Method the others are tested against (:data:`fpg_gym.methods.BASELINE`).
     units : str
         BVH units for ``clips``.
+    sensor_map, output_map : str or None
+        Joint-definition map files (:class:`fpg_gym.definitions.DefinitionMap`) for the
+        reconstruction methods (``ReconstructorConfig.sensor_map`` / ``output_map``).
+    sensor_blend : float
+        ``ReconstructorConfig.sensor_blend`` of the reconstruction methods (0).
     """
 
     out: str
@@ -214,6 +220,9 @@ class CompareConfig:
     workers: int = 1
     baseline: str = BASELINE.name
     units: str = "auto"
+    sensor_map: str | None = None
+    output_map: str | None = None
+    sensor_blend: float = 0.0
 
     def __post_init__(self) -> None:
         self.methods = [parse_method(m).name for m in self.methods]
@@ -245,7 +254,29 @@ class CompareConfig:
             "k": self.k,
             "max_frames": self.max_frames,
             "units": self.units,
+            "sensor_map": _file_digest(self.sensor_map),
+            "output_map": _file_digest(self.output_map),
+            "sensor_blend": self.sensor_blend,
         }
+
+    def reconstructor_options(self) -> dict[str, Any]:
+        """The :class:`~fpg_gym.reconstruct.ReconstructorConfig` settings of the methods."""
+        from fpg_gym.definitions import DefinitionMap
+
+        options: dict[str, Any] = {"k": self.k, "sensor_blend": self.sensor_blend}
+        if self.sensor_map:
+            options["sensor_map"] = DefinitionMap.load(self.sensor_map)
+        if self.output_map:
+            options["output_map"] = DefinitionMap.load(self.output_map)
+        return options
+
+
+def _file_digest(path: str | None) -> str | None:
+    """SHA-256 of a file's bytes (None for no file): settings that name a file are keyed by
+    its content, so an edited map is not mistaken for the one a finished row used."""
+    if not path:
+        return None
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
 
 
 # --------------------------------------------------------------------------- episodes
@@ -528,6 +559,7 @@ def _execute(
         )
         arrays["errors"] = errors
         arrays["per_joint_error"] = metrics.per_joint_error(truth[:count], poses)
+        arrays["per_joint_root_error"] = metrics.root_relative_error(truth[:count], poses)
         if count >= 3:
             frames_lag = metrics.lag(poses, truth[:count])
             row["lag_frames"] = frames_lag
@@ -611,7 +643,14 @@ def _load_frames(path: Path, keys: Sequence[str] | None = None) -> dict[str, np.
 
 
 #: The per-frame arrays the report reads (the poses are not among them).
-_REPORT_KEYS = ("errors", "per_joint_error", "ms", "stage_names", "stage_ms")
+_REPORT_KEYS = (
+    "errors",
+    "per_joint_error",
+    "per_joint_root_error",
+    "ms",
+    "stage_names",
+    "stage_ms",
+)
 
 
 class _FrameFiles:
@@ -773,7 +812,7 @@ def run_compare(
     skipped = len(episodes) * len(config.methods) - len(tasks)
     if skipped:
         say(f"resuming: {skipped} finished task(s) in {results_path} are kept")
-    options = {"k": config.k}
+    options = config.reconstructor_options()
     writer = _ResultsWriter(results_path)
     bar = tqdm(total=len(tasks), desc="compare", unit="run", disable=not progress)
     interrupted = False
@@ -956,7 +995,7 @@ def _summarise(out: Path, baseline: str, files: _FrameFiles) -> dict[str, Any]:
     result: dict[str, Any] = {}
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
-        errors, ms, joints = [], [], []
+        errors, ms, joints, root_joints = [], [], [], []
         stage_sums: dict[str, list[np.ndarray]] = {}
         for r in mine:
             frames = files.get(r["episode"], method)
@@ -965,6 +1004,8 @@ def _summarise(out: Path, baseline: str, files: _FrameFiles) -> dict[str, Any]:
             if "errors" in frames:
                 errors.append(frames["errors"])
                 joints.append((frames["per_joint_error"], len(frames["errors"])))
+                if "per_joint_root_error" in frames:
+                    root_joints.append((frames["per_joint_root_error"], len(frames["errors"])))
             ms.append(frames["ms"])
             for i, stage in enumerate(frames["stage_names"]):
                 stage_sums.setdefault(str(stage), []).append(frames["stage_ms"][:, i])
@@ -1021,6 +1062,20 @@ def _summarise(out: Path, baseline: str, files: _FrameFiles) -> dict[str, Any]:
                     )
                 )
                 if joints
+                else None
+            ),
+            "per_joint_root_error_m": (
+                dict(
+                    zip(
+                        skeleton.JOINT_NAMES,
+                        (
+                            np.sum([j * n for j, n in root_joints], axis=0)
+                            / sum(n for _, n in root_joints)
+                        ).tolist(),
+                        strict=True,
+                    )
+                )
+                if root_joints
                 else None
             ),
             "per_scenario_mean_error_m": {},
@@ -1149,6 +1204,25 @@ def format_scenarios(summary: dict[str, Any]) -> str:
         for s in scenarios
     ]
     return markdown_table(["scenario", *methods], rows)
+
+
+def format_joints(summary: dict[str, Any], limit: int = 8) -> str:
+    """Markdown table of the root-relative error per joint (cm), one column per method (the
+    first ``limit`` methods); empty when no method has ground truth."""
+    methods = [
+        m for m in summary["method_order"] if summary["methods"][m].get("per_joint_root_error_m")
+    ][:limit]
+    if not methods:
+        return ""
+    rows = []
+    for joint in skeleton.JOINT_NAMES[1:]:
+        cells = []
+        for m in methods:
+            value = summary["methods"][m]["per_joint_root_error_m"][joint]
+            bone = (summary["methods"][m].get("per_joint_error_m") or {}).get(joint)
+            cells.append(f"{100 * value:.1f}" + (f" ({100 * bone:.1f})" if bone else ""))
+        rows.append([joint, *cells])
+    return markdown_table(["joint", *methods], rows)
 
 
 def _plot_methods(summary: dict[str, Any], limit: int = 6) -> list[str]:
@@ -1319,6 +1393,18 @@ def report_markdown(summary: dict[str, Any]) -> str:
         format_scenarios(summary),
         "",
     ]
+    joints = format_joints(summary)
+    if joints:
+        lines += [
+            "## Error per joint (cm)",
+            "",
+            joints,
+            "",
+            "Root-relative error: distance of each joint to the ground truth once both have "
+            "their HipCenter at the origin, mean over frames; in brackets the FPG Eq. 13 "
+            "summand (the error of the bone that ends at the joint).",
+            "",
+        ]
     plots = summary.get("plots", {})
     if plots:
         lines += ["## Plots", ""]

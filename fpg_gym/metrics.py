@@ -22,6 +22,8 @@ metres (any space, as long as reference and estimate share it).
   cumulative curve of FPG Fig. 7 (:func:`err_ratio` is its value at 0.2 m).
 * :func:`per_joint_error` — the Eq. 13 summand of each joint (its bone to the parent), averaged
   over frames.
+* :func:`root_relative_error` — each joint's distance to the reference once both skeletons have
+  their root (HipCenter) at the origin, averaged over frames.
 * :func:`time_summary` — median, p95, mean and max of per-frame computation times.
 
 Examples
@@ -54,6 +56,7 @@ __all__ = [
     "lag",
     "mean_error",
     "per_joint_error",
+    "root_relative_error",
     "settled_bone_spread",
     "time_summary",
 ]
@@ -335,6 +338,22 @@ def per_joint_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.nda
     result = np.full(skeleton.NUM_JOINTS, np.nan)
     result[skeleton.BONES[:, 1]] = _bone_errors(reference, estimate).mean(axis=0)
     return result
+
+
+def root_relative_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarray:
+    """Mean over frames of ``||(r(j) - r(root)) - (x(j) - x(root))||``, metres, ``(20,)``.
+
+    Where :func:`per_joint_error` scores the bone that ends at a joint, this scores where the
+    joint is relative to the hips, so errors along the chain add up (a wrong spine moves the
+    head and both arms). The root's entry is 0.
+    """
+    ref = _clip_array(reference, "reference")
+    est = _clip_array(estimate, "estimate")
+    if ref.shape != est.shape:
+        raise ValueError(f"reference and estimate differ in shape: {ref.shape} vs {est.shape}")
+    ref_local = ref - ref[:, skeleton.ROOT : skeleton.ROOT + 1]
+    est_local = est - est[:, skeleton.ROOT : skeleton.ROOT + 1]
+    return np.asarray(np.linalg.norm(ref_local - est_local, axis=-1).mean(axis=0))
 
 
 def time_summary(milliseconds: npt.ArrayLike) -> dict[str, float]:

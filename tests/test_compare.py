@@ -265,6 +265,10 @@ def test_compare_writes_results_report_and_plots(tmp_path: Path) -> None:
     assert header in report
     assert "Wilcoxon" in report and "![" in report
     assert outcome.table.splitlines()[0] == header
+    # Per-joint root-relative error, in the summary and the report.
+    raw_joints = summary["methods"]["raw"]["per_joint_root_error_m"]
+    assert raw_joints["HipCenter"] == 0.0 and raw_joints["Head"] > 0.0
+    assert "## Error per joint (cm)" in report and "| Head |" in report
     assert summary["graph_exclude"] == ["kick", "walk"]  # default graph held them out
 
 

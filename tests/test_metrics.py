@@ -202,3 +202,16 @@ def test_time_summary() -> None:
 def test_new_metrics_reject_bad_input(call: object, message: str) -> None:
     with pytest.raises(ValueError, match=message):
         call()  # type: ignore[operator]
+
+
+def test_root_relative_error_by_hand():
+    reference = np.zeros((2, 20, 3))
+    estimate = np.zeros((2, 20, 3))
+    estimate[:, 0] = (1.0, 1.0, 1.0)  # the root moves: every other joint is 1.732 m off
+    estimate[:, 3] = (1.0, 1.5, 1.0)  # the head keeps 0.5 m above it
+    expected = np.full(20, np.sqrt(3.0))
+    expected[0] = 0.0
+    expected[3] = 0.5
+    np.testing.assert_allclose(metrics.root_relative_error(reference, estimate), expected)
+    with pytest.raises(ValueError, match="differ in shape"):
+        metrics.root_relative_error(reference, estimate[:1])

@@ -121,6 +121,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--budget", type=int, default=2000, help="energy evaluations per frame (default 2000)"
     )
     methods.add_argument("--k", type=int, default=30, help="candidates per frame (default 30)")
+    methods.add_argument(
+        "--sensor-map", metavar="MAP.json", help="joint-definition map, sensor -> database"
+    )
+    methods.add_argument(
+        "--output-map", metavar="MAP.json", help="joint-definition map applied to the output"
+    )
+    methods.add_argument(
+        "--sensor-blend",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="pull reliable joints this fraction of the way to the sensor after the search (0)",
+    )
     parser.add_argument(
         "--workers",
         type=int,
@@ -156,6 +169,9 @@ def run(args: argparse.Namespace) -> int:
         max_frames=args.max_frames,
         workers=args.workers if args.workers is not None else (os.cpu_count() or 1),
         baseline=args.baseline,
+        sensor_map=args.sensor_map,
+        output_map=args.output_map,
+        sensor_blend=args.sensor_blend,
     )
     outcome = run_compare(
         config, progress=not args.quiet, fresh=args.fresh, plots=not args.no_plots

@@ -55,8 +55,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="weight of the latent prior Ep (beyond the papers; default 0 = the papers' energy, "
         "0.1 was chosen on a validation split)",
     )
+    parser.add_argument(
+        "--sensor-map",
+        metavar="MAP.json",
+        help="joint-definition map from the sensor's to the database's joints (fpg-gym fit-map)",
+    )
+    parser.add_argument(
+        "--output-map",
+        metavar="MAP.json",
+        help="joint-definition map applied to the output (database -> wanted definitions)",
+    )
+    parser.add_argument(
+        "--sensor-blend",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="after the search, move each joint this fraction of the way to the (mapped) "
+        "sensor, times its reliability (beyond the papers; default 0)",
+    )
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
+
+
+def definition_maps(sensor_map: str | None, output_map: str | None) -> dict[str, Any]:
+    """``sensor_map`` / ``output_map`` reconstructor settings read from map files (absent when
+    not given)."""
+    from fpg_gym.definitions import DefinitionMap
+
+    maps: dict[str, Any] = {}
+    if sensor_map:
+        maps["sensor_map"] = DefinitionMap.load(sensor_map)
+    if output_map:
+        maps["output_map"] = DefinitionMap.load(output_map)
+    return maps
 
 
 def _histogram(errors: Any) -> list[int]:
@@ -141,6 +172,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.graph:
         raise ValueError("--graph: a pose graph is needed (a .npz file or 'default')")
     optimizer = make(args.optimizer)
+    maps = definition_maps(args.sensor_map, args.output_map)
     recording = read_recording(args.input)
     graph = load_graph(args.graph)
     reconstructor = Reconstructor(
@@ -150,6 +182,8 @@ def run(args: argparse.Namespace) -> int:
         k=args.k,
         max_evaluations=args.budget,
         weights=EnergyWeights(prior=args.prior),
+        sensor_blend=args.sensor_blend,
+        **maps,
     )
     start = time.perf_counter()
     try:

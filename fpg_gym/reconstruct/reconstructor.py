@@ -60,6 +60,7 @@ import numpy as np
 
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
+from fpg_gym.definitions import PoseMap
 from fpg_gym.ragdoll import FloorShift
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights, motion_target
@@ -219,6 +220,22 @@ class ReconstructorConfig:
         is the papers' pipeline).
     bones : BoneSettlingConfig
         Settling rule of the user's bone lengths (:mod:`fpg_gym.reconstruct.bones`).
+    sensor_map : PoseMap, optional
+        Maps the sensor's joint definitions onto the database's
+        (:class:`fpg_gym.definitions.DefinitionMap`); applied to every input frame before
+        anything else, so reliability, selection, energy and bone lengths all work in the
+        database's definitions. None: the sensor's points are taken as the database's.
+    output_map : PoseMap, optional
+        Maps the database's definitions onto the definitions the output is wanted in (e.g.
+        marker-based joint centres); applied to the returned pose only (the history that
+        drives continuity stays in the database's definitions).
+    sensor_blend : float
+        Beyond the papers (0 = off, the papers' pipeline): after the search, each joint of the
+        back-projected pose moves this fraction of the way towards the (mapped) sensor joint,
+        scaled by the joint's reliability ``R(j)`` — the minimiser of ``Ec`` without the
+        posture-space constraint for a fully trusted joint — before retargeting to the user's
+        bone lengths. The posture space of K database poses cannot represent a pose the
+        database lacks; reliable sensor evidence can.
     """
 
     k: int = 30
@@ -242,10 +259,17 @@ class ReconstructorConfig:
     left_right_margin: float = 0.6
     temporal: TemporalConfig = field(default_factory=TemporalConfig)
     bones: BoneSettlingConfig = field(default_factory=BoneSettlingConfig)
+    sensor_map: PoseMap | None = None
+    output_map: PoseMap | None = None
+    sensor_blend: float = 0.0
 
     def __post_init__(self) -> None:
         if self.k < 1:
             raise ValueError(f"k: expected >= 1, got {self.k}")
+        if not 0.0 <= self.sensor_blend <= 1.0:
+            raise ValueError(
+                f"sensor_blend: expected a fraction in [0, 1], got {self.sensor_blend}"
+            )
         if self.latent_dim < 0:
             raise ValueError(f"latent_dim: expected >= 0, got {self.latent_dim}")
         if self.selector not in ("graph", "brute-force"):
@@ -617,6 +641,8 @@ class Reconstructor:
         if states.shape != (skeleton.NUM_JOINTS,):
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
         cfg = self.config
+        if cfg.sensor_map is not None:  # the sensor's body points -> the database's
+            positions = cfg.sensor_map.apply(positions).astype(np.float32)
         if timestamp is None:
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)
@@ -788,6 +814,9 @@ class Reconstructor:
             raise ValueError(f"z: expected {problem.dim} finite values, got shape {z.shape}")
         chosen = problem.evaluate_terms(np.stack([z, problem.x0]), count=False)
         local = problem.decode(z[None])[0]
+        if self.config.sensor_blend > 0.0 and not pending.no_body:
+            pull = self.config.sensor_blend * pending.terms.reliability[:, None]
+            local = local + pull * (np.asarray(problem.kinect_pose, dtype=np.float64) - local)
         local = pose_utils.retarget(local, problem.lengths)
         pose = pose_utils.denormalise(local, pending.placement)
         t1 = time.perf_counter()
@@ -840,6 +869,8 @@ class Reconstructor:
         )
         self._pending = None
         self._index += 1
+        if self.config.output_map is not None:
+            pose = self.config.output_map.apply(pose)
         return pose.astype(np.float32), record
 
     def _track(self, target: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:

@@ -23,9 +23,10 @@ Reference bone lengths
 ----------------------
 Shum calibrates the bone lengths on frames where the user stands in a T-pose or a neutral pose
 with every joint tracked, and keeps refining them while such frames occur. Here every frame whose
-20 joints are all tracked and whose torso, arm and leg bones point within
-``neutral_tolerance_deg`` of the neutral standing pose (arms down) or of a T-pose (arms out) is a
-*calibration frame*; the reference is the per-bone **median over the most recent
+joints are all tracked (the hand tips may be only inferred: Kinects often infer them, and some
+exports have none) and whose torso, arm and leg bones point within ``neutral_tolerance_deg`` of
+the neutral standing pose (arms down) or of a T-pose (arms out) is a *calibration frame*; the
+reference is the per-bone **median over the most recent
 ``max_reference_frames`` calibration frames** (robust to the odd spike). Until the first
 calibration frame a documented fallback is used (``config.fallback``):
 
@@ -237,6 +238,12 @@ def tracking_reliability(states: np.ndarray) -> np.ndarray:
     return (np.asarray(states) >= TRACKED).astype(np.float64)
 
 
+#: Joints that must be tracked in a calibration frame: all but the hand tips.
+_CALIBRATION_JOINTS = np.array(
+    [j for j, name in enumerate(skeleton.JOINT_NAMES) if not name.startswith("Hand")]
+)
+
+
 def is_neutral_pose(pose: np.ndarray, tolerance_deg: float = 30.0) -> bool:
     """Whether a pose is near the neutral standing pose (arms down) or a T-pose.
 
@@ -364,7 +371,8 @@ class ReliabilityEstimator:
             return False
         cap = self.config.max_reference_frames
         tracked = states >= TRACKED
-        calibration = bool(tracked.all()) and is_neutral_pose(
+        # Hand tips are often only inferred (and some exports have none): not required.
+        calibration = bool(tracked[_CALIBRATION_JOINTS].all()) and is_neutral_pose(
             positions, self.config.neutral_tolerance_deg
         )
         if calibration:

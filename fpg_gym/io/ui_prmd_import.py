@@ -1,0 +1,322 @@
+"""Import UI-PRMD: pair every Kinect repetition with its Vicon repetition and write files.
+
+For each session (one exercise of one subject, one camera placement) the Vicon joint centres
+(:func:`fpg_gym.io.ui_prmd.vicon_joint_centres`) are resampled from 100 to 30 Hz, then
+:func:`fpg_gym.pairing.pair_session` finds each repetition's lag and one rigid transform of the
+session from Vicon space into the Kinect's camera space. Written under ``OUT``:
+
+``recordings/mMM_sSS_eEE.npz``
+    The real Kinect stream (:class:`~fpg_gym.io.recording.Recording`), cut to the frames that
+    have a Vicon frame, with the Vicon joint centres in the Kinect's space as ``ground_truth``.
+``clips/mMM_sSS_eEE.npz``
+    The whole Vicon repetition's joint centres at 30 Hz (a positions clip, readable by
+    ``build-graph``), in the same space.
+``import.json``
+    Per session: alignment error, lags, frames; repetitions skipped and why.
+
+Every file is written to a temporary name and renamed into place, so an interrupted import
+leaves complete files only (re-running the import rewrites the same files).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import warnings
+from collections.abc import Iterable, Sequence
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fpg_gym import poses
+from fpg_gym.errors import DataFormatError
+from fpg_gym.io.clip import Clip
+from fpg_gym.io.positions import write_positions
+from fpg_gym.io.recording import Recording, write_recording
+from fpg_gym.io.ui_prmd import (
+    JOINT_CENTRE_RULE,
+    KINECT_FPS,
+    VICON_FPS,
+    RepetitionId,
+    parse_repetition_name,
+    read_kinect_repetition,
+    read_vicon_markers,
+    vicon_joint_centres,
+)
+from fpg_gym.pairing import apply_rigid, overlap, pair_session
+
+__all__ = [
+    "PairedRepetition",
+    "SessionReport",
+    "find_repetitions",
+    "import_uiprmd",
+    "pair_repetitions",
+]
+
+_KINECT_POSITIONS = Path("Kinect") / "Positions"
+_KINECT_ANGLES = Path("Kinect") / "Angles"
+_VICON_POSITIONS = Path("Vicon") / "Positions"
+_SUBJECT = re.compile(r"^s\d+$")
+
+
+@dataclass(frozen=True)
+class PairedRepetition:
+    """A Kinect repetition with its Vicon joint centres in the Kinect's space."""
+
+    repetition: RepetitionId
+    recording: Recording
+    reference: np.ndarray  # (U, 20, 3) Vicon joint centres at 30 Hz, Kinect space
+    lag: int
+    distance_m: float
+
+
+@dataclass
+class SessionReport:
+    """What the import did with one session."""
+
+    session: str
+    repetitions: list[str] = field(default_factory=list)
+    lags: list[int] = field(default_factory=list)
+    alignment_m: list[float] = field(default_factory=list)
+    frames: list[int] = field(default_factory=list)
+    skipped: dict[str, str] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready summary."""
+        return {
+            "session": self.session,
+            "repetitions": self.repetitions,
+            "lags": self.lags,
+            "alignment_m": [round(v, 5) for v in self.alignment_m],
+            "mean_alignment_m": round(float(np.mean(self.alignment_m)), 5)
+            if self.alignment_m
+            else None,
+            "frames": self.frames,
+            "skipped": self.skipped,
+        }
+
+
+def _root_folder(root: Path) -> Path:
+    """The folder holding ``Kinect/`` and ``Vicon/`` (``root`` or its ``Segmented Movements``)."""
+    for candidate in (root, root / "Segmented Movements"):
+        if (candidate / _KINECT_POSITIONS).is_dir():
+            return candidate
+    raise FileNotFoundError(
+        f"{root}: not a UI-PRMD folder; expected Kinect/Positions (or 'Segmented Movements/"
+        "Kinect/Positions') inside it"
+    )
+
+
+def find_repetitions(
+    root: str | Path, subjects: Iterable[str] | None = None
+) -> dict[str, list[RepetitionId]]:
+    """Kinect repetitions under ``root``, grouped by session, for the given subjects (all).
+
+    Raises
+    ------
+    FileNotFoundError
+        If ``root`` is not a UI-PRMD folder or holds no repetition of the subjects.
+    ValueError
+        If a subject is not written ``sNN``.
+    """
+    folder = _root_folder(Path(root))
+    wanted: set[int] | None = None
+    if subjects is not None:
+        wanted = set()
+        for name in subjects:
+            if not _SUBJECT.match(name):
+                raise ValueError(f"--subjects: expected names like s01, got {name!r}")
+            wanted.add(int(name[1:]))
+    sessions: dict[str, list[RepetitionId]] = {}
+    for path in sorted((folder / _KINECT_POSITIONS).iterdir()):
+        try:
+            rep = parse_repetition_name(path)
+        except DataFormatError:
+            continue
+        if wanted is None or rep.subject in wanted:
+            sessions.setdefault(rep.session, []).append(rep)
+    if not sessions:
+        raise FileNotFoundError(
+            f"{folder}: no Kinect repetition of subjects {sorted(wanted or [])}"
+        )
+    return sessions
+
+
+def _files(folder: Path, rep: RepetitionId) -> tuple[Path, Path, Path]:
+    stem = rep.name
+    return (
+        folder / _KINECT_POSITIONS / f"{stem}_positions.txt.gz",
+        folder / _KINECT_ANGLES / f"{stem}_angles.txt.gz",
+        folder / _VICON_POSITIONS / f"{stem}_positions.txt.gz",
+    )
+
+
+def pair_repetitions(
+    root: str | Path, repetitions: Sequence[RepetitionId], *, max_lag: int = 15
+) -> tuple[list[PairedRepetition], SessionReport]:
+    """Read and pair the repetitions of one session (see the module docstring)."""
+    folder = _root_folder(Path(root))
+    report = SessionReport(session=repetitions[0].session if repetitions else "")
+    kinect: list[tuple[RepetitionId, Recording]] = []
+    vicon: list[np.ndarray] = []
+    for rep in repetitions:
+        kin_pos, kin_ang, vic = _files(folder, rep)
+        if not vic.is_file():
+            report.skipped[rep.name] = "no Vicon file"
+            continue
+        try:
+            recording = read_kinect_repetition(kin_pos, kin_ang)
+            markers, _ = read_vicon_markers(vic)
+        except (DataFormatError, FileNotFoundError) as error:
+            report.skipped[rep.name] = str(error)
+            continue
+        centres = vicon_joint_centres(markers)
+        kinect.append((rep, recording))
+        vicon.append(poses.resample(centres, VICON_FPS, KINECT_FPS))
+    if not kinect:
+        return [], report
+    pairing = pair_session(
+        [r.positions.astype(np.float64) for _, r in kinect], vicon, max_lag=max_lag
+    )
+    paired: list[PairedRepetition] = []
+    for (rep, recording), reference, lag, distance in zip(
+        kinect, vicon, pairing.lags, pairing.distances, strict=True
+    ):
+        reference = apply_rigid(reference, pairing.rotation, pairing.shift).astype(np.float32)
+        start, stop = overlap(recording.num_frames, len(reference), lag)
+        if stop - start < 2:
+            report.skipped[rep.name] = "Kinect and Vicon do not overlap"
+            continue
+        cut = Recording(
+            positions=recording.positions[start:stop],
+            states=recording.states[start:stop],
+            timestamps=recording.timestamps[start:stop] - recording.timestamps[start],
+            ground_truth=reference[start + lag : stop + lag],
+            metadata={
+                **recording.metadata,
+                "ground_truth": "vicon",
+                "joint_centre_rule": JOINT_CENTRE_RULE,
+                "lag_frames": lag,
+                "first_kinect_frame": start,
+                "session_alignment_m": round(pairing.mean_distance, 5),
+            },
+        )
+        paired.append(PairedRepetition(rep, cut, reference, lag, distance))
+        report.repetitions.append(rep.name)
+        report.lags.append(lag)
+        report.alignment_m.append(distance)
+        report.frames.append(cut.num_frames)
+    return paired, report
+
+
+def _replace_into(path: Path, write: Any) -> None:
+    """Write with ``write(tmp_path)`` then rename onto ``path`` (never a half-written file)."""
+    tmp = path.with_name(f".{path.stem}.partial{os.getpid()}.npz")
+    try:
+        written = write(tmp)
+        os.replace(written, path)
+    finally:
+        if tmp.exists():
+            tmp.unlink()
+
+
+def _import_session(
+    args: tuple[str, list[RepetitionId], str, int],
+) -> dict[str, Any]:
+    root, reps, out, max_lag = args
+    out_dir = Path(out)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        paired, report = pair_repetitions(root, reps, max_lag=max_lag)
+    for pair in paired:
+        name = pair.repetition.name
+        _replace_into(
+            out_dir / "recordings" / f"{name}.npz",
+            lambda tmp, pair=pair: write_recording(tmp, pair.recording),
+        )
+        clip = Clip(
+            name=name,
+            positions=pair.reference,
+            fps=KINECT_FPS,
+            source=str(_files(_root_folder(Path(root)), pair.repetition)[2]),
+            metadata={"format": "ui-prmd-vicon", "joint_centre_rule": JOINT_CENTRE_RULE},
+        )
+        _replace_into(
+            out_dir / "clips" / f"{name}.npz", lambda tmp, clip=clip: write_positions(tmp, clip)
+        )
+    return report.as_dict()
+
+
+def import_uiprmd(
+    root: str | Path,
+    out: str | Path,
+    *,
+    subjects: Iterable[str] | None = None,
+    max_lag: int = 15,
+    workers: int | None = None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Import UI-PRMD repetitions into ``out`` (see the module docstring); returns the report.
+
+    Parameters
+    ----------
+    root : str or Path
+        The UI-PRMD folder (holding ``Kinect/`` and ``Vicon/``, or ``Segmented Movements``).
+    out : str or Path
+        Output folder; created. It must not lie inside ``root``.
+    subjects : iterable of str, optional
+        ``sNN`` names; all subjects found by default.
+    max_lag : int
+        Largest lag searched, in Kinect frames.
+    workers : int, optional
+        Processes (``os.cpu_count()``); 1 runs in this process.
+    progress : bool
+        Show a progress bar on stderr.
+    """
+    from tqdm.auto import tqdm
+
+    folder = _root_folder(Path(root)).resolve()
+    out_dir = Path(out)
+    resolved = out_dir.resolve()
+    if resolved == folder or folder in resolved.parents or resolved in folder.parents:
+        raise ValueError(f"--out: {out_dir} must not contain or lie inside the input {folder}")
+    sessions = find_repetitions(folder, subjects)
+    for sub in ("recordings", "clips"):
+        (out_dir / sub).mkdir(parents=True, exist_ok=True)
+    tasks = [(str(folder), reps, str(out_dir), max_lag) for reps in sessions.values()]
+    workers = workers or os.cpu_count() or 1
+    reports: list[dict[str, Any]] = []
+    bar = tqdm(total=len(tasks), desc="importing UI-PRMD", unit="session", disable=not progress)
+    try:
+        if workers <= 1:
+            for task in tasks:
+                reports.append(_import_session(task))
+                bar.update()
+        else:
+            with ProcessPoolExecutor(max_workers=workers) as pool:
+                for report in pool.map(_import_session, tasks):
+                    reports.append(report)
+                    bar.update()
+    finally:
+        bar.close()
+    alignment = [v for r in reports for v in r["alignment_m"]]
+    lags = [v for r in reports for v in r["lags"]]
+    summary = {
+        "root": str(folder),
+        "out": str(out_dir),
+        "joint_centre_rule": JOINT_CENTRE_RULE,
+        "sessions": len(reports),
+        "repetitions": len(alignment),
+        "skipped": {k: v for r in reports for k, v in r["skipped"].items()},
+        "mean_alignment_m": round(float(np.mean(alignment)), 5) if alignment else None,
+        "median_lag_frames": float(np.median(lags)) if lags else None,
+        "session_reports": reports,
+    }
+    tmp = out_dir / ".import.json.partial"
+    tmp.write_text(json.dumps(summary, indent=1))
+    os.replace(tmp, out_dir / "import.json")
+    return summary
