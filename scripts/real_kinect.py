@@ -159,7 +159,16 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
         target="vicon",
     )
     setup_s = time.process_time() - t0
-    options = {"sensor_map": sensor_map, "output_map": output_map, "sensor_blend": task["blend"]}
+    options: dict[str, Any] = {
+        "sensor_map": sensor_map,
+        "output_map": output_map,
+        "sensor_blend": task["blend"],
+    }
+    if task.get("temporal") == "off":  # the papers' pipeline (issue 15's switches off)
+        from fpg_gym.reconstruct import BoneSettlingConfig, TemporalConfig
+
+        options["temporal"] = TemporalConfig.off()
+        options["bones"] = BoneSettlingConfig(enabled=False)
     rows = []
     with MethodRunner(graph, budget=task["budget"], reconstructor_options=options) as runner:
         for path in _episodes(subjects[held_out], task["reps"]):
@@ -174,6 +183,7 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
                 cpu[method] = 1000 * (time.process_time() - c0) / recording.num_frames
             for method, poses in outputs.items():
                 errors = metrics.frame_error(truth, poses)
+                spread = metrics.settled_bone_spread(poses, timestamps=recording.timestamps)
                 rows.append(
                     {
                         "database": database,
@@ -185,6 +195,12 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
                         "err02": float(metrics.err_ratio(errors)),
                         "per_joint_m": metrics.per_joint_error(truth, poses).tolist(),
                         "jitter": float(np.nanmean(metrics.jitter(poses, fps=recording.fps))),
+                        "lag_frames": metrics.lag(poses, truth),
+                        "bone_spread_mm": (
+                            float(1000.0 * np.nanmax(spread))
+                            if np.isfinite(spread).any()
+                            else float("nan")
+                        ),
                         "cpu_ms_per_frame": cpu[method],
                     }
                 )
@@ -207,8 +223,9 @@ def _table(rows: list[dict[str, Any]], database: str) -> str:
         f"{len({r['subject'] for r in mine})} held-out subjects)",
         "",
         "| method | mean error (m) | × raw | better than raw | Err0.2 (%) | worst joint × raw "
-        "| jitter (m/s²) | × raw jitter | CPU ms/frame |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| jitter (m/s²) | × raw jitter | lag (frames) | bone spread after 1 s, max (mm) "
+        "| CPU ms/frame |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     raw_error = np.mean([r["mean_error_m"] for r in raw.values()])
     raw_joint = np.nanmean([r["per_joint_m"] for r in raw.values()], axis=0)
@@ -221,11 +238,14 @@ def _table(rows: list[dict[str, Any]], database: str) -> str:
         ratio = joint / raw_joint
         worst = int(np.nanargmax(ratio))
         jitter = np.mean([r["jitter"] for r in rs])
+        lag = np.nanmean([r.get("lag_frames", np.nan) for r in rs])
+        spread = np.nanmax([r.get("bone_spread_mm", np.nan) for r in rs])
         lines.append(
             f"| {method} | {error:.4f} | {error / raw_error:.2f} | {better}/{len(rs)} | "
             f"{100 * np.mean([r['err02'] for r in rs]):.1f} | "
             f"{ratio[worst]:.2f} ({skeleton.JOINT_NAMES[worst]}) | {jitter:.1f} | "
-            f"{jitter / raw_jitter:.1f} | {np.median([r['cpu_ms_per_frame'] for r in rs]):.2f} |"
+            f"{jitter / raw_jitter:.1f} | {lag:.2f} | {spread:.1f} | "
+            f"{np.median([r['cpu_ms_per_frame'] for r in rs]):.2f} |"
         )
     return "\n".join(lines)
 
@@ -260,6 +280,12 @@ def main(argv: list[str] | None = None) -> int:
         action="store_true",
         help="map the sensor to Vicon joint centres and take the database's as the same",
     )
+    parser.add_argument(
+        "--temporal",
+        choices=("default", "off"),
+        default="default",
+        help="issue 15's temporal switches and bone settling: defaults, or off (the papers')",
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write every row here")
     args = parser.parse_args(argv)
@@ -284,6 +310,7 @@ def main(argv: list[str] | None = None) -> int:
             "maps": not args.no_maps,
             "blend": args.sensor_blend,
             "database_maps": not args.no_database_maps,
+            "temporal": args.temporal,
         }
         for database in args.databases.split(",")
         for subject in args.subjects.split(",")
@@ -301,7 +328,8 @@ def main(argv: list[str] | None = None) -> int:
     rows = [row for result in results for row in result["rows"]]
     print(
         f"UI-PRMD leave-subjects-out, subjects {args.subjects}, {args.reps} repetition(s) per "
-        f"exercise, maps {'off' if args.no_maps else 'on'}, sensor blend {args.sensor_blend}; "
+        f"exercise, maps {'off' if args.no_maps else 'on'}, sensor blend {args.sensor_blend}, "
+        f"temporal {args.temporal}; "
         f"wall {time.perf_counter() - start_wall:.0f} s\n"
     )
     for database in args.databases.split(","):
