@@ -432,9 +432,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             dict(ragdoll) if isinstance(ragdoll, Mapping) else ({} if ragdoll else None)
         )
         self._counts = {"ragdoll_resets": 0, "ragdoll_divergences": 0, "ragdoll_builds": 0}
-        # The per-frame problem keeps the papers' energy (the reward's meaning); see
-        # fpg_gym.reconstruct.temporal. reconstructor_options={"temporal": ...} overrides it.
-        overrides.setdefault("temporal", TemporalConfig.per_frame())
+        # The per-frame problem keeps the papers' energy and frame (the reward's meaning; see
+        # fpg_gym.reconstruct.temporal); reconstructor_options={"temporal": ...} overrides it.
+        overrides.setdefault("temporal", TemporalConfig.off())
         self.reconstructor = Reconstructor(
             self.graph,
             ragdoll=(

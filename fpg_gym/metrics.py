@@ -413,15 +413,15 @@ def lag(
     estimate, reference : array_like, shape (T, 20, 3)
         Output and ground truth in the same space, same frame times (T >= 3).
     max_frames : int
-        Largest shift tried, frames (10).
+        Largest shift tried, frames (10; fewer on a stream shorter than ``max_frames + 3``).
     valid : array_like of bool, shape (T,), optional
         Frames to use (e.g. frames with a body); a pair of frames counts when both are valid.
 
     Returns
     -------
     float
-        Frames (multiply by the frame interval for seconds); NaN when fewer than 3 frames
-        overlap at some shift.
+        Frames (multiply by the frame interval for seconds); NaN for fewer than 4 frames or
+        when fewer than 3 valid frames overlap at some shift.
     """
     est = _clip_array(estimate, "estimate")
     ref = _clip_array(reference, "reference")
@@ -430,6 +430,9 @@ def lag(
     if max_frames < 1:
         raise ValueError(f"max_frames: expected >= 1, got {max_frames}")
     count = len(est)
+    max_frames = min(max_frames, count - 3)  # every shift keeps at least 3 common frames
+    if max_frames < 1:
+        return float("nan")
     ok = np.ones(count, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
     if ok.shape != (count,):
         raise ValueError(f"valid: expected shape ({count},), got {ok.shape}")

@@ -232,7 +232,7 @@ def collect_imitation_data(
         ragdoll=False,
         max_evaluations=None,
         weights=EnergyWeights(**weights),
-        temporal=TemporalConfig.per_frame(),  # the env's per-frame problem
+        temporal=TemporalConfig.off(),  # the env's per-frame problem
     )
     search = make("local-search")
     anchored = None
@@ -318,7 +318,7 @@ def evaluate_agents(
     from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 
     reconstructor = Reconstructor(
-        graph, k=k, latent_dim=latent_dim, ragdoll=False, temporal=TemporalConfig.per_frame()
+        graph, k=k, latent_dim=latent_dim, ragdoll=False, temporal=TemporalConfig.off()
     )
     out: dict[str, dict[str, float]] = {}
     try:

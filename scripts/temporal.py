@@ -69,14 +69,14 @@ def settings(ragdoll: bool) -> list[Setting]:
     no_bones = BoneSettlingConfig(enabled=False)
     on = BoneSettlingConfig()
     default = TemporalConfig()
-    continuity = replace(off, align_basis=True, velocity_damping=0.0, motion_scale=8.0)
+    continuity = replace(off, velocity_damping=0.0, motion_scale=8.0)
     rows = [
         Setting("papers (every switch off)", off, no_bones),
         Setting("+ bone settling", off, on),
-        Setting("+ aligned latent basis", replace(off, align_basis=True), on),
         Setting("+ continuity prior (Em anchored, weight 2)", continuity, on),
         Setting("+ output Kalman stage", replace(continuity, output="kalman"), on),
         Setting("+ placement smoothing = **default**", default, on),
+        Setting("default + aligned latent basis", replace(default, align_basis=True), on),
         Setting("default, output One-Euro instead", replace(default, output="one-euro"), on),
         Setting("default without output stage", replace(default, output=""), on),
         Setting(

@@ -270,6 +270,11 @@ def test_compare_writes_results_report_and_plots(tmp_path: Path) -> None:
     assert raw_joints["HipCenter"] == 0.0 and raw_joints["Head"] > 0.0
     assert "## Error per joint (cm)" in report and "| Head |" in report
     assert summary["graph_exclude"] == ["kick", "walk"]  # default graph held them out
+    # Lag against the ground truth and bone spread after the first second (issue 15).
+    raw_summary = summary["methods"]["raw"]
+    assert abs(raw_summary["lag_frames"]) < 3 and raw_summary["lag_ms"] is not None
+    assert all(r["lag_frames"] != "" for r in rows)
+    assert fpg["settled_bone_spread_mm"] is None  # 12-frame episodes: nothing after 1 s
 
 
 def test_compare_resumes_and_refuses_other_settings(tmp_path: Path) -> None:

@@ -62,7 +62,11 @@ def test_lag_is_robust_to_noise_and_checks_its_input() -> None:
     assert abs(metrics.lag(noisy, truth)) < 0.3
     with pytest.raises(ValueError, match="differ"):
         metrics.lag(truth[:10], truth)
-    assert np.isnan(metrics.lag(truth[:4], truth[:4], max_frames=3))
+    assert np.isnan(metrics.lag(truth[:3], truth[:3]))
+    short = truth[:8]  # shorter than the default search: the shifts shrink to keep 3 frames
+    assert metrics.lag(np.concatenate([short[:1], short[:-1]]), short) == pytest.approx(
+        1.0, abs=0.05
+    )
 
 
 def test_settled_bone_spread_ignores_the_first_second() -> None:
@@ -216,3 +220,30 @@ def test_bone_lengths_settle_with_and_without_the_ragdoll(ragdoll: bool) -> None
     with Reconstructor(graph(), ragdoll=ragdoll, bones=BoneSettlingConfig(enabled=False)) as r:
         loose = r.reconstruct(rec, "local-search", rng=0).arrays()["bone_lengths"]
     assert np.ptp(loose[30:], axis=0).max() > np.ptp(lengths[30:], axis=0).max()
+
+
+@pytest.mark.parametrize(
+    ("changes", "message"),
+    [
+        ({"velocity_damping": 1.5}, "velocity_damping"),
+        ({"motion_scale": -1.0}, "motion_scale"),
+        ({"root_min_cutoff": 0.0}, "root_min_cutoff"),
+    ],
+)
+def test_temporal_config_rejects_bad_values(changes: dict[str, float], message: str) -> None:
+    with pytest.raises(ValueError, match=message):
+        TemporalConfig(**changes)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="max_spread_m"):
+        BoneSettlingConfig(max_spread_m=-0.001)
+
+
+def test_papers_pipeline_is_every_switch_off() -> None:
+    rec = static_stream(0)
+    papers = Reconstructor(graph(), temporal=TemporalConfig.off())
+    result = papers.reconstruct(rec, "local-search", rng=0)
+    # The papers' Em weight reaches the problem as is; the default scales it by 8.
+    assert papers.prepare(rec.positions[0], rec.states[0], 9.0).weights.motion == 0.25
+    default = Reconstructor(graph())
+    assert default.prepare(rec.positions[0], rec.states[0], 0.0).weights.motion == 2.0
+    # Without the placement stage the output root is the sensor's, frame for frame.
+    assert np.allclose(result.poses[:, skeleton.ROOT], rec.positions[:, skeleton.ROOT], atol=1e-5)

@@ -38,6 +38,15 @@ constant-velocity prediction of the previous outputs under four labellings
 (:data:`LABELLINGS`: as reported, mirrored, arms swapped, legs swapped); another labelling is
 used when it is clearly closer (``left_right_margin``) and the frame's record says which.
 
+Temporal coherence and bone lengths (issue 15)
+----------------------------------------------
+Beyond the papers, switchable (``config.temporal``, ``config.bones``): the output is placed with a
+smoothed root and heading, the latent axes keep their signs from frame to frame, ``Em`` is
+anchored on the previous reconstruction with a larger weight, a Kalman stage filters the output
+(bone lengths restored), and the user's bone lengths settle after one second
+(:mod:`fpg_gym.reconstruct.temporal`, :mod:`fpg_gym.reconstruct.bones`).
+``TemporalConfig.off()`` and ``BoneSettlingConfig(enabled=False)`` give the papers' pipeline.
+
 Ragdoll
 -------
 With ``ragdoll=`` (a factory ``lengths -> Ragdoll`` or ``True`` for :class:`fpg_gym.ragdoll.
