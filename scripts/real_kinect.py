@@ -169,6 +169,10 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
 
         options["temporal"] = TemporalConfig.off()
         options["bones"] = BoneSettlingConfig(enabled=False)
+    elif task.get("temporal") == "no-placement":  # the defaults without placement smoothing
+        from fpg_gym.reconstruct import TemporalConfig
+
+        options["temporal"] = TemporalConfig(placement=False)
     rows = []
     with MethodRunner(graph, budget=task["budget"], reconstructor_options=options) as runner:
         for path in _episodes(subjects[held_out], task["reps"]):
@@ -282,9 +286,10 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--temporal",
-        choices=("default", "off"),
+        choices=("default", "off", "no-placement"),
         default="default",
-        help="issue 15's temporal switches and bone settling: defaults, or off (the papers')",
+        help="issue 15's temporal switches and bone settling: defaults, off (the papers'), or "
+        "the defaults without placement smoothing",
     )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write every row here")
