@@ -699,11 +699,15 @@ class Reconstructor:
             placement = output_placement = self._placement
             kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
         elif self._placement_smoother is not None:
-            # Temporal coherence (not in the papers): the pose is estimated around the sensor's
-            # root but with a smoothed heading, and put back at a smoothed root and heading.
-            output_placement = self._placement_smoother.update(placement, timestamp)
-            placement = pose_utils.Placement(root=placement.root, yaw=output_placement.yaw)
-            kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
+            # Temporal coherence (not in the papers): the output is put back at a smoothed root
+            # (and heading, when smoothed; the pose is then estimated in that heading's frame).
+            smoothed = self._placement_smoother.update(placement, timestamp)
+            if cfg.temporal.smooth_heading:
+                output_placement = smoothed
+                placement = pose_utils.Placement(root=placement.root, yaw=smoothed.yaw)
+                kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
+            else:
+                output_placement = pose_utils.Placement(root=smoothed.root, yaw=placement.yaw)
         t1 = time.perf_counter()
 
         terms = self.reliability.update(positions, states)

@@ -7,12 +7,12 @@ than its own input (issue 15). The causes, and the piece that answers each:
 
 * **Placement** (:class:`PlacementSmoother`). Each frame is normalised with the sensor's root
   and a heading from the sensor's hip line (:func:`fpg_gym.poses.normalise`), and the
-  reconstruction is put back in camera space with the same root and heading. A centimetre of
-  noise on each hip joint turns the heading by a few degrees, which swings the hands by
-  centimetres, whatever the reconstruction does; the root's own noise moves every joint. A
-  One-Euro filter on the root position and on the heading (as a unit vector) steadies both; the
-  pose is still estimated around the sensor's root, only the heading and the output placement
-  are smoothed.
+  reconstruction is put back in camera space with the same root and heading: the root's noise
+  moves every joint, whatever the reconstruction does. A One-Euro filter on the root position
+  (and optionally on the heading, as a unit vector) steadies the output's placement; the pose
+  is still estimated around the sensor's root. A centimetre of noise on each hip joint also
+  turns the heading by a few degrees, but smoothing it lags on fast turns (twists of a punch),
+  so heading smoothing is opt-in (``smooth_heading``).
 * **Latent basis** (:func:`align_basis`). The natural posture space is a PCA of a candidate set
   that changes every frame; an SVD returns each axis with an arbitrary sign. Each new axis is
   given the sign that points it the same way as the previous frame's axis of the same rank, so
@@ -64,7 +64,11 @@ class TemporalConfig:
     Attributes
     ----------
     placement : bool
-        Smooth the root position and the heading (True).
+        Smooth the root position the output is placed at (True).
+    smooth_heading : bool
+        Smooth the heading too, and estimate the pose in that smoothed frame (False: it steadies
+        a static body but lags on fast turns; on the embedded punch clip it raised the error of
+        an occluded arm by a fifth).
     root_min_cutoff, root_beta : float
         One-Euro parameters of the root position (Hz, s/m).
     heading_min_cutoff, heading_beta : float
@@ -89,6 +93,7 @@ class TemporalConfig:
     """
 
     placement: bool = True
+    smooth_heading: bool = False
     root_min_cutoff: float = 1.0
     root_beta: float = 10.0
     heading_min_cutoff: float = 1.0
