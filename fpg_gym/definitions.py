@@ -58,6 +58,8 @@ from fpg_gym.rotations import quaternion_to_matrix, shortest_arc
 
 __all__ = [
     "FORMAT",
+    "KINECT_V2_TO_VICON",
+    "packaged_map",
     "TRUNK_JOINTS",
     "DefinitionMap",
     "PoseMap",
@@ -68,6 +70,10 @@ __all__ = [
 
 #: ``format`` entry of a definition-map JSON file.
 FORMAT = "fpg-gym-definition-map-1"
+#: Name of the packaged Kinect v2 -> Vicon joint-centre map (:func:`packaged_map`), fitted on
+#: every UI-PRMD subject (s01-s08) with ``fpg-gym fit-map`` (see ``fpg_gym/data/README.md``).
+KINECT_V2_TO_VICON = "kinect-v2-to-vicon"
+_DATA = Path(__file__).resolve().parent / "data"
 
 _J = skeleton.joint_index
 _PELVIS = (_J("HipCenter"), _J("Spine"), _J("HipLeft"), _J("HipRight"))
@@ -430,6 +436,25 @@ def fit_to_database(
     current = DefinitionMap.fit(p, paired, source=source, target=target, joints=fitted)
     current.info["database_poses"] = len(db)
     return current
+
+
+def packaged_map(name: str) -> DefinitionMap:
+    """A definition map shipped with fpg-gym (``fpg_gym/data/NAME.json``).
+
+    :data:`KINECT_V2_TO_VICON` maps Kinect v2 joints onto marker-based joint centres; it was
+    fitted on all UI-PRMD subjects, so never score a UI-PRMD subject with it (fit per fold with
+    :func:`fit_sensor_maps` instead, as ``scripts/real_kinect.py`` does).
+
+    Raises
+    ------
+    ValueError
+        If no such map is packaged.
+    """
+    path = _DATA / f"{name}.json"
+    if not path.is_file():
+        names = sorted(p.stem for p in _DATA.glob("*.json"))
+        raise ValueError(f"unknown packaged map {name!r}; expected one of {', '.join(names)}")
+    return DefinitionMap.load(path)
 
 
 def fit_sensor_maps(
