@@ -12,7 +12,8 @@ HELP = (
 
 _EPILOG = """\
 The model is written as MODEL.json (hyper-parameters, observation layout, training summary)
-beside MODEL.pt (supervised: a torch state dict) or MODEL.zip (rl: stable-baselines3);
+beside MODEL.pt (the network's weights: a torch state dict of tensors, loaded with
+weights_only=True; no pickle);
 checkpoints go to MODEL.checkpoints/. Use it with
   fpg-gym compare --optimizers local-search,learned:MODEL,learned+search:MODEL ...
 
