@@ -96,6 +96,16 @@ def _print_errors(summary: dict[str, Any], label: str) -> None:
     )
 
 
+def _check_out(args: argparse.Namespace) -> Path:
+    """The output path, checked before any work (not an input, not a folder, writable)."""
+    from fpg_gym.outputs import check_output
+
+    inputs = [args.input]
+    if args.graph and args.graph != "default":
+        inputs.append(args.graph)
+    return check_output(args.out, inputs, npz=True)
+
+
 def run(args: argparse.Namespace) -> int:
     """Reconstruct, write the ``.npz`` and print the summary (errors when ground truth exists)."""
     import numpy as np
@@ -103,6 +113,7 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym.commands.output import emit_json
     from fpg_gym.graph import load_graph
     from fpg_gym.io import read_recording
+    from fpg_gym.outputs import save_npz
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
 
@@ -112,6 +123,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--k: expected >= 1, got {args.k}")
     if not args.prior >= 0:
         raise ValueError(f"--prior: expected >= 0, got {args.prior}")
+    args.out = _check_out(args)
     if args.method:
         from fpg_gym.methods import parse_method
 
@@ -189,10 +201,7 @@ def run(args: argparse.Namespace) -> int:
         "input_frames": total,
     }
     arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
-    out = Path(args.out)
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out, **arrays)  # type: ignore[arg-type]
+    out = save_npz(args.out, arrays)  # beside the target, then renamed: never half-written
 
     state = " (interrupted)" if result.interrupted else ""
     print(f"frames           {frames} of {total}{state}")
@@ -232,6 +241,7 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     from fpg_gym.commands.output import emit_json
     from fpg_gym.io import read_recording
     from fpg_gym.methods import MethodRunner
+    from fpg_gym.outputs import save_npz
 
     recording = read_recording(args.input)
     start = time.perf_counter()
@@ -257,9 +267,7 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
         summary.update(error_summary)
     metadata = {"input": str(args.input), "method": method.name, "frames": result.num_frames}
     arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out, **arrays)
+    out = save_npz(args.out, arrays)
     print(f"frames           {result.num_frames}")
     print(f"method           {method.name}")
     print(f"ms per frame     median {summary['ms_per_frame_median']:.3f}")

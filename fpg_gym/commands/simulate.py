@@ -74,6 +74,10 @@ def run(args: argparse.Namespace) -> int:
         )
         return 2
     scenario = get_scenario(args.scenario)  # ValueError names the known scenarios
+    from fpg_gym.outputs import check_output
+
+    inputs = [] if args.input.startswith(_DEFAULT_PREFIX) else [args.input]
+    check_output(args.out, inputs, npz=True)  # before any work
     clip = _read_input(args.input, args.units)
     recording = simulate(clip, scenario, seed=args.seed)  # type: ignore[arg-type]
     path = write_recording(args.out, recording)
