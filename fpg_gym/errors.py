@@ -7,7 +7,7 @@ naming the file), and the command line prints them on one line with exit status 
 
 from __future__ import annotations
 
-from pathlib import Path
+import os
 from typing import Any
 
 
@@ -34,7 +34,7 @@ class DataFormatError(FpgGymError, ValueError):
 
     def __init__(
         self,
-        path: str | Path,
+        path: str | os.PathLike[str],
         message: str,
         *,
         line: int | None = None,

@@ -138,7 +138,8 @@ class RLSampler(GaussianSampler):
         feature_map = spec.feature_map()
         observation_space = gym.spaces.Box(feature_map.low, feature_map.high, dtype=np.float32)
         action_space = gym.spaces.Box(-1.0, 1.0, (spec.latent_dim,), dtype=np.float32)
-        kwargs = {"net_arch": net_arch, "log_std_init": float(log_std_init)}
+        kwargs: dict[str, Any] = {"net_arch": net_arch, "log_std_init": float(log_std_init)}
+        policy: Any
         if spec.algo == "ppo":
             from stable_baselines3.common.policies import ActorCriticPolicy
 

@@ -650,9 +650,7 @@ def load_weights_file(path: str | os.PathLike[str]) -> dict[str, Any]:
         state = torch.load(source, map_location="cpu", weights_only=True)
     except Exception as error:  # the weights-only unpickler's errors vary (UnpicklingError, ...)
         first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
-        raise DataFormatError(
-            source, f"{refuse}; this file is not one ({first[:300]})"
-        ) from None
+        raise DataFormatError(source, f"{refuse}; this file is not one ({first[:300]})") from None
     if not isinstance(state, Mapping) or not all(
         isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
     ):

@@ -30,9 +30,7 @@ _MAX_DEFLATE_RATIO = 1100
 _HEADER_ALLOWANCE = 1 << 16
 
 
-def check_npz(
-    path: str | os.PathLike[str], only: Collection[str] | None = None
-) -> list[str]:
+def check_npz(path: str | os.PathLike[str], only: Collection[str] | None = None) -> list[str]:
     """Check every array header of an ``.npz`` archive; return the array names.
 
     Parameters
