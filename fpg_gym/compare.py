@@ -213,6 +213,9 @@ class CompareConfig:
         Method the others are tested against (:data:`fpg_gym.methods.BASELINE`).
     units : str
         BVH units for ``clips``.
+    input_format : str or None
+        Format of the ``inputs`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`); None guesses it
+        per file.
     """
 
     out: str
@@ -228,6 +231,7 @@ class CompareConfig:
     workers: int = 1
     baseline: str = BASELINE.name
     units: str = "auto"
+    input_format: str | None = None
 
     def __post_init__(self) -> None:
         self.methods = [parse_method(m).name for m in self.methods]
@@ -451,7 +455,11 @@ def _plan(
     planned = plan_episodes(
         list(by_name), config.scenarios, config.seeds, config.inputs, recording_hashes
     )
-    by_path = dict(zip(config.inputs, recording_hashes, strict=True))
+    # The format an input is read with is part of its content.
+    by_path = {
+        path: f"{digest}:{config.input_format or 'guessed'}"
+        for path, digest in zip(config.inputs, recording_hashes, strict=True)
+    }
     episodes = [
         replace(
             e,
@@ -490,7 +498,7 @@ def _write_episodes(
             if target.is_file() and episode.id not in rewrite:
                 continue
             if episode.recording:
-                recording = read_recording(episode.recording)
+                recording = read_recording(episode.recording, format=config.input_format)
             else:
                 if episode.scenario not in simulators:
                     simulators[episode.scenario] = KinectSimulator(episode.scenario)

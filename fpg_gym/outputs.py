@@ -11,6 +11,7 @@ the old file or the new one, never a torn one.
 from __future__ import annotations
 
 import os
+import tempfile
 import uuid
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
@@ -103,10 +104,13 @@ def check_output(
         existing = existing.parent
     if not existing.is_dir():
         raise OutputError(f"{argument} {target}: {existing} is not a folder")
-    if not os.access(existing, os.W_OK | os.X_OK):
-        raise OutputError(f"{argument} {target}: folder {existing} is not writable")
-    if target.exists() and not os.access(target, os.W_OK) and not os.access(folder, os.W_OK):
-        raise OutputError(f"{argument} {target}: the file cannot be replaced")
+    try:  # a real probe: permissions, read-only file systems and quotas all show here
+        with tempfile.TemporaryFile(dir=existing, prefix=".fpg-gym-probe-"):
+            pass
+    except OSError as error:
+        raise OutputError(
+            f"{argument} {target}: cannot write in folder {existing} ({error.strerror})"
+        ) from None
     return target
 
 

@@ -15,6 +15,10 @@ HELP = (
     "or run a reference filter on it (--method raw|holt|kalman)"
 )
 
+#: Formats of ``--format`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`; listed here so that
+#: ``--help`` imports nothing heavy).
+KINECT_FORMATS: tuple[str, ...] = ("msrc12", "kinect_v2", "ntu", "csv", "npz")
+
 #: Bin edges (metres) of the printed error histogram.
 HISTOGRAM_EDGES: tuple[float, ...] = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5)
 
@@ -28,6 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--input", required=True, metavar="REC", help="recording (.npz, MSRC-12, Kinect v2, ...)"
+    )
+    parser.add_argument(
+        "--format",
+        choices=KINECT_FORMATS,
+        default=None,
+        help="format of --input (default: guessed from the extension and the data lines)",
     )
     parser.add_argument("--out", required=True, metavar="OUT.npz", help="output .npz")
     parser.add_argument(
@@ -136,7 +146,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.graph:
         raise ValueError("--graph: a pose graph is needed (a .npz file or 'default')")
     optimizer = make(args.optimizer)
-    recording = read_recording(args.input)
+    recording = read_recording(args.input, format=args.format)
     graph = load_graph(args.graph)
     reconstructor = Reconstructor(
         graph,
@@ -243,7 +253,7 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     from fpg_gym.methods import MethodRunner
     from fpg_gym.outputs import save_npz
 
-    recording = read_recording(args.input)
+    recording = read_recording(args.input, format=args.format)
     start = time.perf_counter()
     with MethodRunner() as runner:
         result = runner.run(method, recording)

@@ -117,10 +117,7 @@ def _read_text(path: Path) -> str:
         raw = path.read_bytes()
     except OSError as error:
         raise DataFormatError(path, f"cannot read the file ({error.strerror})") from None
-    try:
-        raw = maybe_gunzip(raw)
-    except (OSError, EOFError) as error:
-        raise DataFormatError(path, f"corrupt gzip data ({error})") from None
+    raw = maybe_gunzip(raw, path)
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:

@@ -67,6 +67,14 @@ def _validate_positions(value: object, name: str, count: int | None) -> np.ndarr
         raise ValueError(f"{name}: expected {count} frames, got {len(array)}")
     if not np.issubdtype(array.dtype, np.number) or np.issubdtype(array.dtype, np.complexfloating):
         raise ValueError(f"{name}: expected real numbers, got dtype {array.dtype}")
+    with np.errstate(invalid="ignore"):
+        beyond = np.abs(array) > np.finfo(np.float32).max
+    if beyond.any():
+        frame, joint = (int(i) for i in np.argwhere(beyond)[0][:2])
+        raise ValueError(
+            f"{name}: value {float(array[frame, joint].max()):g} at frame {frame}, joint "
+            f"{skeleton.JOINT_NAMES[joint]} is beyond the float32 range (metres expected)"
+        )
     array = array.astype(np.float32)
     if not np.all(np.isfinite(array)):
         frame, joint = (int(i) for i in np.argwhere(~np.isfinite(array))[0][:2])
