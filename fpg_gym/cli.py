@@ -141,7 +141,15 @@ def main(argv: Sequence[str] | None = None) -> int:
         command = next((a for a in arguments if not a.startswith(("-", "@"))), "")
         print(f"fpg-gym{' ' + command if command else ''}: error: {error}", file=sys.stderr)
         return 2
-    args = parser.parse_args(arguments)
+    args, extras = parser.parse_known_args(arguments)
+    if extras:
+        command = f" {args.command}" if getattr(args, "command", None) else ""
+        print(
+            f"fpg-gym{command}: error: unrecognized arguments: {' '.join(extras)} (see "
+            f"fpg-gym{command} --help)",
+            file=sys.stderr,
+        )
+        return 2
     if not getattr(args, "run", None):
         parser.print_help()
         return 2
