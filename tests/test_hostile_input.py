@@ -492,9 +492,7 @@ def _msrc12_text(recording: Any) -> list[str]:
     return lines
 
 
-def test_a_cut_or_nan_first_line_does_not_decide_the_format(
-    tmp_path: Path, recording: Any
-) -> None:
+def test_a_cut_or_nan_first_line_does_not_decide_the_format(tmp_path: Path, recording: Any) -> None:
     lines = _msrc12_text(recording)
     cut = tmp_path / "cut.txt"
     cut.write_text("\n".join([lines[0][: len(lines[0]) // 2], *lines[1:]]) + "\n")
@@ -631,4 +629,3 @@ def test_argparse_errors_exit_2_on_one_line(capsys: pytest.CaptureFixture[str]) 
         main(["reconstruct", "--input", "x.npz", "--format", "bvh", "--out", "o.npz"])
     assert info.value.code == 2
     _one_error_line(capsys, "reconstruct")
-
