@@ -194,6 +194,8 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[BvhHierarchy, int]:
                 stack.pop()
             else:
                 raise DataFormatError(path, "unbalanced '}'", line=number)
+        elif keyword in ("OFFSET", "CHANNELS") and not names:
+            raise DataFormatError(path, f"{keyword} before any ROOT or JOINT", line=number)
         elif keyword == "OFFSET":
             try:
                 values = [float(v) for v in tokens[1:4]]

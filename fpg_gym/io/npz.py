@@ -16,6 +16,7 @@ import zipfile
 import zlib
 from collections.abc import Collection
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import numpy.lib.format as npy_format
@@ -65,16 +66,7 @@ def check_npz(path: str | os.PathLike[str], only: Collection[str] | None = None)
                 limit = info.file_size
                 if info.compress_type != zipfile.ZIP_STORED:
                     limit = min(limit, info.compress_size * _MAX_DEFLATE_RATIO + _HEADER_ALLOWANCE)
-                with archive.open(info) as member:
-                    version = npy_format.read_magic(member)
-                    if version == (1, 0):
-                        shape, _, dtype = npy_format.read_array_header_1_0(member)
-                    elif version == (2, 0):
-                        shape, _, dtype = npy_format.read_array_header_2_0(member)
-                    else:
-                        raise DataFormatError(
-                            source, f"unsupported .npy format version {version}", field=name
-                        )
+                shape, dtype = _read_header(source, archive, info, name)
                 if dtype.hasobject:
                     raise DataFormatError(
                         source,
@@ -99,6 +91,29 @@ def check_npz(path: str | os.PathLike[str], only: Collection[str] | None = None)
     except (ValueError, OSError, NotImplementedError, OverflowError) as error:
         raise DataFormatError(source, f"corrupt .npz archive ({error})") from None
     return names
+
+
+def _read_header(
+    source: Path, archive: zipfile.ZipFile, info: zipfile.ZipInfo, name: str
+) -> tuple[tuple[int, ...], np.dtype[Any]]:
+    """Shape and dtype from a member's ``.npy`` header (nothing else is read)."""
+    try:
+        with archive.open(info) as member:
+            version = npy_format.read_magic(member)
+            if version == (1, 0):
+                shape, _, dtype = npy_format.read_array_header_1_0(member)
+            elif version == (2, 0):
+                shape, _, dtype = npy_format.read_array_header_2_0(member)
+            else:
+                raise DataFormatError(
+                    source, f"unsupported .npy format version {version}", field=name
+                )
+    except DataFormatError:
+        raise
+    except Exception as error:  # numpy parses the header with ast: its errors vary
+        text = " ".join(str(error).split())[:200] or type(error).__name__
+        raise DataFormatError(source, f"corrupt array header ({text})", field=name) from None
+    return tuple(int(n) for n in shape), dtype
 
 
 def load_npz(path: str | os.PathLike[str]) -> dict[str, np.ndarray]:
