@@ -61,7 +61,7 @@ from fpg_gym.errors import OutputError, TaskError
 from fpg_gym.graph import load_graph
 from fpg_gym.jsonable import jsonable
 from fpg_gym.methods import BASELINE, MethodRunner, parse_method
-from fpg_gym.outputs import write_text
+from fpg_gym.outputs import save_npz, write_text
 
 __all__ = [
     "CSV_FIELDS",
@@ -889,8 +889,6 @@ def _frames_path(out: Path, episode: str, method: str) -> Path:
 
 
 def _save_frames(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    from fpg_gym.outputs import save_npz
-
     save_npz(path, arrays)  # temporary file beside it, then renamed
 
 
