@@ -792,8 +792,14 @@ class _Manifest:
                 continue
             if not real.is_relative_to(root) or real == root or path.is_symlink():
                 continue
-            if real.is_file():
-                real.unlink()
+            # The file, and temporary files of it left by a kill during a write
+            # (fpg_gym.outputs.atomic_path names them ".NAME.PID.HEX.tmp").
+            leftovers = [p for p in real.parent.glob(f".{real.name}.*.tmp") if p.is_file()]
+            for leftover in leftovers:
+                leftover.unlink()
+            if real.is_file() or leftovers:
+                if real.is_file():
+                    real.unlink()
                 deleted += 1
                 parent = real.parent
                 while parent != root and parent.is_relative_to(root):

@@ -243,10 +243,16 @@ def test_compare_fresh_deletes_only_what_compare_wrote(tmp_path: Path) -> None:
     assert any(line.startswith("frames/") for line in listed)
     (out / "notes.txt").write_text("mine")
     (out / "frames" / "mine.txt").write_text("mine")
+    episode = out / "frames" / "walk__front-many__s0"
+    leftover = episode / ".raw.npz.4242.0badc0de.tmp"  # a kill during a write left it
+    leftover.write_bytes(b"partial")
+    (episode / ".mine.tmp").write_text("mine")
     again = run_compare(_config(out), progress=False, plots=False, fresh=True)
     assert again.tasks_run == 2 and again.tasks_skipped == 0
     assert (out / "notes.txt").read_text() == "mine"
     assert (out / "frames" / "mine.txt").read_text() == "mine"
+    assert (episode / ".mine.tmp").read_text() == "mine"
+    assert not leftover.exists()
 
 
 def test_argument_file_lines_are_never_options(
@@ -373,6 +379,48 @@ def _alive(pid: int) -> bool:
     return state != "Z"
 
 
+def _wait_for_workers(parent: subprocess.Popen[Any], count: int) -> list[int]:
+    workers: list[int] = []
+    deadline = time.monotonic() + 120
+    while time.monotonic() < deadline and len(workers) < count and parent.poll() is None:
+        time.sleep(0.5)
+        workers = _children(parent.pid)
+    return workers
+
+
+def _reap(workers: list[int], seconds: float) -> list[int]:
+    """The workers still alive after ``seconds`` (killed then, to leave nothing behind)."""
+    deadline = time.monotonic() + seconds
+    while time.monotonic() < deadline and any(_alive(pid) for pid in workers):
+        time.sleep(0.5)
+    left = [pid for pid in workers if _alive(pid)]
+    for pid in left:
+        os.kill(pid, signal.SIGKILL)
+    return left
+
+
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
+def test_sigterm_stops_compare_and_its_workers_and_keeps_a_report(tmp_path: Path) -> None:
+    out = tmp_path / "run"
+    env = {**os.environ, "FPG_GYM_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(REPO)}
+    argv = [sys.executable, "-m", "fpg_gym.cli", "compare", "--clips", "default:walk"]
+    argv += ["default:punch", "default:kick", "--scenarios", "front-many", "--methods"]
+    argv += ["raw,fpg:local-search", "--workers", "2", "--out", str(out), "--quiet", "--no-plots"]
+    parent = subprocess.Popen(
+        argv, env=env, cwd=REPO, stdout=subprocess.PIPE, stderr=subprocess.PIPE
+    )
+    workers = _wait_for_workers(parent, 2)
+    assert len(workers) == 2, "the workers did not start"
+    deadline = time.monotonic() + 60  # until some task finished
+    while time.monotonic() < deadline and not list((out / "frames").rglob("*.npz")):
+        time.sleep(0.3)
+    parent.send_signal(signal.SIGTERM)
+    _, stderr = parent.communicate(timeout=60)
+    assert parent.returncode == 130, stderr.decode(errors="replace")[-2000:]
+    assert not _reap(workers, 10), "compare's workers outlived SIGTERM"
+    assert "Interrupted" in (out / "report.md").read_text()
+
+
 @pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs /proc (Linux)")
 def test_compare_workers_exit_when_the_parent_is_killed(tmp_path: Path) -> None:
     script = (
@@ -385,22 +433,12 @@ def test_compare_workers_exit_when_the_parent_is_killed(tmp_path: Path) -> None:
     )
     env = {**os.environ, "FPG_GYM_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(REPO)}
     parent = subprocess.Popen([sys.executable, "-c", script], env=env, cwd=REPO)
-    workers: list[int] = []
-    deadline = time.monotonic() + 120
-    while time.monotonic() < deadline and len(workers) < 2 and parent.poll() is None:
-        time.sleep(0.5)
-        workers = _children(parent.pid)
+    workers = _wait_for_workers(parent, 2)
     assert len(workers) == 2, "the workers did not start"
     time.sleep(1.0)
     parent.kill()  # SIGKILL: no chance to stop its workers
     parent.wait()
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline and any(_alive(pid) for pid in workers):
-        time.sleep(0.5)
-    left = [pid for pid in workers if _alive(pid)]
-    for pid in left:  # do not leave them behind whatever the outcome
-        os.kill(pid, signal.SIGKILL)
-    assert not left, "compare's workers outlived their killed parent"
+    assert not _reap(workers, 20), "compare's workers outlived their killed parent"
 
 
 # --------------------------------------------------------------------------- BVH

@@ -83,7 +83,7 @@ def test_a_crafted_sb3_zip_is_refused_and_its_payload_never_runs(tmp_path: Path)
 
 def test_a_pickle_named_pt_is_refused_and_its_payload_never_runs(tmp_path: Path) -> None:
     marker = tmp_path / "pwned"
-    (tmp_path / "model.pt").write_bytes(pickle.dumps({"w": _Payload(marker)}))
+    (tmp_path / "model.pt").write_bytes(pickle.dumps({"w": _Payload(marker)}, protocol=2))
     for kind, algo in (("rl", "ppo"), ("supervised", "mlp")):
         _write_json(tmp_path / "model.json", _spec(kind, algo), "model.pt", version=2)
         with pytest.raises(DataFormatError, match=r"model\.pt.*only tensor files"):
