@@ -94,8 +94,9 @@ def check_output(
                     f"{argument} {candidate}: is the input {source}; refusing to overwrite an "
                     "input (choose another output name)"
                 )
-    if target.is_dir():
-        raise OutputError(f"{argument} {target}: is a folder; expected a file name")
+    for candidate in (given, target):
+        if candidate.is_dir():
+            raise OutputError(f"{argument} {candidate}: is a folder; expected a file name")
     folder = target.parent if str(target.parent) else Path(".")
     existing = folder
     while not existing.exists():

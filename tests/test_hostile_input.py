@@ -128,8 +128,10 @@ def test_bad_outputs_are_refused_before_any_work(
     (tmp_path / "folder.npz").mkdir()
     blocker = tmp_path / "file.txt"
     blocker.write_text("x")
+    (tmp_path / "folder").mkdir()
     cases = {
         str(tmp_path / "folder.npz"): "is a folder",
+        str(tmp_path / "folder"): "is a folder",
         str(blocker / "out.npz"): "is not a folder",
     }
     if not os.access("/sys", os.W_OK) or not _writable("/sys"):
@@ -253,6 +255,27 @@ def test_compare_fresh_deletes_only_what_compare_wrote(tmp_path: Path) -> None:
     assert (out / "frames" / "mine.txt").read_text() == "mine"
     assert (episode / ".mine.tmp").read_text() == "mine"
     assert not leftover.exists()
+
+
+def test_a_compare_folder_of_an_earlier_version_resumes_but_is_never_wiped(
+    tmp_path: Path,
+) -> None:
+    out = tmp_path / "run"
+    run_compare(_config(out), progress=False, plots=False)
+    (out / compare.MANIFEST_NAME).unlink()  # as an fpg-gym without manifests left it
+    config = json.loads((out / "config.json").read_text())
+    for episode in config["episodes"]:
+        del episode["key"]
+    (out / "config.json").write_text(json.dumps(config))
+    with pytest.raises(OutputError, match="--fresh deletes only files listed"):
+        run_compare(_config(out), progress=False, plots=False, fresh=True)
+    assert (out / "results.csv").is_file()
+    messages: list[str] = []
+    resumed = run_compare(_config(out), progress=False, plots=False, log=messages.append)
+    assert any("earlier fpg-gym compare" in m for m in messages), messages
+    assert resumed.tasks_run == 2  # no content key: recomputed, not trusted
+    assert (out / compare.MANIFEST_NAME).is_file()
+    assert run_compare(_config(out), progress=False, plots=False).tasks_skipped == 2
 
 
 def test_argument_file_lines_are_never_options(
