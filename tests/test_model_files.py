@@ -175,3 +175,20 @@ def test_tensors_of_another_network_are_refused(tmp_path: Path) -> None:
     (tmp_path / "rl.json").write_text(json.dumps(data))
     with pytest.raises(DataFormatError, match=r"rl\.pt.*do not fit the network"):
         load_sampler(tmp_path / "rl")
+
+
+def test_the_cli_refuses_a_crafted_model_on_one_line(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    from fpg_gym.cli import main
+
+    marker = tmp_path / "pwned"
+    _crafted_sb3_zip(tmp_path / "model.zip", marker)
+    _write_json(tmp_path / "model.json", _spec(), "model.zip")
+    argv = ["reconstruct", "--input", str(tmp_path / "missing.npz"), "--graph", "default"]
+    argv += ["--optimizer", f"learned:{tmp_path / 'model'}", "--out", str(tmp_path / "o.npz")]
+    assert main(argv) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("fpg-gym reconstruct: error: ")
+    assert "refused" in err[0] and "model.zip" in err[0]
+    assert not marker.exists(), "loading the model ran code from it"
