@@ -608,6 +608,16 @@ def test_corrupt_gzip_is_a_project_error_naming_the_file(tmp_path: Path, recordi
         read_recording(path)
 
 
+def test_a_gzip_bomb_is_refused(tmp_path: Path, monkeypatch: Any) -> None:
+    from fpg_gym.io import _compression
+
+    monkeypatch.setattr(_compression, "MAX_DECOMPRESSED_BYTES", 1 << 20)
+    path = tmp_path / "bomb.bvh.gz"
+    path.write_bytes(gzip.compress(b"0 " * (1 << 20)))  # 2 MiB from 2 KiB
+    with pytest.raises(DataFormatError, match=r"bomb\.bvh\.gz: gzip data expands beyond 1 MiB"):
+        read_bvh(path, _ANY_MAP)
+
+
 def test_an_absurd_ntu_frame_count_is_a_clear_error(tmp_path: Path) -> None:
     path = tmp_path / "huge.skeleton"
     path.write_text("1000000000\n0\n0\n")

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-import gzip
-import io
 import os
 import zlib
 
@@ -18,6 +16,8 @@ MAX_DECOMPRESSED_BYTES = 1 << 30
 def maybe_gunzip(raw: bytes, path: str | os.PathLike[str] = "") -> bytes:
     """``raw`` decompressed when it starts with the gzip magic bytes, else ``raw`` itself.
 
+    Concatenated gzip members are joined; zero padding after the last one is ignored.
+
     Raises
     ------
     DataFormatError
@@ -26,13 +26,27 @@ def maybe_gunzip(raw: bytes, path: str | os.PathLike[str] = "") -> bytes:
     """
     if raw[:2] != GZIP_MAGIC:
         return raw
-    try:
-        with gzip.GzipFile(fileobj=io.BytesIO(raw)) as stream:
-            data = stream.read(MAX_DECOMPRESSED_BYTES + 1)
-    except (OSError, EOFError, zlib.error) as error:
-        raise DataFormatError(path, f"corrupt gzip data, or truncated ({error})") from None
-    if len(data) > MAX_DECOMPRESSED_BYTES:
-        raise DataFormatError(
-            path, f"gzip data expands beyond {MAX_DECOMPRESSED_BYTES >> 20} MiB; not a mocap file"
-        )
-    return data
+    pieces: list[bytes] = []
+    total = 0
+    data = raw
+    while data:
+        stream = zlib.decompressobj(wbits=31)  # gzip header and trailer
+        try:
+            piece = stream.decompress(data, MAX_DECOMPRESSED_BYTES + 1 - total)
+        except zlib.error as error:
+            raise DataFormatError(path, f"corrupt gzip data ({error})") from None
+        total += len(piece)
+        if total > MAX_DECOMPRESSED_BYTES or stream.unconsumed_tail:
+            raise DataFormatError(
+                path,
+                f"gzip data expands beyond {MAX_DECOMPRESSED_BYTES >> 20} MiB; not a mocap file",
+            )
+        if not stream.eof:
+            raise DataFormatError(path, "corrupt gzip data, or truncated (the stream ends early)")
+        pieces.append(piece)
+        data = stream.unused_data
+        if not data.strip(b"\0"):
+            break
+        if data[:2] != GZIP_MAGIC:
+            raise DataFormatError(path, "corrupt gzip data (unexpected bytes after the stream)")
+    return b"".join(pieces)
