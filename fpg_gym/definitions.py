@@ -59,13 +59,13 @@ from fpg_gym.rotations import quaternion_to_matrix, shortest_arc
 __all__ = [
     "FORMAT",
     "KINECT_V2_TO_VICON",
-    "packaged_map",
     "TRUNK_JOINTS",
     "DefinitionMap",
     "PoseMap",
     "fit_sensor_maps",
     "fit_to_database",
     "joint_frames",
+    "packaged_map",
 ]
 
 #: ``format`` entry of a definition-map JSON file.

@@ -319,7 +319,10 @@ def test_positions_round_trip(tmp_path: Path) -> None:
         ({"positions": np.zeros((0, 20, 3)), "fps": 30.0}, "no frames"),
         ({"positions": np.full((2, 20, 3), np.nan), "fps": 30.0}, "NaN or inf at frame 0"),
         ({"positions": np.zeros((2, 20, 3)), "fps": -1.0}, "expected a positive frame rate"),
-        ({"positions": np.array([None] * 3, dtype=object), "fps": 30.0}, "unreadable array"),
+        (
+            {"positions": np.array([None] * 3, dtype=object), "fps": 30.0},
+            "Python objects \\(pickle\\)",
+        ),
     ],
 )
 def test_positions_bad_input(tmp_path: Path, arrays: dict[str, object], message: str) -> None:

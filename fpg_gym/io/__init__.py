@@ -14,7 +14,7 @@ from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 from pathlib import Path
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.errors import DataFormatError, FpgGymError
 from fpg_gym.io.bvh import BANDAI_NAMCO_MAP, BvhPoint, JointSource, read_bvh
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.deepmimic import DEFAULT_CLIP_NAMES, load_default_clips, read_deepmimic
@@ -129,7 +129,16 @@ def find_mocap_files(inputs: Iterable[str | Path]) -> list[Path]:
 
 
 def _read_for_pool(path: Path, units: str, joint_map: Mapping[str, JointSource] | None) -> Clip:
-    return read_clip(path, joint_map=joint_map, units=units)
+    """:func:`read_clip` in a reader process: any failure comes back naming the file (the
+    project's errors pickle with their message; others are wrapped)."""
+    try:
+        return read_clip(path, joint_map=joint_map, units=units)
+    except FpgGymError:
+        raise
+    except Exception as error:
+        raise DataFormatError(
+            path, f"cannot be read ({type(error).__name__}: {' '.join(str(error).split())})"
+        ) from None
 
 
 def load_clips(
