@@ -465,6 +465,7 @@ def fit_sensor_maps(
     truth: str,
     database: npt.ArrayLike | None = None,
     database_name: str = "database",
+    database_joints: npt.ArrayLike = TRUNK_JOINTS,
 ) -> tuple[DefinitionMap, DefinitionMap | None]:
     """The maps a reconstruction needs, from a sensor's poses paired with reference poses.
 
@@ -478,6 +479,8 @@ def fit_sensor_maps(
     database : array_like, shape (M, 20, 3), optional
         A database in other definitions than ``truth``'s. Without it the database is taken to
         be in the ``truth`` definitions (e.g. built from the same reference system).
+    database_joints : array_like of int
+        Joints whose database definitions are fitted (:func:`fit_to_database`).
 
     Returns
     -------
@@ -489,7 +492,9 @@ def fit_sensor_maps(
     """
     if database is None:
         return DefinitionMap.fit(sensor_poses, truth_poses, source=sensor, target=truth), None
-    truth_to_database = fit_to_database(truth_poses, database, source=truth, target=database_name)
+    truth_to_database = fit_to_database(
+        truth_poses, database, source=truth, target=database_name, joints=database_joints
+    )
     sensor_map = DefinitionMap.fit(
         sensor_poses,
         truth_to_database.apply(truth_poses),

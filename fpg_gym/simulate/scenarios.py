@@ -123,9 +123,9 @@ _BASE = Scenario(name="clean", description="")
 #: its bones vary less over time (slower wander), and part of the static error is the
 #: definition bias of :data:`KINECT_V2_SENSOR`, so the random static part is smaller.
 KINECT_V2_NOISE = NoiseModel(
-    bias_sigma={"core": 0.015, "mid": 0.02, "distal": 0.02, "end": 0.024},
-    wander_sigma={"core": 0.0025, "mid": 0.007, "distal": 0.008, "end": 0.004},
-    white_sigma={"core": 0.0011, "mid": 0.0018, "distal": 0.0028, "end": 0.0042},
+    bias_sigma={"core": 0.015, "mid": 0.024, "distal": 0.018, "end": 0.018},
+    wander_sigma={"core": 0.0018, "mid": 0.007, "distal": 0.006, "end": 0.0015},
+    white_sigma={"core": 0.0011, "mid": 0.0018, "distal": 0.0028, "end": 0.0052},
 )
 #: Where a Kinect v2 puts its joints relative to marker-based joint centres: the inverse of the
 #: packaged UI-PRMD map (:func:`fpg_gym.definitions.packaged_map`).
