@@ -42,7 +42,7 @@ from policies.sampler import (
     SamplerSpec,
     check_layer_widths,
     import_learn,
-    load_weights_file,
+    load_weights_into,
     model_paths,
 )
 
@@ -163,14 +163,8 @@ class RLSampler(GaussianSampler):
             If the file is not a tensor file (an SB3 ``.zip`` included) or its tensors do not
             fit the network the JSON describes.
         """
-        state = load_weights_file(weights)
         policy = cls.build_policy(spec, weights)
-        try:
-            policy.load_state_dict(state, strict=True)
-        except (RuntimeError, ValueError) as error:
-            raise DataFormatError(
-                weights, f"the tensors do not fit the network in the JSON ({error})"
-            ) from None
+        load_weights_into(policy, weights)
         policy.set_training_mode(False)
         return cls(spec, policy, seed)
 

@@ -658,6 +658,23 @@ def load_weights_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     return dict(state)
 
 
+def load_weights_into(module: Any, path: str | os.PathLike[str]) -> None:
+    """Load a weights file (:func:`load_weights_file`) into a torch module, strictly.
+
+    Raises
+    ------
+    DataFormatError
+        If the file is refused, or its tensors do not fit the module built from the JSON.
+    """
+    state = load_weights_file(path)
+    try:
+        module.load_state_dict(state, strict=True)
+    except (RuntimeError, ValueError) as error:
+        raise DataFormatError(
+            path, f"the tensors do not fit the network in the JSON ({error})"
+        ) from None
+
+
 def model_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
     """``(MODEL.json, stem)`` of a model path given as ``MODEL``, ``MODEL.json``, ``.pt`` or
     ``.zip``."""

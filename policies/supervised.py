@@ -44,7 +44,7 @@ from policies.sampler import (
     SamplerSpec,
     check_layer_widths,
     import_learn,
-    load_weights_file,
+    load_weights_into,
     model_paths,
 )
 
@@ -184,14 +184,8 @@ class SupervisedSampler(GaussianSampler):
             If the file is not a tensor file or its tensors do not fit the network ``spec``
             describes.
         """
-        state = load_weights_file(weights)
         module = _build(spec, spec.feature_map().size, source=weights)
-        try:
-            module.load_state_dict(state, strict=True)
-        except (RuntimeError, ValueError) as error:
-            raise DataFormatError(
-                weights, f"weights do not fit the network in the JSON ({error})"
-            ) from None
+        load_weights_into(module, weights)
         return cls(spec, module, seed)
 
     def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import tiny_bvh
 
 hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
@@ -49,34 +50,14 @@ FAST = settings(
 #: Seconds one read may take on these small files before it counts as a hang.
 SLOW_READ_S = 5.0
 
-_BVH = """HIERARCHY
-ROOT Hips
-{
-  OFFSET 0 0 0
-  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
-  JOINT Chest
-  {
-    OFFSET 0 50 0
-    CHANNELS 3 Zrotation Xrotation Yrotation
-    JOINT Hand
-    {
-      OFFSET 0 0 30
-      CHANNELS 3 Xrotation Yrotation Zrotation
-      End Site
-      {
-        OFFSET 0 0 10
-      }
-    }
-  }
-}
-MOTION
-Frames: 4
-Frame Time: 0.0333333
-0 100 0 0 0 0 0 0 0 0 0 0
-10 100 0 0 0 90 90 90 0 0 0 0
-20 100 0 5 0 90 90 45 0 0 1 0
-30 100 0 5 0 90 90 45 0 0 1 0
-"""
+_BVH = tiny_bvh(
+    [
+        "0 100 0 0 0 0 0 0 0 0 0 0",
+        "10 100 0 0 0 90 90 90 0 0 0 0",
+        "20 100 0 5 0 90 90 45 0 0 1 0",
+        "30 100 0 5 0 90 90 45 0 0 1 0",
+    ]
+)
 _ANY_MAP = {name: "Hips" for name in skeleton.JOINT_NAMES}
 _TOKENS = ["nan", "NaN", "inf", "-inf", "1e30", "3.5e38", "1e400", "-", "x", ",", "", "0", "1e9"]
 

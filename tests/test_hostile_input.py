@@ -25,6 +25,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from conftest import tiny_bvh
 
 from fpg_gym import compare, skeleton
 from fpg_gym.cli import main
@@ -466,33 +467,13 @@ def test_compare_workers_exit_when_the_parent_is_killed(tmp_path: Path) -> None:
 
 # --------------------------------------------------------------------------- BVH
 
-_BVH = """HIERARCHY
-ROOT Hips
-{
-  OFFSET 0 0 0
-  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
-  JOINT Chest
-  {
-    OFFSET 0 50 0
-    CHANNELS 3 Zrotation Xrotation Yrotation
-    JOINT Hand
-    {
-      OFFSET 0 0 30
-      CHANNELS 3 Xrotation Yrotation Zrotation
-      End Site
-      {
-        OFFSET 0 0 10
-      }
-    }
-  }
-}
-MOTION
-Frames: 3
-Frame Time: 0.0333333
-0 100 0 0 0 0 0 0 0 0 0 0
-10 100 0 0 0 90 90 90 0 0 0 0
-20 100 0 0 0 90 90 90 0 0 0 0
-"""
+_BVH = tiny_bvh(
+    [
+        "0 100 0 0 0 0 0 0 0 0 0 0",
+        "10 100 0 0 0 90 90 90 0 0 0 0",
+        "20 100 0 0 0 90 90 90 0 0 0 0",
+    ]
+)
 _ANY_MAP = {name: "Hips" for name in skeleton.JOINT_NAMES}
 
 

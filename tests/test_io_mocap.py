@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from conftest import shared_path
+from conftest import shared_path, tiny_bvh
 
 from fpg_gym import poses, skeleton
 from fpg_gym.errors import DataFormatError
@@ -29,32 +29,12 @@ from fpg_gym.io.deepmimic import default_clip_path, forward_kinematics, humanoid
 
 # --------------------------------------------------------------------------- synthetic BVH
 
-_HIERARCHY = """HIERARCHY
-ROOT Hips
-{
-  OFFSET 0 0 0
-  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
-  JOINT Chest
-  {
-    OFFSET 0 50 0
-    CHANNELS 3 Zrotation Xrotation Yrotation
-    JOINT Hand
-    {
-      OFFSET 0 0 30
-      CHANNELS 3 Xrotation Yrotation Zrotation
-      End Site
-      {
-        OFFSET 0 0 10
-      }
-    }
-  }
-}
-MOTION
-Frames: 2
-Frame Time: 0.0333333
-0 100 0 0 0 0 0 0 0 0 0 0
-10 100 0 0 0 90 90 90 0 0 0 0
-"""
+_HIERARCHY = tiny_bvh(
+    [
+        "0 100 0 0 0 0 0 0 0 0 0 0",
+        "10 100 0 0 0 90 90 90 0 0 0 0",
+    ]
+)
 
 
 def _write(tmp_path: Path, name: str, text: str) -> Path:

@@ -9,7 +9,7 @@ in parallel processes with a progress bar, and returns the clips in a stable ord
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 from pathlib import Path
@@ -30,6 +30,7 @@ __all__ = [
     "Clip",
     "DataFormatError",
     "Recording",
+    "expand_inputs",
     "find_mocap_files",
     "load_clips",
     "load_default_clips",
@@ -105,6 +106,32 @@ def _is_mocap_file(path: Path) -> bool:
     return not path.name.startswith(".")
 
 
+def expand_inputs(
+    inputs: Iterable[str | Path], accept: Callable[[Path], bool], kind: str
+) -> list[Path]:
+    """Files named by ``inputs``: files as given, folders expanded (recursively, sorted) into
+    the files ``accept`` takes.
+
+    Raises
+    ------
+    FileNotFoundError
+        If an input does not exist or a folder holds no accepted file (``kind`` names them).
+    """
+    files: list[Path] = []
+    for item in inputs:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(p for p in path.rglob("*") if p.is_file() and accept(p))
+            if not found:
+                raise FileNotFoundError(f"{path}: folder holds no {kind}")
+            files.extend(found)
+        elif path.is_file():
+            files.append(path)
+        else:
+            raise FileNotFoundError(f"{path}: no such file or folder")
+    return files
+
+
 def find_mocap_files(inputs: Iterable[str | Path]) -> list[Path]:
     """Expand folders (recursively, sorted) into the mocap files they hold.
 
@@ -113,19 +140,7 @@ def find_mocap_files(inputs: Iterable[str | Path]) -> list[Path]:
     FileNotFoundError
         If an input does not exist or a folder holds no mocap file.
     """
-    files: list[Path] = []
-    for item in inputs:
-        path = Path(item)
-        if path.is_dir():
-            found = sorted(p for p in path.rglob("*") if p.is_file() and _is_mocap_file(p))
-            if not found:
-                raise FileNotFoundError(f"{path}: folder holds no .bvh, .bvh.gz, .npz or .txt file")
-            files.extend(found)
-        elif path.is_file():
-            files.append(path)
-        else:
-            raise FileNotFoundError(f"{path}: no such file or folder")
-    return files
+    return expand_inputs(inputs, _is_mocap_file, ".bvh, .bvh.gz, .npz or .txt file")
 
 
 def _read_for_pool(path: Path, units: str, joint_map: Mapping[str, JointSource] | None) -> Clip:
