@@ -9,6 +9,7 @@ from them, and a rerun with the same ``--out`` skips the finished rows.
 
 Output folder::
 
+    manifest.txt      every file compare wrote here (``--fresh`` deletes these and nothing else)
     config.json       the run's settings (a rerun must match them to resume)
     results.csv       one row per episode and method (see :data:`CSV_FIELDS`)
     episodes/*.npz    the simulated recordings (``fpg_gym.io.load_recording``)
@@ -16,6 +17,14 @@ Output folder::
     summary.json      per-method aggregates, the paired tests, the settings
     report.md         the tables (FPG §8 style) and the plots
     *.png             error histogram, cumulative curve, error over time, frame times
+
+Safety: compare writes only into a folder it created (or an empty one) and lists every file it
+writes in ``manifest.txt`` before writing it; ``fresh=True`` deletes the listed files and nothing
+else, and is refused on a folder without a manifest. Resuming trusts nothing stale: a torn last
+row of ``results.csv`` (a kill during a write) is dropped with a warning, and episodes are keyed
+by content (:attr:`EpisodeSpec.key`, a hash of the input file or clip and of the episode's
+settings), so a different clip under the same file name is recomputed, and two inputs with the
+same file name stay two episodes.
 
 Hold-out rule: the graph must not contain the evaluated takes. ``--graph default`` builds the
 embedded graph without the evaluated embedded clips; for a graph file, build it from other takes
@@ -26,19 +35,21 @@ from __future__ import annotations
 
 import csv
 import hashlib
+import io
 import json
 import math
 import os
 import re
-import shutil
 import signal
 import sys
+import threading
 import time
 import warnings
 import zlib
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterable, Sequence
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from dataclasses import asdict, dataclass, field
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime, timezone
 from pathlib import Path
 from typing import Any
@@ -46,12 +57,16 @@ from typing import Any
 import numpy as np
 
 from fpg_gym import metrics, skeleton
+from fpg_gym.definitions import DefinitionMap
+from fpg_gym.errors import OutputError, TaskError
 from fpg_gym.graph import load_graph
 from fpg_gym.jsonable import jsonable
 from fpg_gym.methods import BASELINE, MethodRunner, parse_method
+from fpg_gym.outputs import save_npz, write_text
 
 __all__ = [
     "CSV_FIELDS",
+    "MANIFEST_NAME",
     "TABLE_COLUMNS",
     "CompareConfig",
     "EpisodeSpec",
@@ -156,6 +171,10 @@ class EpisodeSpec:
         same one: paired comparisons); derived from ``seed``, the clip and the scenario names.
     recording : str
         Recording file of an input episode (``""`` for simulated ones).
+    key : str
+        Content key: a hash of the input (the recording file's bytes, or the clip's poses and
+        rate) and of the episode's settings (scenario, seeds, frame cap). A rerun reuses an
+        episode's files and finished rows only when its key is unchanged (``""``: unknown).
     """
 
     id: str
@@ -164,6 +183,7 @@ class EpisodeSpec:
     seed: int
     sim_seed: int
     recording: str = ""
+    key: str = ""
 
 
 @dataclass
@@ -205,6 +225,9 @@ class CompareConfig:
         reconstruction methods (``ReconstructorConfig.sensor_map`` / ``output_map``).
     sensor_blend : float
         ``ReconstructorConfig.sensor_blend`` of the reconstruction methods (0).
+    input_format : str or None
+        Format of the ``inputs`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`); None guesses it
+        per file.
     """
 
     out: str
@@ -223,6 +246,7 @@ class CompareConfig:
     sensor_map: str | None = None
     output_map: str | None = None
     sensor_blend: float = 0.0
+    input_format: str | None = None
 
     def __post_init__(self) -> None:
         self.methods = [parse_method(m).name for m in self.methods]
@@ -261,8 +285,6 @@ class CompareConfig:
 
     def reconstructor_options(self) -> dict[str, Any]:
         """The :class:`~fpg_gym.reconstruct.ReconstructorConfig` settings of the methods."""
-        from fpg_gym.definitions import DefinitionMap
-
         options: dict[str, Any] = {"k": self.k, "sensor_blend": self.sensor_blend}
         if self.sensor_map:
             options["sensor_map"] = DefinitionMap.load(self.sensor_map)
@@ -341,10 +363,25 @@ def plan_episodes(
     scenarios: Sequence[str],
     seeds: Sequence[int],
     recordings: Sequence[str] = (),
+    recording_hashes: Sequence[str] = (),
 ) -> list[EpisodeSpec]:
-    """Every clip x scenario x seed, then every recording x seed (ids made unique)."""
+    """Every clip x scenario x seed, then every recording x seed (ids made unique).
+
+    With ``recording_hashes`` (one content hash per recording), recordings whose file names
+    collide but whose contents differ are named ``stem~HASH`` (stable whatever their order),
+    and the same file given twice keeps one name.
+    """
     episodes: list[EpisodeSpec] = []
     used: set[str] = set()
+    stems = [Path(path).name.removesuffix(".npz") for path in recordings]
+    if recording_hashes:
+        distinct: dict[str, set[str]] = {}
+        for stem, digest in zip(stems, recording_hashes, strict=True):
+            distinct.setdefault(stem, set()).add(digest)
+        stems = [
+            f"{stem}~{digest[:8]}" if len(distinct[stem]) > 1 else stem
+            for stem, digest in zip(stems, recording_hashes, strict=True)
+        ]
 
     def unique(base: str) -> str:
         name, n = base, 2
@@ -365,8 +402,7 @@ def plan_episodes(
                         sim_seed=_derived_seed(seed, clip, scenario),
                     )
                 )
-        for path in recordings:
-            stem = Path(path).name.removesuffix(".npz")
+        for path, stem in zip(recordings, stems, strict=True):
             episodes.append(
                 EpisodeSpec(
                     id=unique(_safe(f"{stem}__s{seed}")),
@@ -380,18 +416,65 @@ def plan_episodes(
     return episodes
 
 
-def _prepare_episodes(
-    config: CompareConfig, folder: Path, progress: bool
-) -> tuple[list[EpisodeSpec], list[str], list[str]]:
-    """Plan the episodes and write their recordings (reusing ones already written).
+def _file_hash(path: str | Path) -> str:
+    """SHA-256 of a file's bytes (hex)."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
 
-    Returns the episodes, the embedded clips to leave out of the default graph, and the
-    embedded clips the recording files (``--inputs``) were simulated from.
+
+def _clip_hash(clip: Any) -> str:
+    """SHA-256 of a clip's content: its poses (float32) and frame rate (hex)."""
+    digest = hashlib.sha256(np.ascontiguousarray(clip.positions, dtype=np.float32).tobytes())
+    digest.update(repr(float(clip.fps)).encode())
+    return digest.hexdigest()
+
+
+def _episode_key(episode: EpisodeSpec, content: str, max_frames: int | None) -> str:
+    """The content key of an episode (see :attr:`EpisodeSpec.key`)."""
+    settings = {
+        "content": content,
+        "scenario": episode.scenario,
+        "seed": episode.seed,
+        "sim_seed": episode.sim_seed,
+        "max_frames": max_frames,
+    }
+    return hashlib.sha256(json.dumps(settings, sort_keys=True).encode()).hexdigest()[:24]
+
+
+def _unique_clip_names(clips: Sequence[Any], say: Callable[[str], None]) -> dict[str, Any]:
+    """Clips by name, distinct clips kept distinct: when different clips share a name (two
+    ``walk.bvh`` in different folders) each is named ``name~HASH``; the same clip given twice
+    is kept once."""
+    groups: dict[str, dict[str, Any]] = {}
+    for clip in clips:
+        groups.setdefault(clip.name, {}).setdefault(_clip_hash(clip), clip)
+    by_name: dict[str, Any] = {}
+    for name, variants in groups.items():
+        if len(variants) == 1:
+            by_name[name] = next(iter(variants.values()))
+            continue
+        say(
+            f"warning: {len(variants)} different clips are named {name!r}; they are kept apart "
+            f"as {', '.join(f'{name}~{h[:8]}' for h in variants)}"
+        )
+        for digest, clip in variants.items():
+            renamed = f"{name}~{digest[:8]}"
+            by_name[renamed] = replace(clip, name=renamed)
+    return by_name
+
+
+def _plan(
+    config: CompareConfig, progress: bool, say: Callable[[str], None]
+) -> tuple[list[EpisodeSpec], dict[str, Any], list[str], list[str]]:
+    """Plan the episodes with their content keys (reading the clips; nothing is written).
+
+    Returns the episodes, the clips by (unique) name, the embedded clips to leave out of the
+    default graph, and the original names of the clips (for the held-out warning).
     """
-    from tqdm.auto import tqdm
-
-    from fpg_gym.io import DEFAULT_CLIP_NAMES, read_recording, write_recording
-    from fpg_gym.simulate import KinectSimulator, get_scenario
+    from fpg_gym.simulate import get_scenario
 
     for scenario in config.scenarios:
         get_scenario(scenario)  # unknown names fail here, before any work
@@ -401,29 +484,64 @@ def _prepare_episodes(
     clips, embedded = (
         resolve_clips(config.clips, config.units, progress=progress) if config.clips else ([], [])
     )
-    by_name: dict[str, Any] = {}
-    for clip in clips:
-        by_name.setdefault(clip.name, clip)
-    episodes = plan_episodes(list(by_name), config.scenarios, config.seeds, config.inputs)
+    by_name = _unique_clip_names(clips, say)
+    hashes = {name: _clip_hash(clip) for name, clip in by_name.items()}
+    recording_hashes = [_file_hash(path) for path in config.inputs]
+    planned = plan_episodes(
+        list(by_name), config.scenarios, config.seeds, config.inputs, recording_hashes
+    )
+    # The format an input is read with is part of its content.
+    by_path = {
+        path: f"{digest}:{config.input_format or 'guessed'}"
+        for path, digest in zip(config.inputs, recording_hashes, strict=True)
+    }
+    episodes = [
+        replace(
+            e,
+            key=_episode_key(
+                e, by_path[e.recording] if e.recording else hashes[e.clip], config.max_frames
+            ),
+        )
+        for e in planned
+    ]
+    return episodes, by_name, embedded, sorted({c.name for c in clips})
+
+
+def _write_episodes(
+    config: CompareConfig,
+    episodes: Sequence[EpisodeSpec],
+    by_name: dict[str, Any],
+    folder: Path,
+    progress: bool,
+    manifest: _Manifest,
+    rewrite: set[str] | frozenset[str] = frozenset(),
+) -> list[str]:
+    """Write the episodes' recordings, reusing the ones already there except the ``rewrite``
+    (stale) ones. Returns the embedded clips the recording files (``--inputs``) were simulated
+    from."""
+    from tqdm.auto import tqdm
+
+    from fpg_gym.io import read_recording, write_recording
+    from fpg_gym.simulate import KinectSimulator
+
     folder.mkdir(parents=True, exist_ok=True)
     simulators: dict[str, Any] = {}
     bar = tqdm(episodes, desc="episodes", unit="episode", disable=not progress, leave=False)
     try:
         for episode in bar:
             target = folder / f"{episode.id}.npz"
-            if target.is_file():
+            if target.is_file() and episode.id not in rewrite:
                 continue
             if episode.recording:
-                recording = read_recording(episode.recording)
+                recording = read_recording(episode.recording, format=config.input_format)
             else:
                 if episode.scenario not in simulators:
                     simulators[episode.scenario] = KinectSimulator(episode.scenario)
                 clip = by_name[episode.clip]
                 recording = simulators[episode.scenario].simulate(clip, seed=episode.sim_seed)
             recording = recording.head(config.max_frames)
-            partial = target.with_name(target.name + ".part.npz")
-            write_recording(partial, recording)
-            os.replace(partial, target)
+            manifest.add(target)
+            write_recording(target, recording)  # atomic: temporary file, then rename
     finally:
         bar.close()
         for simulator in simulators.values():
@@ -435,9 +553,7 @@ def _prepare_episodes(
             clip_name = _recording_clip(folder / f"{episode.id}.npz")
             if clip_name:
                 recorded.append(clip_name)
-            if clip_name in DEFAULT_CLIP_NAMES:
-                embedded = sorted({*embedded, clip_name})
-    return episodes, embedded, recorded
+    return recorded
 
 
 def _recording_clip(path: Path) -> str:
@@ -571,9 +687,31 @@ def _execute(
 _WORKER_RUNNER: MethodRunner | None = None
 
 
-def _init_worker(graph: str, exclude: list[str], budget: int, options: dict[str, Any]) -> None:
+def _exit_with_parent(parent: int, interval: float = 1.0) -> None:
+    """Exit this worker process as soon as its parent is gone (killed with SIGKILL, say): a
+    daemon thread polls the parent's id, and the process exits when it changes."""
+
+    def watch() -> None:
+        while True:
+            if os.getppid() != parent:
+                os._exit(1)
+            time.sleep(interval)
+
+    threading.Thread(target=watch, name="fpg-gym-parent-watch", daemon=True).start()
+
+
+def _init_worker(
+    graph: str,
+    exclude: list[str],
+    budget: int,
+    options: dict[str, Any],
+    parent: int | None = None,
+) -> None:
     global _WORKER_RUNNER
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if parent is not None:
+        _exit_with_parent(parent)
     warnings.simplefilter("ignore")
     _WORKER_RUNNER = MethodRunner(
         load_graph(graph, exclude=exclude), budget=budget, reconstructor_options=options
@@ -584,7 +722,7 @@ def _worker_task(task: _Task) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     from fpg_gym.io.recording import load_recording
 
     assert _WORKER_RUNNER is not None, "worker not initialised"
-    return _execute(_WORKER_RUNNER, task, load_recording(task.recording_path))
+    return _run_task(_WORKER_RUNNER, task, load_recording)
 
 
 # --------------------------------------------------------------------------- results files
@@ -595,6 +733,193 @@ def _read_rows(path: Path) -> list[dict[str, str]]:
         return []
     with path.open(newline="") as handle:
         return list(csv.DictReader(handle))
+
+
+def _repair_results(
+    path: Path, say: Callable[[str], None], drop_episodes: Iterable[str] = ()
+) -> None:
+    """Make ``results.csv`` safe to append to: drop a torn last row (a kill during a write
+    leaves a row without its line end, which the next row would be glued to), rows whose
+    field count is wrong, and the rows of ``drop_episodes`` (stale episodes); rewrite it with
+    the header :data:`CSV_FIELDS` (columns matched by name) when its header differs. Warns
+    (``say``) about every row dropped but the stale ones. The file is rewritten atomically,
+    and only when something changed."""
+    if not path.is_file():
+        return
+    raw = path.read_bytes()
+    if not raw:
+        return
+    changed = False
+    if raw.endswith(b"\r"):  # the row is whole; only its "\n" is missing
+        raw += b"\n"
+        changed = True
+    if not raw.endswith(b"\n"):
+        cut = raw.rfind(b"\n") + 1
+        torn = raw[cut:].decode("utf-8", errors="replace")
+        line = raw.count(b"\n") + 1
+        say(
+            f"warning: {path}, line {line}: the last row was cut off (an interrupted write); "
+            f"dropped it ({torn[:60]!r}); its task runs again"
+        )
+        raw = raw[:cut]
+        changed = True
+    rows = list(csv.reader(io.StringIO(raw.decode("utf-8", errors="replace"), newline="")))
+    if not rows:
+        path.write_bytes(b"")
+        return
+    header, body = rows[0], rows[1:]
+    if tuple(header) != CSV_FIELDS:
+        changed = True
+    drop = set(drop_episodes)
+    kept: list[dict[str, str]] = []
+    for number, row in enumerate(body, start=2):
+        if len(row) != len(header):
+            say(
+                f"warning: {path}, line {number}: expected {len(header)} fields, got {len(row)}; "
+                "dropped the row; its task runs again"
+            )
+            changed = True
+            continue
+        record = dict(zip(header, row, strict=True))
+        if record.get("episode") in drop:
+            changed = True
+            continue
+        kept.append(record)
+    if not changed:
+        return
+    buffer = io.StringIO(newline="")
+    writer = csv.DictWriter(buffer, fieldnames=list(CSV_FIELDS), extrasaction="ignore")
+    writer.writeheader()
+    for record in kept:
+        writer.writerow({k: record.get(k, "") for k in CSV_FIELDS})
+    write_text(path, buffer.getvalue())
+
+
+#: The file listing what compare wrote in its output folder.
+MANIFEST_NAME = "manifest.txt"
+_MANIFEST_HEADER = (
+    "# fpg-gym compare manifest v1: the files fpg-gym compare wrote in this folder, one relative "
+    "path per line; compare --fresh deletes these and nothing else\n"
+)
+
+
+class _Manifest:
+    """``manifest.txt``: every file compare writes in its folder, listed (appended and flushed)
+    before the file is written, so that ``--fresh`` can delete exactly those files."""
+
+    def __init__(self, out: Path) -> None:
+        self.out = out
+        self.path = out / MANIFEST_NAME
+        self.listed: set[str] = set(self.entries())
+        if not self.path.is_file():
+            self.path.write_text(_MANIFEST_HEADER, encoding="utf-8")
+
+    def entries(self) -> list[str]:
+        """The listed relative paths (a torn last line, from a kill during a write, is not
+        trusted)."""
+        if not self.path.is_file():
+            return []
+        text = self.path.read_text(encoding="utf-8", errors="replace")
+        lines = text.split("\n")[:-1]  # the last piece lacks its line end: torn or empty
+        return [line for line in lines if line and not line.startswith("#")]
+
+    def add(self, *paths: Path) -> None:
+        """List ``paths`` (files inside the folder) before they are written."""
+        new = []
+        for path in paths:
+            relative = path.relative_to(self.out).as_posix()
+            if relative not in self.listed:
+                self.listed.add(relative)
+                new.append(relative)
+        if new:
+            with self.path.open("a", encoding="utf-8") as handle:
+                handle.write("".join(f"{r}\n" for r in new))
+                handle.flush()
+                os.fsync(handle.fileno())
+
+    def delete_listed(self) -> int:
+        """Delete the listed files that are regular files inside the folder (never a link, never
+        anything outside it), then the folders they leave empty; empty the list. Returns the
+        number of files deleted."""
+        root = self.out.resolve()
+        deleted = 0
+        folders: set[Path] = set()
+        for relative in self.entries():
+            path = self.out / relative
+            try:
+                real = path.resolve()
+            except OSError:
+                continue
+            if not real.is_relative_to(root) or real == root or path.is_symlink():
+                continue
+            # The file, and temporary files of it left by a kill during a write
+            # (fpg_gym.outputs.atomic_path names them ".NAME.PID.HEX.tmp").
+            leftovers = [p for p in real.parent.glob(f".{real.name}.*.tmp") if p.is_file()]
+            for leftover in leftovers:
+                leftover.unlink()
+            if real.is_file() or leftovers:
+                if real.is_file():
+                    real.unlink()
+                deleted += 1
+                parent = real.parent
+                while parent != root and parent.is_relative_to(root):
+                    folders.add(parent)
+                    parent = parent.parent
+        for folder in sorted(folders, key=lambda p: len(p.parts), reverse=True):
+            try:
+                folder.rmdir()  # only when empty
+            except OSError:
+                pass
+        self.path.write_text(_MANIFEST_HEADER, encoding="utf-8")
+        self.listed = set()
+        return deleted
+
+
+def _is_legacy_compare_folder(out: Path) -> bool:
+    """A folder written by an fpg-gym compare of before the manifest (config.json with a
+    resume key beside results.csv)."""
+    try:
+        config = json.loads((out / "config.json").read_text())
+    except (OSError, ValueError):
+        return False
+    return isinstance(config, dict) and "resume_key" in config and (out / "results.csv").is_file()
+
+
+def _claim_folder(out: Path, fresh: bool, say: Callable[[str], None]) -> _Manifest:
+    """The output folder's manifest, after checking that compare may write (and with
+    ``fresh``, delete) there.
+
+    Raises
+    ------
+    OutputError
+        ``out`` is a file, or a folder holding files compare did not write (no manifest),
+        or ``fresh`` is asked for a folder of an earlier fpg-gym without a manifest.
+    """
+    if out.exists() and not out.is_dir():
+        raise OutputError(f"--out {out}: is a file; expected a folder")
+    if out.is_dir() and not (out / MANIFEST_NAME).is_file() and any(out.iterdir()):
+        if not _is_legacy_compare_folder(out):
+            raise OutputError(
+                f"--out {out}: the folder holds files that fpg-gym compare did not write (no "
+                f"{MANIFEST_NAME}); compare writes only into a new or empty folder, or one it "
+                "created: choose another --out"
+            )
+        if fresh:
+            raise OutputError(
+                f"--out {out}: --fresh deletes only files listed in {MANIFEST_NAME}, and this "
+                "folder (from an earlier fpg-gym) has none; delete what you no longer need "
+                "yourself, or choose another --out"
+            )
+        say(f"{out}: results of an earlier fpg-gym compare; resuming, and listing new files")
+    out.mkdir(parents=True, exist_ok=True)
+    if not os.access(out, os.W_OK | os.X_OK):
+        raise OutputError(f"--out {out}: the folder is not writable")
+    manifest = _Manifest(out)
+    if fresh:
+        count = manifest.delete_listed()
+        if count:
+            say(f"--fresh: deleted {count} file(s) an earlier compare wrote in {out}")
+    return manifest
 
 
 def _format_value(value: Any) -> Any:
@@ -630,10 +955,7 @@ def _frames_path(out: Path, episode: str, method: str) -> Path:
 
 
 def _save_frames(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    partial = path.with_name(path.name + ".part.npz")
-    np.savez_compressed(partial, **arrays)  # type: ignore[arg-type]
-    os.replace(partial, path)
+    save_npz(path, arrays)  # temporary file beside it, then renamed
 
 
 def _load_frames(path: Path, keys: Sequence[str] | None = None) -> dict[str, np.ndarray]:
@@ -726,6 +1048,65 @@ def _held_out_warning(
     )
 
 
+#: Files :func:`write_report` may write at the top of a compare folder.
+_REPORT_FILES: tuple[str, ...] = (
+    "summary.json",
+    "report.md",
+    "error_histogram.png",
+    "cumulative.png",
+    "error_over_time.png",
+    "frame_times.png",
+)
+
+
+def _read_config(path: Path) -> dict[str, Any] | None:
+    """The ``config.json`` of an earlier run (None when absent or unreadable)."""
+    try:
+        data = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    return data if isinstance(data, dict) else None
+
+
+def _stale_episodes(
+    out: Path, episodes: Sequence[EpisodeSpec], previous_config: dict[str, Any] | None
+) -> set[str]:
+    """Ids of the planned episodes whose files in ``out`` cannot be trusted: an earlier run
+    wrote the id with another content key (or none). Their rows are dropped
+    (:func:`_repair_results`), their recordings rewritten (:func:`_write_episodes`) and their
+    tasks run again (which rewrites their per-frame files)."""
+    previous: dict[str, str] = {}
+    if previous_config is not None:
+        for entry in previous_config.get("episodes", []):
+            if isinstance(entry, dict) and isinstance(entry.get("id"), str):
+                previous[entry["id"]] = str(entry.get("key", ""))
+    rows = {r.get("episode") for r in _read_rows(out / "results.csv")}
+    stale: set[str] = set()
+    for episode in episodes:
+        episode_file = out / "episodes" / f"{episode.id}.npz"
+        frames_folder = out / "frames" / _safe(episode.id)
+        exists = episode_file.exists() or frames_folder.exists() or episode.id in rows
+        if exists and previous.get(episode.id) != episode.key:
+            stale.add(episode.id)
+    return stale
+
+
+def _run_task(
+    runner: MethodRunner, task: _Task, load: Callable[[str], Any]
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """:func:`_execute` with its failure named: a :class:`~fpg_gym.errors.TaskError` says which
+    episode and method failed, and why."""
+    try:
+        return _execute(runner, task, load(task.recording_path))
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as error:
+        raise TaskError(
+            f"episode {task.episode.id!r} ({task.recording_path}), method {task.method!r} "
+            f"failed: {type(error).__name__}: {' '.join(str(error).split())}"
+        ) from error
+
+
 def run_compare(
     config: CompareConfig,
     *,
@@ -760,30 +1141,41 @@ def run_compare(
     started = time.perf_counter()
     out = Path(config.out)
     _check_optimizers(config.methods)
-    out.mkdir(parents=True, exist_ok=True)
+    manifest = _claim_folder(out, fresh, say)
     config_path = out / "config.json"
     results_path = out / "results.csv"
-    if fresh:
-        for name in ("results.csv", "summary.json", "report.md", "config.json"):
-            (out / name).unlink(missing_ok=True)
-        for name in ("frames", "episodes"):
-            if (out / name).is_dir():
-                shutil.rmtree(out / name)
-    elif results_path.is_file() and config_path.is_file():
-        previous = json.loads(config_path.read_text()).get("resume_key")
+    previous_config = _read_config(config_path)
+    if not fresh and results_path.is_file() and previous_config is not None:
+        previous = previous_config.get("resume_key")
         if previous != config.resume_key():
             raise ValueError(
                 f"{out} holds results of a run with other settings ({previous}); use another "
                 "--out or --fresh"
             )
 
-    episodes, embedded, recorded = _prepare_episodes(config, out / "episodes", progress)
+    episodes, by_name, embedded, clip_names = _plan(config, progress, say)
+    stale = _stale_episodes(out, episodes, previous_config)
+    if stale:
+        say(
+            f"resuming: {len(stale)} episode(s) changed since the last run (another input under "
+            f"the same name, or no content key): recomputed ({', '.join(sorted(stale)[:3])}"
+            + (" ...)" if len(stale) > 3 else ")")
+        )
+    manifest.add(results_path, config_path)
+    _repair_results(results_path, say, drop_episodes=stale)
+    recorded = _write_episodes(
+        config, episodes, by_name, out / "episodes", progress, manifest, rewrite=stale
+    )
+    from fpg_gym.io import DEFAULT_CLIP_NAMES
+
+    embedded = sorted({*embedded, *(n for n in recorded if n in DEFAULT_CLIP_NAMES)})
     exclude = embedded if config.graph == "default" else []
     graph = load_graph(config.graph, exclude=exclude)
-    warning = _held_out_warning(graph, episodes, recorded)
+    warning = _held_out_warning(graph, episodes, [*recorded, *clip_names])
     if warning:
         say(f"warning: {warning}")
-    config_path.write_text(
+    write_text(
+        config_path,
         json.dumps(
             {
                 "config": asdict(config),
@@ -794,7 +1186,7 @@ def run_compare(
                 "episodes": [asdict(e) for e in episodes],
             },
             indent=2,
-        )
+        ),
     )
 
     done = {
@@ -819,7 +1211,9 @@ def run_compare(
     completed = [0]
 
     def finish(row: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
-        _save_frames(_frames_path(out, row["episode"], row["method"]), arrays)
+        frames_path = _frames_path(out, row["episode"], row["method"])
+        manifest.add(frames_path)
+        _save_frames(frames_path, arrays)
         writer.write(row)
         completed[0] += 1
         error = row.get("mean_error_m")
@@ -836,7 +1230,7 @@ def run_compare(
 
             with MethodRunner(graph, budget=config.budget, reconstructor_options=options) as runner:
                 for task in tasks:
-                    finish(*_execute(runner, task, load_recording(task.recording_path)))
+                    finish(*_run_task(runner, task, load_recording))
         else:
             interrupted = _run_pool(tasks, workers, config, exclude, options, finish)
     except KeyboardInterrupt:
@@ -846,6 +1240,7 @@ def run_compare(
         writer.close()
     if interrupted:
         say("interrupted: finished results are kept; writing the report from them")
+    manifest.add(*(out / name for name in _REPORT_FILES))
     summary = write_report(out, plots=plots, baseline=config.baseline, interrupted=interrupted)
     files = sorted(p for p in out.iterdir() if p.is_file())
     return CompareOutcome(
@@ -878,30 +1273,48 @@ def _run_pool(
         max_workers=workers,
         mp_context=multiprocessing.get_context("spawn"),
         initializer=_init_worker,
-        initargs=(config.graph, list(exclude), config.budget, options),
+        initargs=(config.graph, list(exclude), config.budget, options, os.getpid()),
     )
-    pending: set[Future[Any]] = set()
+    pending: dict[Future[Any], _Task] = {}
     try:
         queue = list(tasks)
         # Keep a few tasks queued per worker so that Ctrl-C leaves little to cancel.
         while queue or pending:
             while queue and len(pending) < 2 * workers:
-                pending.add(executor.submit(_worker_task, queue.pop(0)))
-            finished, pending = wait(pending, return_when=FIRST_COMPLETED)
+                task = queue.pop(0)
+                pending[executor.submit(_worker_task, task)] = task
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in finished:
-                finish(*future.result())
+                task = pending.pop(future)
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    raise TaskError(
+                        f"a worker process died (killed, or out of memory) while running "
+                        f"episode {task.episode.id!r}, method {task.method!r} or a task beside "
+                        "it; finished results are kept, rerun to resume"
+                    ) from None
+                finish(*result)
     except KeyboardInterrupt:
-        for future in pending:
-            future.cancel()
-        processes = list(getattr(executor, "_processes", {}).values())
-        executor.shutdown(wait=False, cancel_futures=True)
-        for process in processes:  # workers ignore SIGINT: stop the ones still running
-            process.terminate()
-        for process in processes:
-            process.join(timeout=5)
+        _stop_pool(executor, pending)
         return True
+    except BaseException:
+        _stop_pool(executor, pending)
+        raise
     executor.shutdown(wait=True)
     return False
+
+
+def _stop_pool(executor: ProcessPoolExecutor, pending: Iterable[Future[Any]]) -> None:
+    """Cancel what is queued and stop the workers still running (they ignore SIGINT)."""
+    for future in pending:
+        future.cancel()
+    processes = list(getattr(executor, "_processes", {}).values())
+    executor.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=5)
 
 
 # --------------------------------------------------------------------------- aggregation
@@ -1323,8 +1736,8 @@ def write_report(
     summary["plots"] = (
         _write_plots(out, summary, files) if plots and summary["method_order"] else {}
     )
-    (out / "summary.json").write_text(json.dumps(jsonable(summary), indent=2))
-    (out / "report.md").write_text(report_markdown(summary))
+    write_text(out / "summary.json", json.dumps(jsonable(summary), indent=2))
+    write_text(out / "report.md", report_markdown(summary))
     return summary
 
 

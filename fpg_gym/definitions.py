@@ -58,16 +58,22 @@ from fpg_gym.rotations import quaternion_to_matrix, shortest_arc
 
 __all__ = [
     "FORMAT",
+    "KINECT_V2_TO_VICON",
     "TRUNK_JOINTS",
     "DefinitionMap",
     "PoseMap",
     "fit_sensor_maps",
     "fit_to_database",
     "joint_frames",
+    "packaged_map",
 ]
 
 #: ``format`` entry of a definition-map JSON file.
 FORMAT = "fpg-gym-definition-map-1"
+#: Name of the packaged Kinect v2 -> Vicon joint-centre map (:func:`packaged_map`), fitted on
+#: every UI-PRMD subject (s01-s08) with ``fpg-gym fit-map`` (see ``fpg_gym/data/README.md``).
+KINECT_V2_TO_VICON = "kinect-v2-to-vicon"
+_DATA = Path(__file__).resolve().parent / "data"
 
 _J = skeleton.joint_index
 _PELVIS = (_J("HipCenter"), _J("Spine"), _J("HipLeft"), _J("HipRight"))
@@ -432,6 +438,25 @@ def fit_to_database(
     return current
 
 
+def packaged_map(name: str) -> DefinitionMap:
+    """A definition map shipped with fpg-gym (``fpg_gym/data/NAME.json``).
+
+    :data:`KINECT_V2_TO_VICON` maps Kinect v2 joints onto marker-based joint centres; it was
+    fitted on all UI-PRMD subjects, so never score a UI-PRMD subject with it (fit per fold with
+    :func:`fit_sensor_maps` instead, as ``scripts/real_kinect.py`` does).
+
+    Raises
+    ------
+    ValueError
+        If no such map is packaged.
+    """
+    path = _DATA / f"{name}.json"
+    if not path.is_file():
+        names = sorted(p.stem for p in _DATA.glob("*.json"))
+        raise ValueError(f"unknown packaged map {name!r}; expected one of {', '.join(names)}")
+    return DefinitionMap.load(path)
+
+
 def fit_sensor_maps(
     sensor_poses: npt.ArrayLike,
     truth_poses: npt.ArrayLike,
@@ -440,6 +465,7 @@ def fit_sensor_maps(
     truth: str,
     database: npt.ArrayLike | None = None,
     database_name: str = "database",
+    database_joints: npt.ArrayLike = TRUNK_JOINTS,
 ) -> tuple[DefinitionMap, DefinitionMap | None]:
     """The maps a reconstruction needs, from a sensor's poses paired with reference poses.
 
@@ -453,6 +479,8 @@ def fit_sensor_maps(
     database : array_like, shape (M, 20, 3), optional
         A database in other definitions than ``truth``'s. Without it the database is taken to
         be in the ``truth`` definitions (e.g. built from the same reference system).
+    database_joints : array_like of int
+        Joints whose database definitions are fitted (:func:`fit_to_database`).
 
     Returns
     -------
@@ -464,7 +492,9 @@ def fit_sensor_maps(
     """
     if database is None:
         return DefinitionMap.fit(sensor_poses, truth_poses, source=sensor, target=truth), None
-    truth_to_database = fit_to_database(truth_poses, database, source=truth, target=database_name)
+    truth_to_database = fit_to_database(
+        truth_poses, database, source=truth, target=database_name, joints=database_joints
+    )
     sensor_map = DefinitionMap.fit(
         sensor_poses,
         truth_to_database.apply(truth_poses),

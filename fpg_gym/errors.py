@@ -1,8 +1,14 @@
-"""Exceptions raised by fpg-gym."""
+"""Exceptions raised by fpg-gym.
+
+Every error fpg-gym raises on purpose derives from :class:`FpgGymError`. They survive pickling
+with their message and fields (an error raised in a worker process reaches the parent intact,
+naming the file), and the command line prints them on one line with exit status 2.
+"""
 
 from __future__ import annotations
 
-from pathlib import Path
+import os
+from typing import Any
 
 
 class FpgGymError(Exception):
@@ -28,7 +34,7 @@ class DataFormatError(FpgGymError, ValueError):
 
     def __init__(
         self,
-        path: str | Path,
+        path: str | os.PathLike[str],
         message: str,
         *,
         line: int | None = None,
@@ -37,9 +43,33 @@ class DataFormatError(FpgGymError, ValueError):
         self.path = str(path)
         self.line = line
         self.field = field
+        self.reason = message
         where = self.path
         if line is not None:
             where += f", line {line}"
         if field is not None:
             where += f", field {field!r}"
         super().__init__(f"{where}: {message}")
+
+    def __reduce__(self) -> tuple[Any, ...]:
+        # Exception pickles ``args`` (the formatted message) by default, which does not fit
+        # this constructor: rebuild from the parts instead.
+        return (_rebuild_data_format_error, (self.path, self.reason, self.line, self.field))
+
+
+def _rebuild_data_format_error(
+    path: str, message: str, line: int | None, field: str | None
+) -> DataFormatError:
+    return DataFormatError(path, message, line=line, field=field)
+
+
+class OutputError(FpgGymError, ValueError):
+    """An output path that cannot or must not be written (an input, a folder, unwritable).
+
+    The message names the argument and the path.
+    """
+
+
+class TaskError(FpgGymError):
+    """A task of a parallel run failed; the message names the task (episode and method) and
+    the original error."""

@@ -37,6 +37,7 @@ import time
 import uuid
 import warnings
 import zipfile
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,7 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.npz import check_npz
 from fpg_gym.jsonable import jsonable
 
 __all__ = [
@@ -423,6 +425,10 @@ class FilteredPoseGraph:
         source = Path(path)
         if not source.is_file():
             raise FileNotFoundError(f"{source}: no such graph file")
+        if not zipfile.is_zipfile(source):
+            raise DataFormatError(source, "not an .npz archive (no zip directory)")
+        # Forged array headers and pickled arrays are refused before numpy allocates anything.
+        check_npz(source, (*_ARRAYS, "metadata"))
         try:
             loaded = np.load(source, allow_pickle=False)
             if not isinstance(loaded, np.lib.npyio.NpzFile):
@@ -454,6 +460,7 @@ class FilteredPoseGraph:
             ValueError,
             KeyError,
             EOFError,
+            zlib.error,
             zipfile.BadZipFile,
             json.JSONDecodeError,
         ) as error:

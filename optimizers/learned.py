@@ -15,7 +15,10 @@ with ``problem.evaluate``: the same budget accounting as every other optimiser.
     (2) x ``search_samples`` (50). 200 evaluations in all by default.
 
 ``PATH`` is a model path as :func:`policies.sampler.load_sampler` takes it (``MODEL``,
-``MODEL.json``, ``.pt`` or ``.zip``). torch (and stable-baselines3 for RL samplers) must be
+``MODEL.json`` or ``.pt``). A model is data: its weights are tensors read with
+``weights_only=True`` and its network is rebuilt from the JSON, so loading one never runs code
+from the files; anything else (stable-baselines3's pickling ``.zip`` included) is refused with a
+:class:`~fpg_gym.errors.DataFormatError`. torch (and stable-baselines3 for RL samplers) must be
 installed: ``pip install 'fpg-gym[learn]'``.
 
 Examples

@@ -15,9 +15,12 @@ an offset from the anchor and its spread; the env does not clip the sum. Its Gau
 The discount is 0.5: a frame's action matters mostly for its own energy (later frames feel it
 only through the continuity terms), and a short horizon keeps the value estimates less noisy.
 
-Saved as SB3's ``MODEL.zip`` plus ``MODEL.json`` (:class:`~policies.sampler.SamplerSpec`);
-loading passes the spaces, learning-rate and clip-range schedules as ``custom_objects``, so no
-pickled callable from the file is needed (the way SB3 documents loading across versions).
+Saved as ``MODEL.pt``, the policy network's ``state_dict`` (tensors only, ``torch.save``), plus
+``MODEL.json`` (:class:`~policies.sampler.SamplerSpec`: the algorithm, ``net_arch`` and
+``log_std_init`` among its hyper-parameters). Loading rebuilds the SB3 policy network from the
+JSON and reads the tensors with ``torch.load(..., weights_only=True)``: a model file is data and
+never runs code. SB3's own ``.zip`` format (whose entries are unpickled on load) is refused
+(:func:`policies.sampler.load_weights_file`).
 """
 
 from __future__ import annotations
@@ -30,12 +33,16 @@ from typing import Any
 
 import numpy as np
 
+from fpg_gym.errors import DataFormatError
+from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from policies.sampler import (
     DEFAULT_FEATURES,
     GaussianSampler,
     SamplerSpec,
+    check_layer_widths,
     import_learn,
+    load_weights_into,
     model_paths,
 )
 
@@ -82,44 +89,90 @@ def _algo_class(algo: str) -> Any:
 
 
 class RLSampler(GaussianSampler):
-    """A :class:`~policies.sampler.GaussianSampler` backed by an SB3 PPO or SAC model.
+    """A :class:`~policies.sampler.GaussianSampler` backed by an SB3 PPO or SAC policy network.
+
+    Parameters
+    ----------
+    spec : SamplerSpec
+    policy : stable_baselines3.common.policies.BasePolicy
+        The policy network (``model.policy`` of a PPO or SAC model, or one rebuilt by
+        :meth:`load_weights`).
+    seed : int, optional
 
     Attributes
     ----------
-    model : stable_baselines3.PPO or stable_baselines3.SAC
+    policy : stable_baselines3 ActorCriticPolicy (PPO) or SACPolicy (SAC)
     """
 
-    def __init__(self, spec: SamplerSpec, model: Any, seed: int | None = 0) -> None:
+    def __init__(self, spec: SamplerSpec, policy: Any, seed: int | None = 0) -> None:
         super().__init__(spec, seed)
         if spec.kind != "rl" or spec.algo not in ALGOS:
             raise ValueError(f"RLSampler: expected an rl spec with algo in {ALGOS}, got {spec}")
-        self.model = model
+        self.policy = policy
+
+    @classmethod
+    def build_policy(cls, spec: SamplerSpec, source: str | os.PathLike[str] = "") -> Any:
+        """A fresh (untrained) SB3 policy network of the shape ``spec`` describes.
+
+        Raises
+        ------
+        DataFormatError
+            If ``net_arch`` or ``log_std_init`` in the JSON are not sensible.
+        """
+        import gymnasium as gym
+
+        import_learn("stable_baselines3")
+        if spec.algo not in ALGOS:
+            raise DataFormatError(
+                source, f"expected algo one of {ALGOS}, got {spec.algo!r}", field="algo"
+            )
+        hyper = {**RL_DEFAULTS[spec.algo], **spec.hyperparameters}
+        net_arch = check_layer_widths(hyper["net_arch"], "hyperparameters.net_arch", source)
+        log_std_init = hyper["log_std_init"]
+        if not isinstance(log_std_init, int | float) or not -20.0 <= float(log_std_init) <= 5.0:
+            raise DataFormatError(
+                source,
+                f"expected a number in [-20, 5], got {log_std_init!r}",
+                field="hyperparameters.log_std_init",
+            )
+        feature_map = spec.feature_map()
+        observation_space = gym.spaces.Box(feature_map.low, feature_map.high, dtype=np.float32)
+        action_space = gym.spaces.Box(-1.0, 1.0, (spec.latent_dim,), dtype=np.float32)
+        kwargs: dict[str, Any] = {"net_arch": net_arch, "log_std_init": float(log_std_init)}
+        policy: Any
+        if spec.algo == "ppo":
+            from stable_baselines3.common.policies import ActorCriticPolicy
+
+            policy = ActorCriticPolicy(observation_space, action_space, _Constant(0.0), **kwargs)
+        else:
+            from stable_baselines3.sac.policies import SACPolicy
+
+            policy = SACPolicy(observation_space, action_space, _Constant(0.0), **kwargs)
+        policy.set_training_mode(False)
+        return policy
 
     @classmethod
     def load_weights(
         cls, spec: SamplerSpec, weights: str | os.PathLike[str], *, seed: int | None = 0
     ) -> RLSampler:
-        """A sampler from ``spec`` and SB3's ``.zip``."""
-        import gymnasium as gym
+        """A sampler from ``spec`` and its ``MODEL.pt`` (tensors, ``weights_only=True``).
 
-        feature_map = spec.feature_map()
-        custom = {
-            "observation_space": gym.spaces.Box(
-                feature_map.low, feature_map.high, dtype=np.float32
-            ),
-            "action_space": gym.spaces.Box(-1.0, 1.0, (spec.latent_dim,), dtype=np.float32),
-            "learning_rate": 0.0,
-            "lr_schedule": _Constant(0.0),
-            "clip_range": _Constant(0.0),
-        }
-        model = _algo_class(spec.algo).load(Path(weights), device="cpu", custom_objects=custom)
-        return cls(spec, model, seed)
+        Raises
+        ------
+        DataFormatError
+            If the file is not a tensor file (an SB3 ``.zip`` included) or its tensors do not
+            fit the network the JSON describes.
+        """
+        policy = cls.build_policy(spec, weights)
+        load_weights_into(policy, weights)
+        policy.set_training_mode(False)
+        return cls(spec, policy, seed)
 
     def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean and std ``(n, L)`` (action units) of feature rows ``(n, F)``."""
         torch = import_learn("torch")
         obs = torch.as_tensor(np.asarray(features, dtype=np.float32))
-        policy = self.model.policy
+        policy = self.policy
         with torch.no_grad():
             if self.spec.algo == "ppo":
                 distribution = policy.get_distribution(obs).distribution
@@ -133,17 +186,20 @@ class RLSampler(GaussianSampler):
         return mean_np, np.maximum(std_np, 1e-6)
 
     def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write ``MODEL.zip`` (SB3) and ``MODEL.json``; returns the JSON's path."""
+        """Write ``MODEL.pt`` (the policy's ``state_dict``: tensors only) and ``MODEL.json``;
+        returns the JSON's path."""
+        torch = import_learn("torch")
         json_path, stem = model_paths(path)
-        weights = stem.with_name(stem.name + ".zip")
-        weights.parent.mkdir(parents=True, exist_ok=True)
-        self.model.save(weights)
+        weights = stem.with_name(stem.name + ".pt")
+        state = {k: v.detach().clone().cpu() for k, v in self.policy.state_dict().items()}
+        with atomic_path(weights) as temporary:
+            torch.save(state, temporary)
         self.spec.weights = weights.name
         return self.spec.save(json_path)
 
 
 class _Constant:
-    """A picklable constant schedule (stands in for SB3's saved schedules on load)."""
+    """A constant schedule (the policy's learning rate, unused when sampling)."""
 
     def __init__(self, value: float) -> None:
         self.value = float(value)
@@ -291,7 +347,7 @@ def train_rl(
         tensorboard_log=tensorboard,
         **algo_kwargs,
     )
-    sampler = RLSampler(spec, model, seed)
+    sampler = RLSampler(spec, model.policy, seed)
     history: list[dict[str, Any]] = []
     record_every = max(timesteps // 20, 1)
     checkpoint_dir = None if checkpoints is None else Path(checkpoints)

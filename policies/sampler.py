@@ -41,10 +41,13 @@ Files
 -----
 ``MODEL.json`` describes every model (:class:`SamplerSpec`: kind, observation layout and size,
 features, action mode and scale, hyper-parameters, training summary). The weights lie beside it:
-``MODEL.pt`` for a supervised sampler (a ``state_dict`` of tensors saved with ``torch.save``,
-loaded with ``weights_only=True``) and ``MODEL.zip`` for an RL sampler (stable-baselines3's own
-format). No pickled Python objects in either of fpg-gym's own files. :func:`load_sampler` takes
-``MODEL``, ``MODEL.json``, ``MODEL.pt`` or ``MODEL.zip``.
+``MODEL.pt`` for both kinds: the network's ``state_dict``, tensors only, saved with
+``torch.save`` and loaded with ``torch.load(..., weights_only=True)``
+(:func:`load_weights_file`); the network is rebuilt from the JSON. A model file is data that
+users share: loading one never runs code from it. Anything else is refused with a
+:class:`~fpg_gym.errors.DataFormatError`, stable-baselines3's ``.zip`` format (whose entries
+are unpickled on load, which earlier versions of fpg-gym wrote for RL samplers) included.
+:func:`load_sampler` takes ``MODEL``, ``MODEL.json`` or ``MODEL.pt``.
 
 torch and stable-baselines3 are the optional extra ``fpg-gym[learn]``: this module imports
 neither; :func:`import_learn` raises :class:`~optimizers.MissingDependency` naming the extra.
@@ -64,6 +67,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.env_observation import CONTEXT_NAMES, ObservationLayout
+from fpg_gym.errors import DataFormatError
 from fpg_gym.jsonable import jsonable
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE, quadratic_minimiser
 from fpg_gym.reconstruct.energy import EnergyWeights
@@ -92,8 +96,16 @@ __all__ = [
 
 #: ``format`` of a sampler's JSON file.
 FORMAT = "fpg-gym-sampler"
-#: Version of the JSON format.
-FORMAT_VERSION = 1
+#: Version of the JSON format (2: the RL sampler's weights are a tensor file, no longer SB3's
+#: ``.zip``; version 1 supervised files are read as before).
+FORMAT_VERSION = 2
+#: Suffix of every weights file (a torch ``state_dict`` of tensors).
+WEIGHTS_SUFFIX = ".pt"
+#: Bounds on what a JSON may ask to build (a hostile file must not exhaust memory).
+MAX_LAYER_WIDTH = 8192
+MAX_LAYERS = 16
+MAX_LATENT_DIM = 1024
+MAX_CANDIDATES = 4096
 #: Sampler kinds.
 KINDS: tuple[str, ...] = ("supervised", "rl")
 #: What to install for learned samplers.
@@ -450,6 +462,10 @@ class SamplerSpec:
     def __post_init__(self) -> None:
         if self.kind not in KINDS:
             raise ValueError(f"kind: expected one of {KINDS}, got {self.kind!r}")
+        for name, bound in (("latent_dim", MAX_LATENT_DIM), ("candidates", MAX_CANDIDATES)):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int) or not 1 <= value <= bound:
+                raise ValueError(f"{name}: expected an integer in 1..{bound}, got {value!r}")
         if self.action_mode not in ("delta", "absolute"):
             raise ValueError(f"action_mode: expected 'delta' or 'absolute', got {self.action_mode}")
         if self.anchor not in ANCHORS:
@@ -545,26 +561,118 @@ class SamplerSpec:
 
         Raises
         ------
-        ValueError
-            Not a sampler file, or an unknown version.
+        DataFormatError
+            Not a sampler file, an unknown version, or values out of range.
         """
         source = Path(path)
         try:
-            data = json.loads(source.read_text())
-        except json.JSONDecodeError as error:
-            raise ValueError(f"{source}: not a JSON file ({error})") from None
+            data = json.loads(source.read_bytes().decode("utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as error:
+            raise DataFormatError(source, f"not a JSON file ({error})") from None
         if not isinstance(data, dict) or data.get("format") != FORMAT:
-            raise ValueError(f"{source}: not an fpg-gym sampler description (format {FORMAT!r})")
-        if int(data.get("version", 0)) > FORMAT_VERSION:
-            raise ValueError(
-                f"{source}: sampler format version {data['version']} is newer than this "
-                f"fpg-gym reads ({FORMAT_VERSION})"
+            raise DataFormatError(
+                source, f"not an fpg-gym sampler description (format {FORMAT!r})", field="format"
+            )
+        version = data.get("version", 0)
+        if isinstance(version, bool) or not isinstance(version, int):
+            raise DataFormatError(source, f"expected an integer, got {version!r}", field="version")
+        if version > FORMAT_VERSION:
+            raise DataFormatError(
+                source,
+                f"sampler format version {version} is newer than this fpg-gym reads "
+                f"({FORMAT_VERSION})",
+                field="version",
             )
         names = {f.name for f in cls.__dataclass_fields__.values()}
         try:
-            return cls(**{k: v for k, v in data.items() if k in names})
-        except TypeError as error:
-            raise ValueError(f"{source}: incomplete sampler description ({error})") from None
+            spec = cls(**{k: v for k, v in data.items() if k in names})
+        except (TypeError, ValueError) as error:
+            raise DataFormatError(source, f"bad sampler description ({error})") from None
+        if not isinstance(spec.hyperparameters, dict):
+            raise DataFormatError(source, "expected a JSON object", field="hyperparameters")
+        return spec
+
+
+def check_layer_widths(widths: Any, name: str, source: str | os.PathLike[str] = "") -> list[int]:
+    """``widths`` as a list of layer widths, checked: at most :data:`MAX_LAYERS` integers in
+    1..:data:`MAX_LAYER_WIDTH` (a JSON must not make the loader allocate without bound).
+
+    Raises
+    ------
+    DataFormatError
+        Naming ``source`` and the field ``name``.
+    """
+    if (
+        not isinstance(widths, list | tuple)
+        or len(widths) > MAX_LAYERS
+        or any(
+            isinstance(w, bool) or not isinstance(w, int) or not 1 <= w <= MAX_LAYER_WIDTH
+            for w in widths
+        )
+    ):
+        raise DataFormatError(
+            source,
+            f"expected a list of at most {MAX_LAYERS} layer widths in 1..{MAX_LAYER_WIDTH}, got "
+            f"{widths!r}",
+            field=name,
+        )
+    return [int(w) for w in widths]
+
+
+def load_weights_file(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The ``state_dict`` in a weights file: ``torch.load(..., weights_only=True)``, which
+    rebuilds tensors and plain containers only and never runs code from the file.
+
+    Raises
+    ------
+    DataFormatError
+        If the file is not a ``.pt`` tensor file: an SB3 ``.zip`` (pickled entries), a
+        pickle of Python objects, or anything that is not a mapping of names to tensors.
+    """
+    torch = import_learn("torch")
+    source = Path(path)
+    refuse = (
+        "only tensor files are loaded (a torch state_dict saved by fpg-gym train-sampler, "
+        "read with weights_only=True)"
+    )
+    if source.suffix != WEIGHTS_SUFFIX:
+        raise DataFormatError(
+            source,
+            f"{refuse}; a '{source.suffix}' file is refused"
+            + (
+                " (stable-baselines3 .zip models hold pickled Python objects, which could run "
+                "code; retrain the sampler with this fpg-gym: `fpg-gym train-sampler --kind rl`)"
+                if source.suffix == ".zip"
+                else ""
+            ),
+        )
+    try:
+        state = torch.load(source, map_location="cpu", weights_only=True)
+    except Exception as error:  # the weights-only unpickler's errors vary (UnpicklingError, ...)
+        first = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        raise DataFormatError(source, f"{refuse}; this file is not one ({first[:300]})") from None
+    if not isinstance(state, Mapping) or not all(
+        isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
+    ):
+        raise DataFormatError(source, f"{refuse}; expected a mapping of names to tensors")
+    return dict(state)
+
+
+def load_weights_into(module: Any, path: str | os.PathLike[str]) -> None:
+    """Load a weights file (:func:`load_weights_file`) into a torch module, strictly.
+
+    Raises
+    ------
+    DataFormatError
+        If the file is refused, or its tensors do not fit the module built from the JSON.
+    """
+    state = load_weights_file(path)
+    try:
+        module.load_state_dict(state, strict=True)
+    except (RuntimeError, ValueError) as error:
+        raise DataFormatError(
+            path, f"the tensors do not fit the network in the JSON ({error})"
+        ) from None
 
 
 def model_paths(path: str | os.PathLike[str]) -> tuple[Path, Path]:
@@ -726,7 +834,11 @@ class AnchorSampler(GaussianSampler):
 def load_sampler(
     path: str | os.PathLike[str], *, env: Any = None, seed: int | None = 0
 ) -> GaussianSampler:
-    """Load a sampler saved by ``fpg-gym train-sampler`` (``MODEL``, ``.json``, ``.pt``, ``.zip``).
+    """Load a sampler saved by ``fpg-gym train-sampler`` (``MODEL``, ``.json`` or ``.pt``).
+
+    The weights are tensors only, read with ``weights_only=True``, and the network is rebuilt
+    from the JSON: nothing in the files is executed. An RL sampler saved by an earlier fpg-gym as
+    SB3's ``.zip`` is refused.
 
     With ``env`` (a :class:`~fpg_gym.env.KinectPoseEnv`, wrapped or not), refuse an env whose
     observation or actions differ from the ones the model was trained on
@@ -736,8 +848,11 @@ def load_sampler(
     ------
     FileNotFoundError
         No ``MODEL.json`` or no weights file beside it.
+    DataFormatError
+        Not a sampler description, a weights file that is not a tensor file (an SB3 ``.zip``
+        included), or tensors that do not fit the network the JSON describes.
     ValueError
-        Not a sampler description, or ``env`` has another observation size or action mode.
+        ``env`` has another observation size or action mode.
     optimizers.MissingDependency
         torch / stable-baselines3 are not installed (``pip install 'fpg-gym[learn]'``).
     """
@@ -745,14 +860,19 @@ def load_sampler(
     if not json_path.is_file():
         raise FileNotFoundError(
             f"{path}: no sampler description {json_path} (models are saved as MODEL.json "
-            "beside MODEL.pt or MODEL.zip by fpg-gym train-sampler)"
+            "beside MODEL.pt by fpg-gym train-sampler)"
         )
     spec = SamplerSpec.load(json_path)
     if env is not None:
         spec.check_env(env)
-    weights = json_path.parent / (
-        spec.weights or stem.name + (".zip" if spec.kind == "rl" else ".pt")
-    )
+    name = spec.weights or stem.name + (".zip" if spec.kind == "rl" else WEIGHTS_SUFFIX)
+    if not isinstance(name, str) or Path(name).name != name or name in ("", ".", ".."):
+        raise DataFormatError(
+            json_path, f"expected a file name beside the JSON, got {name!r}", field="weights"
+        )
+    weights = json_path.parent / name
+    if weights.suffix != WEIGHTS_SUFFIX:
+        load_weights_file(weights)  # refuses it, naming the format
     if not weights.is_file():
         raise FileNotFoundError(f"{json_path}: its weights file {weights} is missing")
     if spec.kind == "supervised":

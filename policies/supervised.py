@@ -37,7 +37,16 @@ from typing import Any
 
 import numpy as np
 
-from policies.sampler import GaussianSampler, SamplerSpec, import_learn, model_paths
+from fpg_gym.errors import DataFormatError
+from fpg_gym.outputs import atomic_path
+from policies.sampler import (
+    GaussianSampler,
+    SamplerSpec,
+    check_layer_widths,
+    import_learn,
+    load_weights_into,
+    model_paths,
+)
 
 __all__ = [
     "LOSSES",
@@ -171,18 +180,12 @@ class SupervisedSampler(GaussianSampler):
 
         Raises
         ------
-        ValueError
-            If the file's tensors do not fit the network ``spec`` describes.
+        DataFormatError
+            If the file is not a tensor file or its tensors do not fit the network ``spec``
+            describes.
         """
-        torch = import_learn("torch")
-        state = torch.load(Path(weights), map_location="cpu", weights_only=True)
-        module = _build(spec, spec.feature_map().size)
-        try:
-            module.load_state_dict(state, strict=True)
-        except RuntimeError as error:
-            raise ValueError(
-                f"{weights}: weights do not fit the network in the JSON ({error})"
-            ) from None
+        module = _build(spec, spec.feature_map().size, source=weights)
+        load_weights_into(module, weights)
         return cls(spec, module, seed)
 
     def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -197,23 +200,27 @@ class SupervisedSampler(GaussianSampler):
         torch = import_learn("torch")
         json_path, stem = model_paths(path)
         weights = stem.with_name(stem.name + ".pt")
-        weights.parent.mkdir(parents=True, exist_ok=True)
         state = {k: v.detach().clone() for k, v in self.module.state_dict().items()}
-        torch.save(state, weights)
+        with atomic_path(weights) as temporary:
+            torch.save(state, temporary)
         self.spec.weights = weights.name
         return self.spec.save(json_path)
 
 
-def _build(spec: SamplerSpec, in_size: int) -> Any:
+def _build(spec: SamplerSpec, in_size: int, source: str | os.PathLike[str] = "") -> Any:
     hyper = {**SUPERVISED_DEFAULTS, **spec.hyperparameters}
-    return _module_class()(
-        in_size,
-        spec.latent_dim,
-        [int(h) for h in hyper["hidden"]],
-        str(hyper["activation"]),
-        float(hyper["min_log_std"]),
-        float(hyper["max_log_std"]),
-    )
+    hidden = check_layer_widths(hyper["hidden"], "hyperparameters.hidden", source)
+    try:
+        return _module_class()(
+            in_size,
+            spec.latent_dim,
+            hidden,
+            str(hyper["activation"]),
+            float(hyper["min_log_std"]),
+            float(hyper["max_log_std"]),
+        )
+    except (TypeError, ValueError, KeyError) as error:
+        raise DataFormatError(source, f"bad network description ({error})") from None
 
 
 def fit_supervised(

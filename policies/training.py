@@ -385,7 +385,7 @@ class TrainConfig:
     ----------
     kind : {"supervised", "rl"}
     out : str
-        Model path (``MODEL``: writes ``MODEL.json`` + ``MODEL.pt``/``.zip``; checkpoints in
+        Model path (``MODEL``: writes ``MODEL.json`` + ``MODEL.pt``; checkpoints in
         ``MODEL.checkpoints/``).
     algo : {"ppo", "sac"}
         RL algorithm (rl only).

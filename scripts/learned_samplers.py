@@ -64,7 +64,7 @@ def aggregate(folder: Path) -> dict[str, dict[str, float]]:
     out: dict[str, dict[str, list[np.ndarray]]] = {}
     for row in rows:
         path = folder / "frames" / _safe(row["episode"]) / f"{_safe(row['method'])}.npz"
-        with np.load(path) as frames:
+        with np.load(path, allow_pickle=False) as frames:
             acc = out.setdefault(row["method"], {"errors": [], "ms": [], "energy": [], "ev": []})
             acc["errors"].append(frames["errors"])
             acc["ms"].append(frames["ms"])

@@ -12,6 +12,38 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("FPG_GYM_SHARED_DATA", REPO.parent / "shared" / "data"))
 
 
+#: A three-joint BVH hierarchy (Hips > Chest > Hand, 12 channels) up to ``MOTION``: the tests'
+#: small BVH files add ``Frames:``, ``Frame Time:`` and their frame lines.
+TINY_BVH_HIERARCHY = """HIERARCHY
+ROOT Hips
+{
+  OFFSET 0 0 0
+  CHANNELS 6 Xposition Yposition Zposition Zrotation Xrotation Yrotation
+  JOINT Chest
+  {
+    OFFSET 0 50 0
+    CHANNELS 3 Zrotation Xrotation Yrotation
+    JOINT Hand
+    {
+      OFFSET 0 0 30
+      CHANNELS 3 Xrotation Yrotation Zrotation
+      End Site
+      {
+        OFFSET 0 0 10
+      }
+    }
+  }
+}
+MOTION
+"""
+
+
+def tiny_bvh(frames: list[str], frame_time: str = "0.0333333") -> str:
+    """A BVH text of :data:`TINY_BVH_HIERARCHY` with the given frame lines (12 values each)."""
+    lines = [f"Frames: {len(frames)}", f"Frame Time: {frame_time}", *frames]
+    return TINY_BVH_HIERARCHY + "\n".join(lines) + "\n"
+
+
 def shared_path(*parts: str) -> Path:
     """A path under ``../shared/data``; skips the calling test when it does not exist."""
     path = SHARED_DATA.joinpath(*parts)

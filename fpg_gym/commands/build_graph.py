@@ -48,7 +48,10 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym.commands.output import emit_json
     from fpg_gym.graph import DEFAULT_THRES1, FilteredPoseGraph
     from fpg_gym.io import load_clips
+    from fpg_gym.outputs import check_output
 
+    # Before any work: the output must not be an input, a folder or unwritable.
+    check_output(args.out, [item for item in args.inputs if item != "default"])
     start = time.perf_counter()
     clips = load_clips(args.inputs, workers=args.workers, units=args.units, progress=not args.quiet)
     read_seconds = time.perf_counter() - start

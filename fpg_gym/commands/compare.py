@@ -80,6 +80,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="recordings (.npz with ground truth from `fpg-gym simulate`, or Kinect files)",
     )
     source.add_argument(
+        "--input-format",
+        choices=("msrc12", "kinect_v2", "ntu", "csv", "npz"),
+        default=None,
+        help="format of the --inputs files (default: guessed per file)",
+    )
+    source.add_argument(
         "--seeds", type=_seeds, default=[0], metavar="S,T", help="seeds (default 0)"
     )
     source.add_argument(
@@ -172,6 +178,7 @@ def run(args: argparse.Namespace) -> int:
         sensor_map=args.sensor_map,
         output_map=args.output_map,
         sensor_blend=args.sensor_blend,
+        input_format=args.input_format,
     )
     outcome = run_compare(
         config, progress=not args.quiet, fresh=args.fresh, plots=not args.no_plots

@@ -37,22 +37,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 
 
-def _recording_files(items: list[str]) -> list[Path]:
-    files: list[Path] = []
-    for item in items:
-        path = Path(item)
-        if path.is_dir():
-            found = sorted(path.glob("*.npz"))
-            if not found:
-                raise FileNotFoundError(f"{path}: folder holds no .npz recording")
-            files.extend(found)
-        elif path.is_file():
-            files.append(path)
-        else:
-            raise FileNotFoundError(f"{path}: no such file or folder")
-    return files
-
-
 def run(args: argparse.Namespace) -> int:
     """Fit, write the map(s), print their offsets' sizes and residuals."""
     import numpy as np
@@ -60,11 +44,12 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym.commands.output import emit_json
     from fpg_gym.definitions import fit_sensor_maps
     from fpg_gym.graph import load_graph
+    from fpg_gym.io import expand_inputs
     from fpg_gym.io.recording import load_recording
 
     if args.graph and not args.output_map:
         raise ValueError("--output-map: needed with --graph (the map back to the truth's joints)")
-    files = _recording_files(args.recordings)
+    files = expand_inputs(args.recordings, lambda p: p.suffix == ".npz", ".npz recording")
     outputs = [Path(args.out), *([Path(args.output_map)] if args.output_map else [])]
     for out in outputs:
         if any(out.resolve() == f.resolve() for f in files):

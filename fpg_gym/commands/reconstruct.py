@@ -15,6 +15,10 @@ HELP = (
     "or run a reference filter on it (--method raw|holt|kalman)"
 )
 
+#: Formats of ``--format`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`; listed here so that
+#: ``--help`` imports nothing heavy).
+KINECT_FORMATS: tuple[str, ...] = ("msrc12", "kinect_v2", "ntu", "csv", "npz")
+
 #: Bin edges (metres) of the printed error histogram.
 HISTOGRAM_EDGES: tuple[float, ...] = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5)
 
@@ -28,6 +32,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--input", required=True, metavar="REC", help="recording (.npz, MSRC-12, Kinect v2, ...)"
+    )
+    parser.add_argument(
+        "--format",
+        choices=KINECT_FORMATS,
+        default=None,
+        help="format of --input (default: guessed from the extension and the data lines)",
     )
     parser.add_argument("--out", required=True, metavar="OUT.npz", help="output .npz")
     parser.add_argument(
@@ -144,6 +154,16 @@ def _print_errors(summary: dict[str, Any], label: str) -> None:
     )
 
 
+def _check_out(args: argparse.Namespace) -> Path:
+    """The output path, checked before any work (not an input, not a folder, writable)."""
+    from fpg_gym.outputs import check_output
+
+    inputs = [args.input]
+    if args.graph and args.graph != "default":
+        inputs.append(args.graph)
+    return check_output(args.out, inputs, npz=True)
+
+
 def run(args: argparse.Namespace) -> int:
     """Reconstruct, write the ``.npz`` and print the summary (errors when ground truth exists)."""
     import numpy as np
@@ -151,6 +171,7 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym.commands.output import emit_json
     from fpg_gym.graph import load_graph
     from fpg_gym.io import read_recording
+    from fpg_gym.outputs import save_npz
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
 
@@ -160,6 +181,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--k: expected >= 1, got {args.k}")
     if not args.prior >= 0:
         raise ValueError(f"--prior: expected >= 0, got {args.prior}")
+    args.out = _check_out(args)
     if args.method:
         from fpg_gym.methods import parse_method
 
@@ -173,7 +195,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError("--graph: a pose graph is needed (a .npz file or 'default')")
     optimizer = make(args.optimizer)
     maps = definition_maps(args.sensor_map, args.output_map)
-    recording = read_recording(args.input)
+    recording = read_recording(args.input, format=args.format)
     graph = load_graph(args.graph)
     reconstructor = Reconstructor(
         graph,
@@ -242,10 +264,7 @@ def run(args: argparse.Namespace) -> int:
         "bone_settling": result.bones,
     }
     arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
-    out = Path(args.out)
-    if out.parent and not out.parent.exists():
-        out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out, **arrays)  # type: ignore[arg-type]
+    out = save_npz(args.out, arrays)  # beside the target, then renamed: never half-written
 
     state = " (interrupted)" if result.interrupted else ""
     print(f"frames           {frames} of {total}{state}")
@@ -285,8 +304,9 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     from fpg_gym.commands.output import emit_json
     from fpg_gym.io import read_recording
     from fpg_gym.methods import MethodRunner
+    from fpg_gym.outputs import save_npz
 
-    recording = read_recording(args.input)
+    recording = read_recording(args.input, format=args.format)
     start = time.perf_counter()
     with MethodRunner() as runner:
         result = runner.run(method, recording)
@@ -310,9 +330,7 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
         summary.update(error_summary)
     metadata = {"input": str(args.input), "method": method.name, "frames": result.num_frames}
     arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
-    out = Path(args.out)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    np.savez_compressed(out, **arrays)
+    out = save_npz(args.out, arrays)
     print(f"frames           {result.num_frames}")
     print(f"method           {method.name}")
     print(f"ms per frame     median {summary['ms_per_frame_median']:.3f}")

@@ -58,6 +58,7 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym import metrics
     from fpg_gym.commands.output import emit_json
     from fpg_gym.io import write_recording
+    from fpg_gym.outputs import check_output
     from fpg_gym.simulate import SCENARIOS, get_scenario, simulate
 
     if args.list:
@@ -74,6 +75,8 @@ def run(args: argparse.Namespace) -> int:
         )
         return 2
     scenario = get_scenario(args.scenario)  # ValueError names the known scenarios
+    inputs = [] if args.input.startswith(_DEFAULT_PREFIX) else [args.input]
+    check_output(args.out, inputs, npz=True)  # before any work
     clip = _read_input(args.input, args.units)
     recording = simulate(clip, scenario, seed=args.seed)  # type: ignore[arg-type]
     path = write_recording(args.out, recording)

@@ -12,7 +12,8 @@ HELP = (
 
 _EPILOG = """\
 The model is written as MODEL.json (hyper-parameters, observation layout, training summary)
-beside MODEL.pt (supervised: a torch state dict) or MODEL.zip (rl: stable-baselines3);
+beside MODEL.pt (the network's weights: a torch state dict of tensors, loaded with
+weights_only=True; no pickle);
 checkpoints go to MODEL.checkpoints/. Use it with
   fpg-gym compare --optimizers local-search,learned:MODEL,learned+search:MODEL ...
 
@@ -151,8 +152,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Train, save and print the final evaluation."""
     from fpg_gym.commands.output import emit_json
-    from policies.sampler import FEATURE_SETS
+    from fpg_gym.outputs import check_output
+    from policies.sampler import FEATURE_SETS, WEIGHTS_SUFFIX, model_paths
     from policies.training import TrainConfig, config_dict, train_sampler
+
+    # Before any work: MODEL.json and MODEL.pt must not be inputs, folders or unwritable.
+    inputs = [item for item in [args.graph, *(args.clips or []), *(args.val_clips or [])] if item]
+    json_path, stem = model_paths(args.out)
+    for target in (json_path, stem.with_name(stem.name + WEIGHTS_SUFFIX)):
+        check_output(target, [i for i in inputs if i != "default"])
 
     features = (
         list(FEATURE_SETS[args.features]) if args.features in FEATURE_SETS else _list(args.features)

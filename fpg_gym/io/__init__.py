@@ -9,12 +9,12 @@ in parallel processes with a progress bar, and returns the clips in a stable ord
 from __future__ import annotations
 
 import os
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 from pathlib import Path
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.errors import DataFormatError, FpgGymError
 from fpg_gym.io.bvh import BANDAI_NAMCO_MAP, BvhPoint, JointSource, read_bvh
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.deepmimic import DEFAULT_CLIP_NAMES, load_default_clips, read_deepmimic
@@ -30,6 +30,7 @@ __all__ = [
     "Clip",
     "DataFormatError",
     "Recording",
+    "expand_inputs",
     "find_mocap_files",
     "load_clips",
     "load_default_clips",
@@ -105,21 +106,24 @@ def _is_mocap_file(path: Path) -> bool:
     return not path.name.startswith(".")
 
 
-def find_mocap_files(inputs: Iterable[str | Path]) -> list[Path]:
-    """Expand folders (recursively, sorted) into the mocap files they hold.
+def expand_inputs(
+    inputs: Iterable[str | Path], accept: Callable[[Path], bool], kind: str
+) -> list[Path]:
+    """Files named by ``inputs``: files as given, folders expanded (recursively, sorted) into
+    the files ``accept`` takes.
 
     Raises
     ------
     FileNotFoundError
-        If an input does not exist or a folder holds no mocap file.
+        If an input does not exist or a folder holds no accepted file (``kind`` names them).
     """
     files: list[Path] = []
     for item in inputs:
         path = Path(item)
         if path.is_dir():
-            found = sorted(p for p in path.rglob("*") if p.is_file() and _is_mocap_file(p))
+            found = sorted(p for p in path.rglob("*") if p.is_file() and accept(p))
             if not found:
-                raise FileNotFoundError(f"{path}: folder holds no .bvh, .bvh.gz, .npz or .txt file")
+                raise FileNotFoundError(f"{path}: folder holds no {kind}")
             files.extend(found)
         elif path.is_file():
             files.append(path)
@@ -128,8 +132,28 @@ def find_mocap_files(inputs: Iterable[str | Path]) -> list[Path]:
     return files
 
 
+def find_mocap_files(inputs: Iterable[str | Path]) -> list[Path]:
+    """Expand folders (recursively, sorted) into the mocap files they hold.
+
+    Raises
+    ------
+    FileNotFoundError
+        If an input does not exist or a folder holds no mocap file.
+    """
+    return expand_inputs(inputs, _is_mocap_file, ".bvh, .bvh.gz, .npz or .txt file")
+
+
 def _read_for_pool(path: Path, units: str, joint_map: Mapping[str, JointSource] | None) -> Clip:
-    return read_clip(path, joint_map=joint_map, units=units)
+    """:func:`read_clip` in a reader process: any failure comes back naming the file (the
+    project's errors pickle with their message; others are wrapped)."""
+    try:
+        return read_clip(path, joint_map=joint_map, units=units)
+    except FpgGymError:
+        raise
+    except Exception as error:
+        raise DataFormatError(
+            path, f"cannot be read ({type(error).__name__}: {' '.join(str(error).split())})"
+        ) from None
 
 
 def load_clips(

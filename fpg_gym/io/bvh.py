@@ -117,10 +117,7 @@ def _read_text(path: Path) -> str:
         raw = path.read_bytes()
     except OSError as error:
         raise DataFormatError(path, f"cannot read the file ({error.strerror})") from None
-    try:
-        raw = maybe_gunzip(raw)
-    except (OSError, EOFError) as error:
-        raise DataFormatError(path, f"corrupt gzip data ({error})") from None
+    raw = maybe_gunzip(raw, path)
     try:
         return raw.decode("utf-8")
     except UnicodeDecodeError:
@@ -168,7 +165,15 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[BvhHierarchy, int]:
                 raise DataFormatError(path, "ROOT inside another joint", line=number)
             if keyword == "JOINT" and not stack:
                 raise DataFormatError(path, "JOINT outside any ROOT", line=number)
-            names.append(" ".join(tokens[1:]))
+            name = " ".join(tokens[1:])
+            if name in names:
+                raise DataFormatError(
+                    path,
+                    f"duplicate joint name {name!r} (first at joint {names.index(name) + 1}); "
+                    "every joint needs its own name",
+                    line=number,
+                )
+            names.append(name)
             parents.append(stack[-1] if stack else -1)
             offsets.append([0.0, 0.0, 0.0])
             channels.append(())
@@ -189,6 +194,8 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[BvhHierarchy, int]:
                 stack.pop()
             else:
                 raise DataFormatError(path, "unbalanced '}'", line=number)
+        elif keyword in ("OFFSET", "CHANNELS") and not names:
+            raise DataFormatError(path, f"{keyword} before any ROOT or JOINT", line=number)
         elif keyword == "OFFSET":
             try:
                 values = [float(v) for v in tokens[1:4]]
@@ -196,6 +203,12 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[BvhHierarchy, int]:
                 raise DataFormatError(path, "OFFSET needs three numbers", line=number) from None
             if len(values) != 3 or not np.all(np.isfinite(values)):
                 raise DataFormatError(path, "OFFSET needs three finite numbers", line=number)
+            if max(abs(v) for v in values) > MAX_CHANNEL_VALUE:
+                raise DataFormatError(
+                    path,
+                    f"OFFSET beyond the plausible range ±{MAX_CHANNEL_VALUE:g} file units",
+                    line=number,
+                )
             if not in_end_site:
                 offsets[-1] = values
         elif keyword == "CHANNELS":
@@ -217,6 +230,74 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[BvhHierarchy, int]:
     raise DataFormatError(path, "no MOTION section (truncated file?)", line=len(lines))
 
 
+#: Plausible frame times (seconds): 10 kHz to 1 Hz.
+MIN_FRAME_TIME, MAX_FRAME_TIME = 1.0e-4, 1.0
+#: Longest clip (seconds) read; a longer one is a corrupt header.
+MAX_DURATION_S = 24 * 3600.0
+#: Largest magnitude accepted for a channel value (file units or degrees): 10 km in centimetres,
+#: or a rotation of thousands of turns. Beyond it a value is a corrupt file, not a motion.
+MAX_CHANNEL_VALUE = 1.0e6
+
+
+def _parse_frames(
+    path: Path, lines: list[str], first_line: int, frames: int, hierarchy: BvhHierarchy
+) -> np.ndarray:
+    """The ``(frames, channels)`` values of the motion lines, checked line by line: each
+    non-blank line holds exactly one frame of finite numbers of plausible magnitude
+    (:data:`MAX_CHANNEL_VALUE`), and there are exactly ``frames`` of them."""
+    channel_count = hierarchy.num_channels
+    numbered = [(n, line) for n, line in enumerate(lines, start=first_line) if line.strip()]
+    if len(numbered) < frames:
+        raise DataFormatError(
+            path,
+            f"truncated: header says {frames} frames of {channel_count} channels, found "
+            f"{len(numbered)} frame lines",
+            line=first_line + len(lines),
+        )
+    if len(numbered) > frames:
+        raise DataFormatError(
+            path,
+            f"{len(numbered) - frames} frame line(s) more than the {frames} the header declares",
+            line=numbered[frames][0],
+        )
+    rows = [line.split() for _, line in numbered]
+    for (number, _), fields in zip(numbered, rows, strict=True):
+        if len(fields) != channel_count:
+            raise DataFormatError(
+                path,
+                f"expected {channel_count} values per frame line (the hierarchy's channels), "
+                f"got {len(fields)}",
+                line=number,
+            )
+    with np.errstate(all="ignore"):
+        try:
+            values = np.array(rows, dtype=np.float64).reshape(frames, channel_count)
+        except ValueError:
+            for (number, _), fields in zip(numbered, rows, strict=True):
+                for field_text in fields:
+                    try:
+                        float(field_text)
+                    except ValueError:
+                        raise DataFormatError(
+                            path, f"a frame holds a non-number ({field_text!r})", line=number
+                        ) from None
+            raise  # pragma: no cover - one of the fields must have failed
+    finite = np.isfinite(values)
+    if not finite.all():
+        frame = int(np.argwhere(~finite)[0, 0])
+        raise DataFormatError(path, "NaN or inf value", line=numbered[frame][0])
+    large = np.abs(values) > MAX_CHANNEL_VALUE
+    if large.any():
+        frame, column = (int(i) for i in np.argwhere(large)[0])
+        raise DataFormatError(
+            path,
+            f"value {values[frame, column]:g} is beyond the plausible range "
+            f"±{MAX_CHANNEL_VALUE:g} (file units or degrees)",
+            line=numbered[frame][0],
+        )
+    return values
+
+
 _HEADER_NUMBER = re.compile(r"^\s*(Frames|Frame Time)\s*:\s*(\S+)\s*$")
 
 
@@ -226,8 +307,9 @@ def parse_bvh(path: str | Path) -> BvhMotion:
     Raises
     ------
     DataFormatError
-        For a malformed hierarchy, a bad header, a truncated motion section or NaN/inf values;
-        the message names the file and line.
+        For a malformed hierarchy (duplicate joint names included), a bad header, a truncated
+        motion section, a frame line without exactly one value per channel, NaN/inf values or
+        values beyond :data:`MAX_CHANNEL_VALUE`; the message names the file and line.
     """
     path = Path(path)
     text = _read_text(path)
@@ -262,40 +344,22 @@ def parse_bvh(path: str | Path) -> BvhMotion:
         ) from None
     if frames <= 0:
         raise DataFormatError(path, "the clip has no frames (Frames: 0)", line=motion_index + 2)
-    if not (np.isfinite(frame_time) and frame_time > 0):
-        raise DataFormatError(path, f"bad frame time {frame_time}", line=motion_index + 3)
+    if not (np.isfinite(frame_time) and MIN_FRAME_TIME <= frame_time <= MAX_FRAME_TIME):
+        raise DataFormatError(
+            path,
+            f"frame time {frame_time:g} s is outside the plausible {MIN_FRAME_TIME:g}-"
+            f"{MAX_FRAME_TIME:g} s",
+            line=motion_index + 3,
+        )
+    if frames * frame_time > MAX_DURATION_S:
+        raise DataFormatError(
+            path,
+            f"{frames} frames of {frame_time:g} s last {frames * frame_time / 3600:.1f} h, more "
+            f"than the {MAX_DURATION_S / 3600:g} h a clip may last",
+            line=motion_index + 2,
+        )
     first_data_line = motion_index + consumed + 1  # 1-based number of the first frame line
-    body = "\n".join(remaining[consumed:])
-    channel_count = hierarchy.num_channels
-    with np.errstate(all="ignore"):
-        try:
-            values = np.array(body.split(), dtype=np.float64)
-        except ValueError:
-            for number, line in enumerate(remaining[consumed:], start=first_data_line):
-                try:
-                    [float(v) for v in line.split()]
-                except ValueError:
-                    raise DataFormatError(path, "a frame holds a non-number", line=number) from None
-            raise  # pragma: no cover
-    if values.size < frames * channel_count:
-        complete = values.size // channel_count
-        raise DataFormatError(
-            path,
-            f"truncated: header says {frames} frames of {channel_count} channels, "
-            f"found {complete} complete frames",
-            line=first_data_line + complete,
-        )
-    if values.size > frames * channel_count:
-        raise DataFormatError(
-            path,
-            f"{values.size - frames * channel_count} values more than {frames} frames of "
-            f"{channel_count} channels",
-            line=first_data_line + frames,
-        )
-    values = values.reshape(frames, channel_count)
-    if not np.all(np.isfinite(values)):
-        frame = int(np.argwhere(~np.isfinite(values))[0, 0])
-        raise DataFormatError(path, "NaN or inf value", line=first_data_line + frame)
+    values = _parse_frames(path, remaining[consumed:], first_data_line, frames, hierarchy)
     return BvhMotion(hierarchy, frame_time, values)
 
 

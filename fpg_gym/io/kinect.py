@@ -84,6 +84,11 @@ _NTU_JOINT_FIELDS = 12
 _DEFAULT_FPS = 30.0
 _MAX_BAD_SHARE = 0.5
 _STATE_COLUMNS = ("x", "y", "z", "state")
+#: Largest plausible coordinate (metres, camera space): the sensors see up to about 8 m; a
+#: larger value (or one beyond float32, about 3.4e38) is a corrupt line.
+MAX_COORDINATE_M = 1000.0
+#: Data lines :func:`detect_format` looks at.
+_DETECT_LINES = 64
 
 
 class SkippedLinesWarning(UserWarning):
@@ -96,12 +101,12 @@ class SkippedLinesWarning(UserWarning):
 def _read_text(path: Path) -> list[str]:
     """The file's lines (gzip-compressed files are accepted)."""
     try:
-        raw = maybe_gunzip(path.read_bytes())
+        raw = path.read_bytes()
     except FileNotFoundError:
         raise FileNotFoundError(f"{path}: no such file") from None
-    except (OSError, EOFError) as error:
-        raise DataFormatError(path, f"cannot read the file ({error})") from None
-    return raw.decode("utf-8", errors="replace").splitlines()
+    except OSError as error:
+        raise DataFormatError(path, f"cannot read the file ({error.strerror})") from None
+    return maybe_gunzip(raw, path).decode("utf-8", errors="replace").splitlines()
 
 
 class _LineLog:
@@ -163,10 +168,16 @@ def _parse_numbers(fields: Sequence[str]) -> np.ndarray | None:
 
 
 def _numeric_lines(
-    lines: Iterable[tuple[int, Sequence[str]]], expected: int, log: _LineLog, *, finite: bool = True
+    lines: Iterable[tuple[int, Sequence[str]]],
+    expected: int,
+    log: _LineLog,
+    *,
+    finite: bool = True,
+    coordinates: np.ndarray | None = None,
 ) -> Iterator[tuple[int, np.ndarray]]:
     """``(line number, values)`` of the lines holding ``expected`` numbers (all finite when
-    ``finite``); every other line is logged as skipped, with the reason."""
+    ``finite``, and the ``coordinates`` columns within :data:`MAX_COORDINATE_M`); every other
+    line is logged as skipped, with the reason."""
     for number, fields in lines:
         if len(fields) != expected:
             log.skip(number, f"expected {expected} fields, got {len(fields)}")
@@ -178,7 +189,24 @@ def _numeric_lines(
         if finite and not np.all(np.isfinite(values)):
             log.skip(number, "NaN or inf value")
             continue
+        if coordinates is not None and _implausible(values[coordinates]):
+            log.skip(number, f"a coordinate beyond ±{MAX_COORDINATE_M:g} m")
+            continue
         yield number, values
+
+
+def _implausible(coordinates: np.ndarray) -> bool:
+    """Whether a finite coordinate lies beyond :data:`MAX_COORDINATE_M` (NaN is not judged
+    here)."""
+    with np.errstate(invalid="ignore"):
+        return bool(np.any(np.abs(coordinates) > MAX_COORDINATE_M))
+
+
+def _coordinate_columns(offset: int, joints: int, stride: int, first: int) -> np.ndarray:
+    """Column indices of the x, y, z values of ``joints`` joints laid out every ``stride``
+    columns from ``offset``, x at ``first`` within each group."""
+    starts = offset + stride * np.arange(joints) + first
+    return (starts[:, None] + np.arange(3)[None, :]).ravel()
 
 
 def _timestamp_unit(ticks: np.ndarray, candidates: Iterable[float]) -> float:
@@ -252,7 +280,8 @@ def read_msrc12(path: str | Path) -> Recording:
     rows: list[np.ndarray] = []
     last_tick = -math.inf
     numbered = ((n, text.split()) for n, text in enumerate(lines, start=1) if text.split())
-    for number, values in _numeric_lines(numbered, _V1_FIELDS, log):
+    coordinates = _coordinate_columns(1, skeleton.NUM_JOINTS, 4, 0)
+    for number, values in _numeric_lines(numbered, _V1_FIELDS, log, coordinates=coordinates):
         if values[0] < last_tick:
             log.skip(number, "timestamp goes back")
             continue
@@ -301,7 +330,12 @@ def read_kinect_v2(path: str | Path) -> Recording:
     log = _LineLog()
     rows: list[np.ndarray] = []
     last_tick = -math.inf
-    for number, values in _numeric_lines(split, layout, log):
+    coordinates = (
+        _coordinate_columns(1, _V2_JOINTS, 4, 0)
+        if layout == _V2_FIELDS
+        else _coordinate_columns(2, _V2_JOINTS, 8, 1)
+    )
+    for number, values in _numeric_lines(split, layout, log, coordinates=coordinates):
         if layout == _V2_FIELDS:
             tick, joints = values[0], values[1:].reshape(_V2_JOINTS, 4)
             state = joints[:, 3]
@@ -388,6 +422,14 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
     frame_count = integer(fields, number, "the frame count")
     if frame_count < 1:
         raise DataFormatError(path, f"frame count must be positive, got {frame_count}", line=number)
+    remaining = sum(1 for text in lines[position:] if text.strip())
+    if frame_count > remaining:
+        raise DataFormatError(
+            path,
+            f"the header declares {frame_count} frames, but only {remaining} lines follow (each "
+            "frame needs at least its body-count line): truncated or corrupt file",
+            line=number,
+        )
     body_order: list[str] = []
     positions = np.zeros((frame_count, _V2_JOINTS, 3))
     states = np.zeros((frame_count, _V2_JOINTS), dtype=np.int8)
@@ -432,6 +474,12 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
                             if len(fields) != _NTU_JOINT_FIELDS
                             else ""
                         ),
+                        line=number,
+                    )
+                if _implausible(values[:3]):
+                    raise DataFormatError(
+                        path,
+                        f"a coordinate beyond ±{MAX_COORDINATE_M:g} m ({' '.join(fields[:3])})",
                         line=number,
                     )
                 if values[-1] not in skeleton.TRACKING_STATES:
@@ -551,6 +599,9 @@ def read_csv(path: str | Path) -> Recording:
             log.skip(number, "NaN or inf value")
             continue
         joints = values[columns].reshape(skeleton.NUM_JOINTS, 4)
+        if _implausible(joints[:, :3]):
+            log.skip(number, f"a coordinate beyond ±{MAX_COORDINATE_M:g} m")
+            continue
         if not np.all(np.isin(joints[:, 3], skeleton.TRACKING_STATES)):
             log.skip(number, "tracking state not 0, 1 or 2")
             continue
@@ -580,8 +631,33 @@ def read_csv(path: str | Path) -> Recording:
 # --------------------------------------------------------------------------- detection
 
 
+def _numeric_token(token: str) -> bool:
+    try:
+        float(token)
+    except ValueError:
+        return False
+    return True
+
+
+def _line_layout(text: str) -> str | None:
+    """The layout one data line fits (None when it fits none)."""
+    comma = text.rstrip(",").split(",")
+    if len(comma) in (_V2_FIELDS, _V2_ALT_FIELDS):
+        return "kinect_v2"
+    fields = text.split()
+    if len(fields) == _V1_FIELDS:
+        return "msrc12"
+    if len(comma) == 1 and len(fields) in (1, _NTU_BODY_FIELDS, _NTU_JOINT_FIELDS):
+        return "ntu"
+    return None
+
+
 def detect_format(path: str | Path) -> str:
-    """Guess a Kinect file's format from its extension and first data line.
+    """Guess a Kinect file's format from its extension and data lines.
+
+    A header line of names (its fields mostly not numbers) means ``csv``; otherwise the first
+    :data:`_DETECT_LINES` data lines vote by their field counts, so a cut or NaN first line
+    does not decide alone. Pass ``format=`` (``--format``) to skip the guess.
 
     Raises
     ------
@@ -595,24 +671,25 @@ def detect_format(path: str | Path) -> str:
     if name.endswith((".skeleton", ".skeleton.gz")):
         return "ntu"
     lines = _read_text(path)
-    first = next((t.strip() for t in lines if t.strip() and not t.lstrip().startswith("#")), "")
-    if not first:
+    sample = [t.strip() for t in lines if t.strip() and not t.lstrip().startswith("#")][
+        :_DETECT_LINES
+    ]
+    if not sample:
         raise DataFormatError(path, "empty file: cannot detect its format")
-    if any(c.isalpha() and c not in "eE" for c in first.replace("nan", "").replace("inf", "")):
+    tokens = [t for t in sample[0].replace(",", " ").split() if t]
+    if sum(not _numeric_token(t) for t in tokens) * 2 > len(tokens):
         return "csv"
-    comma = [f for f in first.rstrip(",").split(",")]
-    if len(comma) in (_V2_FIELDS, _V2_ALT_FIELDS):
-        return "kinect_v2"
-    if len(first.split()) == _V1_FIELDS:
-        return "msrc12"
-    if len(first.split()) == 1 and len(comma) == 1:
-        return "ntu"
+    votes = Counter(layout for layout in map(_line_layout, sample) if layout is not None)
+    if votes:
+        return votes.most_common(1)[0][0]
+    first = sample[0]
     raise DataFormatError(
         path,
-        f"unknown Kinect layout ({len(comma)} comma-separated or {len(first.split())} "
-        f"space-separated fields on the first data line); expected msrc12 ({_V1_FIELDS} "
+        f"unknown Kinect layout ({len(first.rstrip(',').split(','))} comma-separated or "
+        f"{len(first.split())} space-separated fields on the first data line, and no line of "
+        f"the first {len(sample)} fits a layout); expected msrc12 ({_V1_FIELDS} "
         f"space-separated), kinect_v2 ({_V2_FIELDS} or {_V2_ALT_FIELDS} comma-separated), ntu "
-        "(.skeleton) or csv (a header of joint names); pass format=",
+        "(.skeleton) or csv (a header of joint names); pass format= (--format)",
         line=1,
     )
 

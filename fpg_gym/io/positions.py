@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import zipfile
+import zlib
 from pathlib import Path
 
 import numpy as np
@@ -10,6 +11,8 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.npz import check_npz
+from fpg_gym.outputs import save_npz
 
 
 def read_positions(path: str | Path) -> Clip:
@@ -30,6 +33,7 @@ def read_positions(path: str | Path) -> Clip:
         raise DataFormatError(path, "no such file")
     if not zipfile.is_zipfile(path):
         raise DataFormatError(path, "not a readable .npz archive (not a zip file)")
+    check_npz(path)  # forged array headers, pickled arrays: refused before numpy allocates
     try:
         with np.load(path, allow_pickle=False) as archive:
             keys = set(archive.files)
@@ -41,7 +45,7 @@ def read_positions(path: str | Path) -> Clip:
             positions = np.asarray(archive["positions"])
             fps_array = np.asarray(archive["fps"])
             name = str(archive["name"]) if "name" in keys else path.stem
-    except (zipfile.BadZipFile, OSError, EOFError) as error:
+    except (zipfile.BadZipFile, OSError, EOFError, zlib.error) as error:
         raise DataFormatError(path, f"not a readable .npz archive ({error})") from None
     except ValueError as error:  # pickled arrays
         raise DataFormatError(path, f"unreadable array ({error})") from None
@@ -73,7 +77,9 @@ def read_positions(path: str | Path) -> Clip:
 def write_positions(path: str | Path, clip: Clip) -> Path:
     """Write a clip as a positions ``.npz`` file readable by :func:`read_positions`."""
     path = Path(path)
-    np.savez_compressed(
-        path, positions=clip.positions.astype(np.float32), fps=np.float64(clip.fps), name=clip.name
-    )
-    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+    arrays = {
+        "positions": clip.positions.astype(np.float32),
+        "fps": np.float64(clip.fps),
+        "name": np.array(clip.name),
+    }
+    return save_npz(path, arrays)

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import json
 import zipfile
+import zlib
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -36,6 +37,8 @@ import numpy.typing as npt
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
+from fpg_gym.io.npz import check_npz
+from fpg_gym.outputs import save_npz
 from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
 
 __all__ = [
@@ -64,6 +67,14 @@ def _validate_positions(value: object, name: str, count: int | None) -> np.ndarr
         raise ValueError(f"{name}: expected {count} frames, got {len(array)}")
     if not np.issubdtype(array.dtype, np.number) or np.issubdtype(array.dtype, np.complexfloating):
         raise ValueError(f"{name}: expected real numbers, got dtype {array.dtype}")
+    with np.errstate(invalid="ignore"):
+        beyond = np.abs(array) > np.finfo(np.float32).max
+    if beyond.any():
+        frame, joint = (int(i) for i in np.argwhere(beyond)[0][:2])
+        raise ValueError(
+            f"{name}: value {float(array[frame, joint].max()):g} at frame {frame}, joint "
+            f"{skeleton.JOINT_NAMES[joint]} is beyond the float32 range (metres expected)"
+        )
     array = array.astype(np.float32)
     if not np.all(np.isfinite(array)):
         frame, joint = (int(i) for i in np.argwhere(~np.isfinite(array))[0][:2])
@@ -201,10 +212,13 @@ class Recording:
 def write_recording(path: str | Path, recording: Recording) -> Path:
     """Write a recording as a compressed ``.npz`` file (see the module docstring).
 
+    The file is written beside its target and renamed into place (a crash never leaves a
+    half-written recording).
+
     Returns
     -------
     Path
-        The path written (numpy appends ``.npz`` when the name lacks it).
+        The path written (``.npz`` is appended when the name lacks it, numpy's rule).
     """
     path = Path(path)
     arrays: dict[str, npt.NDArray[Any]] = {
@@ -215,8 +229,7 @@ def write_recording(path: str | Path, recording: Recording) -> Path:
     }
     if recording.ground_truth is not None:
         arrays["ground_truth"] = recording.ground_truth.astype(np.float32)
-    np.savez_compressed(path, **arrays)  # type: ignore[arg-type]
-    return path if path.suffix == ".npz" else path.with_name(path.name + ".npz")
+    return save_npz(path, arrays)
 
 
 def load_recording(path: str | Path) -> Recording:
@@ -237,6 +250,7 @@ def load_recording(path: str | Path) -> Recording:
         raise FileNotFoundError(f"{path}: no such file") from None
     if magic[:2] != b"PK":
         raise DataFormatError(path, "not a readable .npz archive (no zip header)")
+    check_npz(path)  # forged array headers, pickled arrays: refused before numpy allocates
     try:
         with np.load(path, allow_pickle=False) as archive:
             keys = set(archive.files)
@@ -258,7 +272,7 @@ def load_recording(path: str | Path) -> Recording:
                     path, f"unexpected key(s) {unknown}; a recording holds {list(RECORDING_KEYS)}"
                 )
             arrays = {key: np.asarray(archive[key]) for key in keys}
-    except (zipfile.BadZipFile, OSError, EOFError) as error:
+    except (zipfile.BadZipFile, OSError, EOFError, zlib.error) as error:
         raise DataFormatError(path, f"not a readable .npz archive ({error})") from None
     except ValueError as error:  # pickled object arrays
         raise DataFormatError(path, f"unreadable array ({error})") from None

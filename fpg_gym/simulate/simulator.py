@@ -245,7 +245,10 @@ class KinectSimulator:
         # Partly hidden joints vibrate more; fully hidden ones get the occlusion model instead.
         seen_share = np.where(visible < scenario.occlusion.hidden_below, 1.0, visible)
         noise = scenario.noise.sample(rng, truth, rate, seen_share)
-        reported = truth + noise
+        sensed = truth
+        if scenario.sensor_definitions is not None:  # the sensor's joints are not the clip's
+            sensed = scenario.sensor_definitions.apply(truth)
+        reported = sensed + noise
         states = np.full((count, skeleton.NUM_JOINTS), TRACKED, dtype=np.int8)
         stats: dict[str, Any] = {"out_of_view_share": float(1.0 - in_view.mean())}
         if scenario.occlusion_effects or not in_view.all():
