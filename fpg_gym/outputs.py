@@ -11,7 +11,9 @@ the old file or the new one, never a torn one.
 from __future__ import annotations
 
 import os
+import signal
 import tempfile
+import threading
 import uuid
 from collections.abc import Iterable, Iterator, Mapping
 from contextlib import contextmanager
@@ -22,7 +24,15 @@ import numpy as np
 
 from fpg_gym.errors import OutputError
 
-__all__ = ["atomic_path", "check_output", "npz_name", "same_file", "save_npz", "write_text"]
+__all__ = [
+    "atomic_path",
+    "check_output",
+    "interrupts_deferred",
+    "npz_name",
+    "same_file",
+    "save_npz",
+    "write_text",
+]
 
 
 def npz_name(path: str | os.PathLike[str]) -> Path:
@@ -113,6 +123,32 @@ def check_output(
             f"{argument} {target}: cannot write in folder {existing} ({error.strerror})"
         ) from None
     return target
+
+
+@contextmanager
+def interrupts_deferred() -> Iterator[None]:
+    """Hold Ctrl-C (SIGINT) and SIGTERM back within the block, then raise ``KeyboardInterrupt``.
+
+    For the final write of results already computed: an interrupt that arrives while they are
+    being summarised and written no longer throws them away; it is raised once they are on
+    disk. Outside the main thread (where Python cannot install handlers) the block runs as is.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    received: list[int] = []
+
+    def hold(signum: int, frame: object) -> None:
+        received.append(signum)
+
+    previous = {number: signal.signal(number, hold) for number in (signal.SIGINT, signal.SIGTERM)}
+    try:
+        yield
+    finally:
+        for number, handler in previous.items():
+            signal.signal(number, handler)
+    if received:
+        raise KeyboardInterrupt(f"signal {received[0]} (held until the results were written)")
 
 
 @contextmanager

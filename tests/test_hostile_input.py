@@ -40,7 +40,7 @@ from fpg_gym.io import (
     write_recording,
 )
 from fpg_gym.io.kinect import SkippedLinesWarning, write_csv
-from fpg_gym.outputs import atomic_path, check_output
+from fpg_gym.outputs import atomic_path, check_output, interrupts_deferred, save_npz
 from fpg_gym.simulate import simulate
 
 REPO = Path(__file__).resolve().parents[1]
@@ -168,7 +168,9 @@ def test_atomic_writes_leave_the_old_file_on_failure(tmp_path: Path) -> None:
 
 
 def test_sigterm_during_reconstruct_keeps_the_frames_done(tmp_path: Path) -> None:
-    long = simulate(load_default_clips(["walk"])[0], "front-many", seed=1)
+    walk = load_default_clips(["walk"])[0]  # walked there and back, long enough to stop midway
+    there_and_back = np.concatenate([walk.positions, walk.positions[::-1]] * 12)
+    long = simulate(replace(walk, positions=there_and_back), "front-many", seed=1)
     source = write_recording(tmp_path / "walk.npz", long)
     out = tmp_path / "out.npz"
     env = {**os.environ, "FPG_GYM_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(REPO)}
@@ -197,6 +199,17 @@ def test_sigterm_during_reconstruct_keeps_the_frames_done(tmp_path: Path) -> Non
     assert 5 <= frames < long.num_frames
     assert metadata["interrupted"] is True and metadata["frames"] == frames
     assert b"(interrupted)" in stdout
+
+
+def test_an_interrupt_during_the_final_write_waits_until_it_is_written(tmp_path: Path) -> None:
+    written = tmp_path / "out.npz"
+    with pytest.raises(KeyboardInterrupt), interrupts_deferred():
+        os.kill(os.getpid(), signal.SIGTERM)
+        os.kill(os.getpid(), signal.SIGINT)
+        save_npz(written, {"poses": np.zeros((3, 20, 3))})
+    with np.load(written, allow_pickle=False) as archive:
+        assert archive["poses"].shape == (3, 20, 3)
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # handlers given back
 
 
 # --------------------------------------------------------------------------- compare

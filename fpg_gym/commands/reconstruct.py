@@ -171,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym.commands.output import emit_json
     from fpg_gym.graph import load_graph
     from fpg_gym.io import read_recording
-    from fpg_gym.outputs import save_npz
+    from fpg_gym.outputs import interrupts_deferred, save_npz
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
 
@@ -218,53 +218,57 @@ def run(args: argparse.Namespace) -> int:
         )
     finally:
         reconstructor.close()
-    seconds = time.perf_counter() - start
-    arrays = result.arrays()
-    frames = result.num_frames
-    total = recording.num_frames
+    # the frames are done: an interrupt from here on waits until they are written
+    with interrupts_deferred():
+        seconds = time.perf_counter() - start
+        arrays = result.arrays()
+        frames = result.num_frames
+        total = recording.num_frames
 
-    summary: dict[str, Any] = {
-        "frames": frames,
-        "input_frames": total,
-        "interrupted": result.interrupted,
-        "optimizer": args.optimizer,
-        "selector": args.selector,
-        "ragdoll": not args.no_ragdoll,
-        "seed": args.seed,
-        "budget": args.budget,
-        "raw_mean_error_m": None,
-        "mean_error_m": None,
-        "raw_err02_pct": None,
-        "err02_pct": None,
-        "ms_per_frame_median": float(np.median(arrays["ms_per_frame"])) if frames else None,
-        "ms_per_frame_p95": float(np.percentile(arrays["ms_per_frame"], 95)) if frames else None,
-        "evaluations_mean": float(arrays["evaluations"].mean()) if frames else None,
-        "recoveries": int(arrays["recovered"].sum()),
-        "seconds": round(seconds, 3),
-        "bone_settling": {k: v for k, v in result.bones.items() if not k.endswith("lengths_m")},
-    }
-    if recording.ground_truth is not None and frames:
-        error_arrays, error_summary = _error_summary(recording.head(frames), result.poses)
-        arrays.update(error_arrays)
-        summary.update(
-            error_summary,
-            histogram_edges_m=list(HISTOGRAM_EDGES),
-            raw_histogram=_histogram(error_arrays["frame_error_raw"]),
-            histogram=_histogram(error_arrays["frame_error"]),
-        )
-    metadata = {
-        "input": str(args.input),
-        "graph": str(args.graph),
-        **{k: summary[k] for k in ("optimizer", "selector", "ragdoll", "seed", "budget")},
-        "prior": args.prior,
-        "k": args.k,
-        "interrupted": result.interrupted,
-        "frames": frames,
-        "input_frames": total,
-        "bone_settling": result.bones,
-    }
-    arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
-    out = save_npz(args.out, arrays)  # beside the target, then renamed: never half-written
+        summary: dict[str, Any] = {
+            "frames": frames,
+            "input_frames": total,
+            "interrupted": result.interrupted,
+            "optimizer": args.optimizer,
+            "selector": args.selector,
+            "ragdoll": not args.no_ragdoll,
+            "seed": args.seed,
+            "budget": args.budget,
+            "raw_mean_error_m": None,
+            "mean_error_m": None,
+            "raw_err02_pct": None,
+            "err02_pct": None,
+            "ms_per_frame_median": float(np.median(arrays["ms_per_frame"])) if frames else None,
+            "ms_per_frame_p95": float(np.percentile(arrays["ms_per_frame"], 95))
+            if frames
+            else None,
+            "evaluations_mean": float(arrays["evaluations"].mean()) if frames else None,
+            "recoveries": int(arrays["recovered"].sum()),
+            "seconds": round(seconds, 3),
+            "bone_settling": {k: v for k, v in result.bones.items() if not k.endswith("lengths_m")},
+        }
+        if recording.ground_truth is not None and frames:
+            error_arrays, error_summary = _error_summary(recording.head(frames), result.poses)
+            arrays.update(error_arrays)
+            summary.update(
+                error_summary,
+                histogram_edges_m=list(HISTOGRAM_EDGES),
+                raw_histogram=_histogram(error_arrays["frame_error_raw"]),
+                histogram=_histogram(error_arrays["frame_error"]),
+            )
+        metadata = {
+            "input": str(args.input),
+            "graph": str(args.graph),
+            **{k: summary[k] for k in ("optimizer", "selector", "ragdoll", "seed", "budget")},
+            "prior": args.prior,
+            "k": args.k,
+            "interrupted": result.interrupted,
+            "frames": frames,
+            "input_frames": total,
+            "bone_settling": result.bones,
+        }
+        arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
+        out = save_npz(args.out, arrays)  # beside the target, then renamed: never half-written
 
     state = " (interrupted)" if result.interrupted else ""
     print(f"frames           {frames} of {total}{state}")
