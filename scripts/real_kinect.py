@@ -24,9 +24,9 @@ map is Kinect v2 -> that, fitted on the training pairs, and the output map is it
 to Vicon joint centres. ``--no-maps`` runs without any map (the papers' pipeline as it was).
 
 Rows: ``raw`` (the sensor), ``raw+map`` (the sensor through the fitted Kinect v2 -> Vicon map,
-a definition-corrected sensor baseline that needs no database), ``holt``, and the reconstruction
-methods. Columns: mean Eq. 13 error, its ratio to raw, episodes better than raw, Err0.2, jitter,
-the worst joint's ratio to raw.
+a definition-corrected sensor baseline that needs no database), ``holt``, ``kalman``, and the
+reconstruction methods (``+ragdoll``: through the pybullet PD ragdoll). Columns: mean Eq. 13
+error, its ratio to raw, episodes better than raw, Err0.2, jitter, the worst joint's ratio to raw.
 
 Usage::
 
@@ -63,7 +63,15 @@ from fpg_gym.methods import MethodRunner
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data"
-DEFAULT_METHODS = ("raw", "holt", "fpg:local-search", "fpg:closed-form", "shum:local-search")
+DEFAULT_METHODS = (
+    "raw",
+    "holt",
+    "kalman",
+    "fpg:local-search",
+    "fpg:closed-form",
+    "shum:local-search",
+    "fpg:local-search+ragdoll",
+)
 
 
 def _imported(work: Path, data: Path) -> Path:
