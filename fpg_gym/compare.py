@@ -225,6 +225,10 @@ class CompareConfig:
         reconstruction methods (``ReconstructorConfig.sensor_map`` / ``output_map``).
     sensor_blend : float
         ``ReconstructorConfig.sensor_blend`` of the reconstruction methods (0).
+    calibrate_output : bool
+        ``ReconstructorConfig.calibrate_output`` (False).
+    calibration_map : str or None
+        Map file for ``ReconstructorConfig.calibration_map``.
     input_format : str or None
         Format of the ``inputs`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`); None guesses it
         per file.
@@ -246,6 +250,8 @@ class CompareConfig:
     sensor_map: str | None = None
     output_map: str | None = None
     sensor_blend: float = 0.0
+    calibrate_output: bool = False
+    calibration_map: str | None = None
     input_format: str | None = None
 
     def __post_init__(self) -> None:
@@ -265,6 +271,10 @@ class CompareConfig:
             from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
 
             self.scenarios = list(DEFAULT_EPISODE_SCENARIOS)
+        if self.calibrate_output and self.output_map:
+            raise ValueError("calibrate_output and output_map: give one (both set the output map)")
+        if self.calibration_map and not self.calibrate_output:
+            raise ValueError("calibration_map: only used with calibrate_output")
         if not self.seeds:
             raise ValueError("seeds: at least one seed")
         if any(s < 0 for s in self.seeds):
@@ -281,6 +291,12 @@ class CompareConfig:
             "sensor_map": _file_digest(self.sensor_map),
             "output_map": _file_digest(self.output_map),
             "sensor_blend": self.sensor_blend,
+            **({"calibrate_output": True} if self.calibrate_output else {}),
+            **(
+                {"calibration_map": _file_digest(self.calibration_map)}
+                if self.calibration_map
+                else {}
+            ),
         }
 
     def reconstructor_options(self) -> dict[str, Any]:
@@ -290,6 +306,10 @@ class CompareConfig:
             options["sensor_map"] = DefinitionMap.load(self.sensor_map)
         if self.output_map:
             options["output_map"] = DefinitionMap.load(self.output_map)
+        if self.calibrate_output:
+            options["calibrate_output"] = True
+        if self.calibration_map:
+            options["calibration_map"] = DefinitionMap.load(self.calibration_map)
         return options
 
 

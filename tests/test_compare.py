@@ -338,6 +338,8 @@ def test_compare_in_worker_processes(tmp_path: Path) -> None:
         ({"max_frames": 2}, "max_frames"),
         ({"clips": []}, "--clips"),
         ({"seeds": [-1]}, "seeds"),
+        ({"calibrate_output": True, "output_map": "map.json"}, "give one"),
+        ({"calibration_map": "map.json"}, "only used with calibrate_output"),
     ],
 )
 def test_config_errors(tmp_path: Path, changes: dict[str, Any], message: str) -> None:

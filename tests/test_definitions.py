@@ -12,6 +12,7 @@ from fpg_gym import poses, skeleton
 from fpg_gym.definitions import (
     TRUNK_JOINTS,
     DefinitionMap,
+    OnlineDefinitionFit,
     fit_sensor_maps,
     fit_to_database,
     joint_frames,
@@ -201,3 +202,50 @@ def test_sensor_blend_follows_reliable_joints(small_graph, rng):
     assert errors[1.0] < 0.5 * errors[0.0]
     with pytest.raises(ValueError, match="sensor_blend"):
         Reconstructor(small_graph, sensor_blend=1.5)
+
+
+def test_online_fit_learns_known_offsets_causally_from_used_joints(rng):
+    offsets = 0.04 * rng.normal(size=(20, 3))
+    truth = DefinitionMap(offsets, source="db", target="sensor")
+    source = _poses(rng, 60)
+    target = truth.apply(source) + 0.005 * rng.normal(size=source.shape)  # tracking noise
+    use = np.ones(20, dtype=bool)
+    use[J("HandLeft")] = False  # never trusted: learns nothing
+    online = OnlineDefinitionFit(symmetric=False)
+    first = online.update(source[0], target[0], use)
+    assert np.abs(first - source[0]).max() > 0.0  # frame 0 already uses its own evidence
+    for pose, sensor in zip(source[1:], target[1:], strict=True):
+        online.update(pose, sensor, use)
+    learnt = online.offsets
+    assert np.all(learnt[J("HandLeft")] == 0.0) and online.frames_seen[J("HandLeft")] == 0
+    others = np.arange(20) != J("HandLeft")
+    np.testing.assert_allclose(learnt[others], offsets[others], atol=0.003)
+    far = target[0].copy()
+    far[J("Head")] += 1.0  # a tracking failure, not a definition: left out
+    online.update(source[0], far, use)
+    assert online.frames_seen[J("Head")] == 60
+    online.reset()
+    assert np.all(online.offsets == 0.0)
+
+
+def test_calibrated_output_moves_onto_the_sensor_definitions(small_graph, rng):
+    recording = _recording(rng)
+    offsets = np.zeros((20, 3))
+    offsets[J("Head")] = (0.0, 0.08, 0.0)  # the sensor's head sits 8 cm above the database's
+    head_up = DefinitionMap(offsets, source="db", target="sensor")
+    shifted = Recording(
+        head_up.apply(recording.positions).astype(np.float32),
+        recording.states,
+        recording.timestamps,
+    )
+    head = J("Head")
+    errors = {}
+    for calibrate in (False, True):
+        rec = Reconstructor(small_graph, sensor_map=head_up.inverse(), calibrate_output=calibrate)
+        out = rec.reconstruct(shifted, "local-search", rng=3).poses
+        errors[calibrate] = float(np.linalg.norm(out - shifted.positions, axis=-1)[5:, head].mean())
+    assert errors[True] < 0.5 * errors[False]
+    with pytest.raises(ValueError, match="calibrate_output and output_map"):
+        Reconstructor(small_graph, calibrate_output=True, output_map=head_up)
+    with pytest.raises(ValueError, match="calibration_map"):
+        Reconstructor(small_graph, calibration_map=head_up)

@@ -338,6 +338,16 @@ def test_import_command_on_a_fixture(tmp_path, rng, capsys):
                "--sensor-map", str(sensor_map), "--sensor-blend", "0.5"]  # fmt: skip
     assert main(command) == 0
     assert np.load(result)["poses"].shape == recording.positions.shape
+    # The output's definitions calibrated online to the sensor mapped to Vicon joint centres.
+    calibrated = tmp_path / "calibrated.npz"
+    command[command.index(str(result))] = str(calibrated)
+    assert main([*command, "--calibrate-output", "--calibration-map", str(sensor_map)]) == 0
+    assert np.load(calibrated)["poses"].shape == recording.positions.shape
+    capsys.readouterr()
+    assert main([*command, "--calibrate-output", "--output-map", str(sensor_map)]) == 2
+    assert "--calibrate-output and --output-map" in capsys.readouterr().err
+    assert main([*command, "--calibration-map", str(sensor_map)]) == 2
+    assert "--calibration-map: only used with --calibrate-output" in capsys.readouterr().err
 
 
 def test_import_refuses_bad_arguments(tmp_path, capsys):

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import os
 
+from fpg_gym.commands.reconstruct import add_calibration_arguments
+
 NAME = "compare"
 HELP = (
     "compare methods (raw, holt, kalman, shum, fpg x optimisers, +ragdoll) on simulated "
@@ -140,6 +142,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="F",
         help="pull reliable joints this fraction of the way to the sensor after the search (0)",
     )
+    add_calibration_arguments(methods)
     parser.add_argument(
         "--workers",
         type=int,
@@ -178,6 +181,8 @@ def run(args: argparse.Namespace) -> int:
         sensor_map=args.sensor_map,
         output_map=args.output_map,
         sensor_blend=args.sensor_blend,
+        calibrate_output=args.calibrate_output,
+        calibration_map=args.calibration_map,
         input_format=args.input_format,
     )
     outcome = run_compare(

@@ -83,20 +83,57 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="after the search, move each joint this fraction of the way to the (mapped) "
         "sensor, times its reliability (beyond the papers; default 0)",
     )
+    add_calibration_arguments(parser)
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 
 
-def definition_maps(sensor_map: str | None, output_map: str | None) -> dict[str, Any]:
-    """``sensor_map`` / ``output_map`` reconstructor settings read from map files (absent when
-    not given)."""
+def add_calibration_arguments(parser: Any) -> None:
+    """``--calibrate-output`` and ``--calibration-map`` (reconstruct and compare)."""
+    parser.add_argument(
+        "--calibrate-output",
+        action="store_true",
+        help="fit the output's joint definitions to the sensor's while the stream runs, from "
+        "its tracked joints (instead of --output-map; beyond the papers)",
+    )
+    parser.add_argument(
+        "--calibration-map",
+        metavar="MAP.json",
+        help="with --calibrate-output: map from the sensor to the definitions wanted in the "
+        "output (default: the sensor's own)",
+    )
+
+
+def definition_maps(
+    sensor_map: str | None,
+    output_map: str | None,
+    calibrate_output: bool = False,
+    calibration_map: str | None = None,
+) -> dict[str, Any]:
+    """Reconstructor settings of the joint-definition arguments, maps read from their files
+    (absent when not given).
+
+    Raises
+    ------
+    ValueError
+        ``--calibrate-output`` with ``--output-map``, or ``--calibration-map`` without
+        ``--calibrate-output``.
+    """
     from fpg_gym.definitions import DefinitionMap
 
+    if calibrate_output and output_map:
+        raise ValueError("--calibrate-output and --output-map: give one (both set the output map)")
+    if calibration_map and not calibrate_output:
+        raise ValueError("--calibration-map: only used with --calibrate-output")
     maps: dict[str, Any] = {}
     if sensor_map:
         maps["sensor_map"] = DefinitionMap.load(sensor_map)
     if output_map:
         maps["output_map"] = DefinitionMap.load(output_map)
+    if calibrate_output:
+        maps["calibrate_output"] = True
+    if calibration_map:
+        maps["calibration_map"] = DefinitionMap.load(calibration_map)
     return maps
 
 
@@ -194,7 +231,9 @@ def run(args: argparse.Namespace) -> int:
     if not args.graph:
         raise ValueError("--graph: a pose graph is needed (a .npz file or 'default')")
     optimizer = make(args.optimizer)
-    maps = definition_maps(args.sensor_map, args.output_map)
+    maps = definition_maps(
+        args.sensor_map, args.output_map, args.calibrate_output, args.calibration_map
+    )
     recording = read_recording(args.input, format=args.format)
     graph = load_graph(args.graph)
     reconstructor = Reconstructor(

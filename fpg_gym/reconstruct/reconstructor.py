@@ -69,7 +69,7 @@ import numpy as np
 
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
-from fpg_gym.definitions import PoseMap
+from fpg_gym.definitions import OnlineDefinitionFit, PoseMap
 from fpg_gym.ragdoll import FloorShift
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights, motion_target
@@ -245,6 +245,16 @@ class ReconstructorConfig:
         posture-space constraint for a fully trusted joint — before retargeting to the user's
         bone lengths. The posture space of K database poses cannot represent a pose the
         database lacks; reliable sensor evidence can.
+    calibrate_output : bool
+        Beyond the papers (off by default): instead of a fixed ``output_map``, fit the map from
+        the database's definitions to the sensor's while the stream runs, from this user's
+        tracked joints (:class:`fpg_gym.definitions.OnlineDefinitionFit`: a running mean of
+        the output-to-sensor residual in each joint's frame), and apply it to the returned
+        pose. Needs no paired data; the output comes in the sensor's definitions, or in those
+        of ``calibration_map``.
+    calibration_map : PoseMap, optional
+        With ``calibrate_output``: maps the raw sensor onto the definitions wanted in the
+        output (e.g. Kinect v2 -> Vicon joint centres); None: the sensor's own.
     """
 
     k: int = 30
@@ -271,10 +281,18 @@ class ReconstructorConfig:
     sensor_map: PoseMap | None = None
     output_map: PoseMap | None = None
     sensor_blend: float = 0.0
+    calibrate_output: bool = False
+    calibration_map: PoseMap | None = None
 
     def __post_init__(self) -> None:
         if self.k < 1:
             raise ValueError(f"k: expected >= 1, got {self.k}")
+        if self.calibrate_output and self.output_map is not None:
+            raise ValueError(
+                "calibrate_output and output_map: give one (the calibration fits the output map)"
+            )
+        if self.calibration_map is not None and not self.calibrate_output:
+            raise ValueError("calibration_map: only used with calibrate_output=True")
         if not 0.0 <= self.sensor_blend <= 1.0:
             raise ValueError(
                 f"sensor_blend: expected a fraction in [0, 1], got {self.sensor_blend}"
@@ -458,6 +476,8 @@ class _Pending:
     prepared_at: float
     labelling: str = "as-reported"
     lengths: np.ndarray | None = None
+    sensor: np.ndarray | None = None  # the raw input frame, before the sensor map
+    tracked: np.ndarray | None = None  # its tracked joints
 
 
 def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -546,6 +566,7 @@ class Reconstructor:
         )
         self._output_smoother = OutputSmoother(config.temporal) if config.temporal.output else None
         self.bones = BoneSettler(config.bones)
+        self._calibration = OnlineDefinitionFit() if config.calibrate_output else None
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -588,6 +609,8 @@ class Reconstructor:
         self.database.clear_cache()
         self._ragdoll_lengths = None
         self.bones.reset()
+        if self._calibration is not None:
+            self._calibration.reset()
         self._restart_temporal()
 
     def _restart_temporal(self) -> None:
@@ -650,6 +673,7 @@ class Reconstructor:
         if states.shape != (skeleton.NUM_JOINTS,):
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
         cfg = self.config
+        sensor = positions
         if cfg.sensor_map is not None:  # the sensor's body points -> the database's
             positions = cfg.sensor_map.apply(positions).astype(np.float32)
         if timestamp is None:
@@ -792,6 +816,8 @@ class Reconstructor:
             t4,
             LABELLINGS[labelling],
             np.asarray(lengths, dtype=np.float64),
+            sensor,
+            (states == skeleton.TRACKED) & (not no_body),
         )
         return problem
 
@@ -885,6 +911,15 @@ class Reconstructor:
         self._index += 1
         if self.config.output_map is not None:
             pose = self.config.output_map.apply(pose)
+        if (
+            self._calibration is not None
+            and pending.sensor is not None
+            and pending.tracked is not None
+        ):
+            target = pending.sensor
+            if self.config.calibration_map is not None:
+                target = self.config.calibration_map.apply(target)
+            pose = self._calibration.update(pose, target, pending.tracked)
         return pose.astype(np.float32), record
 
     def _track(self, target: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
