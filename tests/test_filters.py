@@ -76,6 +76,11 @@ def test_registry_names_presets_and_errors() -> None:
         make_filter("raw:default")
     with pytest.raises(TypeError, match="jitter"):
         make_filter("holt", jitter=0.1)
+    for name in ("kalman", "one-euro"):  # every preset filter names its own fields
+        with pytest.raises(TypeError, match=r"unknown parameter\(s\) \['speed'\]"):
+            make_filter(name, speed=1.0)
+    assert make_filter("kalman", not_tracked_std=None).params["not_tracked_std"] is None
+    assert make_filter("one-euro", beta=2).params == {**make_filter("one-euro").params, "beta": 2.0}
     with pytest.raises(TypeError, match="takes no parameters"):
         make_filter("raw", smoothing=0.5)
     with pytest.raises(ValueError, match=r"smoothing: expected a value in \[0, 1\]"):

@@ -19,6 +19,8 @@ tracked whatever its state says.
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
+from collections.abc import Mapping
+from dataclasses import asdict, fields, replace
 from typing import Any, Final
 
 import numpy as np
@@ -208,6 +210,43 @@ class JointFilter(ABC):
     def __repr__(self) -> str:
         args = ", ".join(f"{key}={value!r}" for key, value in self.params.items())
         return f"{type(self).__name__}({args})"
+
+
+class PresetFilter(JointFilter):
+    """A filter whose parameters are a dataclass: a named preset refined by keyword overrides.
+
+    Parameters
+    ----------
+    preset : str
+        The preset's name (kept for :attr:`params`).
+    base : dataclass instance
+        The preset's parameters.
+    overrides : mapping of str to float or None
+        Fields of ``base`` replaced (as floats; None stays None).
+
+    Raises
+    ------
+    TypeError
+        An override that is not a field of ``base``.
+    """
+
+    def __init__(self, preset: str, base: Any, overrides: Mapping[str, Any]) -> None:
+        super().__init__()
+        names = sorted(f.name for f in fields(base))
+        unknown = set(overrides) - set(names)
+        if unknown:
+            raise TypeError(
+                f"{type(self).__name__}: unknown parameter(s) {sorted(unknown)}; expected preset "
+                f"or one of {names}"
+            )
+        self.preset = preset
+        given = {k: None if v is None else float(v) for k, v in overrides.items()}
+        self.settings = replace(base, **given)
+
+    @property
+    def params(self) -> dict[str, Any]:
+        """Preset name and the effective parameters."""
+        return {"preset": self.preset, **asdict(self.settings)}
 
 
 class RawFilter(JointFilter):

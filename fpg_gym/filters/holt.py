@@ -52,13 +52,13 @@ f and led by p frames in the output.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any, Final
+from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym.filters.base import INFERRED, FloatArray, JointFilter, valid_joints
+from fpg_gym.filters.base import INFERRED, FloatArray, PresetFilter, valid_joints
 
 #: Smallest jitter radius (metres): "Check for divide by zero. Use an epsilon of a 10th of a
 #: millimeter" in both Microsoft samples.
@@ -152,7 +152,7 @@ def holt_preset(name: str) -> HoltParams:
     return HOLT_PRESETS[key]
 
 
-class HoltFilter(JointFilter):
+class HoltFilter(PresetFilter):
     """The Kinect SDK double-exponential joint filter (the ``holt`` reference method).
 
     Parameters
@@ -173,28 +173,14 @@ class HoltFilter(JointFilter):
     (5, 20, 3)
     """
 
+    settings: HoltParams
+
     def __init__(self, preset: str = "default", **overrides: float) -> None:
-        super().__init__()
-        base = holt_preset(preset)
-        unknown = set(overrides) - set(asdict(base))
-        if unknown:
-            raise TypeError(
-                f"HoltFilter: unknown parameter(s) {sorted(unknown)}; expected preset or one of "
-                f"{sorted(asdict(base))}"
-            )
-        self.preset = preset
-        self.settings = HoltParams(
-            **{**asdict(base), **{k: float(v) for k, v in overrides.items()}}
-        )
+        super().__init__(preset, holt_preset(preset), overrides)
         self._raw = np.zeros((0, 3))
         self._level = np.zeros((0, 3))
         self._trend = np.zeros((0, 3))
         self._count = np.zeros(0, dtype=np.int64)
-
-    @property
-    def params(self) -> dict[str, Any]:
-        """Preset name and the effective parameters."""
-        return {"preset": self.preset, **asdict(self.settings)}
 
     def _start(self, num_joints: int) -> None:
         self._raw = np.zeros((num_joints, 3))

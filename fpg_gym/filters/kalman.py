@@ -57,7 +57,7 @@ from fpg_gym.filters.base import (
     INFERRED,
     TRACKED,
     FloatArray,
-    JointFilter,
+    PresetFilter,
     _as_positions,
     _as_states,
     _as_timestamps,
@@ -116,7 +116,7 @@ KALMAN_PRESETS: Final[dict[str, KalmanParams]] = {
 }
 
 
-class KalmanFilter(JointFilter):
+class KalmanFilter(PresetFilter):
     """Constant-velocity Kalman filter per joint and axis (see the module docstring).
 
     Parameters
@@ -132,28 +132,16 @@ class KalmanFilter(JointFilter):
         The effective parameters.
     """
 
+    settings: KalmanParams
+
     def __init__(self, preset: str = "default", **params: Any) -> None:
-        super().__init__()
         key = preset.strip().lower()
         if key not in KALMAN_PRESETS:
             raise ValueError(
                 f"preset: unknown Kalman preset {preset!r}; expected one of {list(KALMAN_PRESETS)}"
             )
-        fields = asdict(KALMAN_PRESETS[key])
-        unknown = set(params) - set(fields)
-        if unknown:
-            raise TypeError(
-                f"KalmanFilter: unknown parameter(s) {sorted(unknown)}; expected preset or one of "
-                f"{sorted(fields)}"
-            )
-        self.preset = key
-        self.settings = KalmanParams(**{**fields, **params})
+        super().__init__(key, KALMAN_PRESETS[key], params)
         self._alloc(0)
-
-    @property
-    def params(self) -> dict[str, Any]:
-        """Preset name and the effective parameters."""
-        return {"preset": self.preset, **asdict(self.settings)}
 
     def _alloc(self, num_joints: int) -> None:
         self._pos = np.zeros((num_joints, 3))

@@ -18,13 +18,13 @@ A frame with ``dt <= 0`` (a repeated timestamp) returns the previous output.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass
-from typing import Any, Final
+from dataclasses import dataclass
+from typing import Final
 
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym.filters.base import DEFAULT_DT, FloatArray, JointFilter, valid_joints
+from fpg_gym.filters.base import DEFAULT_DT, FloatArray, PresetFilter, valid_joints
 
 
 @dataclass(frozen=True)
@@ -70,7 +70,7 @@ def alpha(cutoff: npt.ArrayLike, dt: float) -> np.ndarray:
     return np.asarray(1.0 / (1.0 + tau / dt))
 
 
-class OneEuroFilter(JointFilter):
+class OneEuroFilter(PresetFilter):
     """The One-Euro filter per joint (see the module docstring).
 
     Parameters
@@ -81,33 +81,19 @@ class OneEuroFilter(JointFilter):
         ``min_cutoff``, ``beta``, ``d_cutoff`` replacing the preset's.
     """
 
+    settings: OneEuroParams
+
     def __init__(self, preset: str = "default", **overrides: float) -> None:
-        super().__init__()
         key = preset.strip().lower()
         if key not in ONE_EURO_PRESETS:
             raise ValueError(
                 f"preset: unknown One-Euro preset {preset!r}; expected one of "
                 f"{sorted(ONE_EURO_PRESETS)}"
             )
-        base = ONE_EURO_PRESETS[key]
-        unknown = set(overrides) - set(asdict(base))
-        if unknown:
-            raise TypeError(
-                f"OneEuroFilter: unknown parameter(s) {sorted(unknown)}; expected preset or one "
-                f"of {sorted(asdict(base))}"
-            )
-        self.preset = key
-        self.settings = OneEuroParams(
-            **{**asdict(base), **{k: float(v) for k, v in overrides.items()}}
-        )
+        super().__init__(key, ONE_EURO_PRESETS[key], overrides)
         self._value = np.zeros((0, 3))
         self._speed = np.zeros((0, 3))
         self._started = np.zeros(0, dtype=bool)
-
-    @property
-    def params(self) -> dict[str, Any]:
-        """Preset name and the effective parameters."""
-        return {"preset": self.preset, **asdict(self.settings)}
 
     def _start(self, num_joints: int) -> None:
         self._value = np.zeros((num_joints, 3))
