@@ -11,7 +11,8 @@ metres (any space, as long as reference and estimate share it).
 * :func:`bone_length_variation` — standard deviation over time of each bone's length: a clean
   skeleton has none, the Kinect has some because it estimates every joint independently.
 * :func:`bones_tracked` — which bones have both joints tracked, from a per-joint mask.
-* :func:`jitter` — mean acceleration magnitude per joint, from second differences.
+* :func:`acceleration` / :func:`jitter` — acceleration magnitude per joint and frame from second
+  differences, and its mean per joint.
 * :func:`lag` — the time shift (frames) that best aligns an estimate with the ground truth
   (least-squares cross-correlation, sub-frame by parabolic interpolation).
 * :func:`settled_bone_spread` — each bone's length range (max − min) after the first second of
@@ -45,6 +46,7 @@ from fpg_gym import poses, skeleton
 __all__ = [
     "ERROR_BAND_EDGES",
     "ERR_THRESHOLD_M",
+    "acceleration",
     "band_shares",
     "bone_length_variation",
     "bones_tracked",
@@ -190,6 +192,45 @@ def bones_tracked(tracked: npt.ArrayLike) -> np.ndarray:
     return mask[..., skeleton.BONES[:, 0]] & mask[..., skeleton.BONES[:, 1]]
 
 
+def acceleration(
+    positions: npt.ArrayLike,
+    *,
+    fps: float = 30.0,
+    timestamps: npt.ArrayLike | None = None,
+) -> np.ndarray:
+    """Acceleration magnitude of each joint at frames 1..T-2, m/s², ``(T - 2, 20)``.
+
+    The second difference of positions over the (possibly uneven) frame intervals:
+    ``2 ((p[t+1]-p[t])/h1 - (p[t]-p[t-1])/h0) / (h0 + h1)``.
+
+    Parameters
+    ----------
+    positions : array_like, shape (T, 20, 3)
+    fps : float
+        Frame rate used when ``timestamps`` is omitted.
+    timestamps : array_like, shape (T,), optional
+        Seconds, strictly increasing.
+    """
+    pos = _clip_array(positions, "positions")
+    count = len(pos)
+    if timestamps is None:
+        if not fps > 0:
+            raise ValueError(f"fps: expected a positive frame rate, got {fps}")
+        times = np.arange(count) / float(fps)
+    else:
+        times = np.asarray(timestamps, dtype=np.float64).reshape(-1)
+        if times.shape != (count,):
+            raise ValueError(f"timestamps: expected shape ({count},), got {times.shape}")
+        if count > 1 and not np.all(np.diff(times) > 0):
+            raise ValueError("timestamps: must be strictly increasing")
+    if count < 3:
+        return np.zeros((0, skeleton.NUM_JOINTS))
+    h0 = (times[1:-1] - times[:-2])[:, None, None]
+    h1 = (times[2:] - times[1:-1])[:, None, None]
+    acc = 2.0 * ((pos[2:] - pos[1:-1]) / h1 - (pos[1:-1] - pos[:-2]) / h0) / (h0 + h1)
+    return np.asarray(np.linalg.norm(acc, axis=-1))
+
+
 def jitter(
     positions: npt.ArrayLike,
     *,
@@ -199,10 +240,9 @@ def jitter(
 ) -> np.ndarray:
     """Mean acceleration magnitude of each joint, m/s², ``(20,)``.
 
-    The acceleration at frame t is the second difference of positions over the (possibly
-    uneven) frame intervals: ``2 ((p[t+1]-p[t])/h1 - (p[t]-p[t-1])/h0) / (h0 + h1)``. On a real
-    stream it mixes the motion's own acceleration with the sensor's vibration; compare a raw
-    stream with its ground truth, or streams of similar motions.
+    The mean of :func:`acceleration` over the frames whose three neighbours are valid. On a
+    real stream it mixes the motion's own acceleration with the sensor's vibration; compare a
+    raw stream with its ground truth, or streams of similar motions.
 
     Parameters
     ----------
@@ -219,30 +259,17 @@ def jitter(
     ndarray, shape (20,), float64
         NaN for every joint when fewer than three consecutive valid frames exist.
     """
-    pos = _clip_array(positions, "positions")
-    count = len(pos)
-    if timestamps is None:
-        if not fps > 0:
-            raise ValueError(f"fps: expected a positive frame rate, got {fps}")
-        times = np.arange(count) / float(fps)
-    else:
-        times = np.asarray(timestamps, dtype=np.float64).reshape(-1)
-        if times.shape != (count,):
-            raise ValueError(f"timestamps: expected shape ({count},), got {times.shape}")
-        if count > 1 and not np.all(np.diff(times) > 0):
-            raise ValueError("timestamps: must be strictly increasing")
-    if count < 3:
-        return np.full(skeleton.NUM_JOINTS, np.nan)
+    magnitudes = acceleration(positions, fps=fps, timestamps=timestamps)
+    count = len(magnitudes) + 2
     ok = np.ones(count, dtype=bool) if valid is None else np.asarray(valid, dtype=bool)
-    if ok.shape != (count,):
+    if ok.shape != (count,) and len(magnitudes):
         raise ValueError(f"valid: expected shape ({count},), got {ok.shape}")
-    h0 = (times[1:-1] - times[:-2])[:, None, None]
-    h1 = (times[2:] - times[1:-1])[:, None, None]
-    acc = 2.0 * ((pos[2:] - pos[1:-1]) / h1 - (pos[1:-1] - pos[:-2]) / h0) / (h0 + h1)
+    if not len(magnitudes):
+        return np.full(skeleton.NUM_JOINTS, np.nan)
     use = ok[:-2] & ok[1:-1] & ok[2:]
     if not use.any():
         return np.full(skeleton.NUM_JOINTS, np.nan)
-    return np.linalg.norm(acc[use], axis=-1).mean(axis=0)
+    return np.asarray(magnitudes[use].mean(axis=0))
 
 
 def _states_array(states: npt.ArrayLike, count: int) -> np.ndarray:

@@ -43,7 +43,7 @@ from fpg_gym.io.kinect import SkippedLinesWarning
 from fpg_gym.io.recording import Recording
 from fpg_gym.simulate import KinectSimulator, scenario_names
 from fpg_gym.simulate.models import JOINT_GROUP
-from fpg_gym.skeleton import INFERRED, NOT_TRACKED
+from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
 
 REPO = Path(__file__).resolve().parents[1]
 BANDAI_CONTENTS = ("bow", "bye", "byebye", "guide", "call", "respond", "punch", "kick", "slash")
@@ -212,6 +212,52 @@ def _group_stats(recordings: Sequence[Recording]) -> dict[str, tuple[float, floa
     return out
 
 
+_LEGS = np.array([n.startswith(("Hip", "Knee", "Ankle", "Foot")) and n != "HipCenter"
+                  for n in skeleton.JOINT_NAMES])  # fmt: skip
+
+
+def state_row(label: str, recordings: Sequence[Recording]) -> dict[str, str]:
+    """How a stream reports hidden joints, in numbers that depend little on the motion: the
+    inferred share of the upper body and of the legs, the inferred runs of the upper body, and
+    the jitter of a joint's inferred frames over that of its tracked frames (median over the
+    joints with at least 20 frames of each)."""
+    states = np.concatenate([r.states for r in recordings])
+    upper_runs: list[int] = []
+    tracked_sum, tracked_count = np.zeros(20), np.zeros(20)
+    inferred_sum, inferred_count = np.zeros(20), np.zeros(20)
+    for recording in recordings:
+        magnitude = metrics.acceleration(recording.positions, fps=recording.fps)
+        middle = recording.states[1:-1]
+        for state, total, count in (
+            (TRACKED, tracked_sum, tracked_count),
+            (INFERRED, inferred_sum, inferred_count),
+        ):
+            total += np.where(middle == state, magnitude, 0.0).sum(axis=0)
+            count += (middle == state).sum(axis=0)
+        inferred = (recording.states[:, ~_LEGS] == INFERRED).astype(np.int8)
+        edges = np.diff(np.pad(inferred, ((1, 1), (0, 0))), axis=0)
+        for joint in range(inferred.shape[1]):
+            starts, ends = (
+                np.flatnonzero(edges[:, joint] == 1),
+                np.flatnonzero(edges[:, joint] == -1),
+            )
+            upper_runs.extend((ends - starts).tolist())
+    both = (tracked_count >= 20) & (inferred_count >= 20)
+    ratio = (inferred_sum[both] / inferred_count[both]) / (tracked_sum[both] / tracked_count[both])
+    runs = np.array(upper_runs)
+    return {
+        "stream": label,
+        "inferred, upper body (%)": f"{100 * np.mean(states[:, ~_LEGS] == INFERRED):.1f}",
+        "inferred, legs (%)": f"{100 * np.mean(states[:, _LEGS] == INFERRED):.1f}",
+        "upper-body inferred runs of 1-4 frames (%)": (
+            f"{100 * np.mean(runs <= 4):.0f} of {len(runs)}" if len(runs) else "—"
+        ),
+        "jitter inferred / tracked, same joint": (
+            f"{np.median(ratio):.2f} ({int(both.sum())} joints)" if both.any() else "—"
+        ),
+    }
+
+
 def uiprmd_realism(data: Path, scenario: str = "front-kinect-v2", repetition: int = 5) -> str:
     """Real UI-PRMD Kinect v2 against the simulator on the same Vicon motions (markdown)."""
     from fpg_gym.io.ui_prmd_import import find_repetitions, pair_repetitions
@@ -306,6 +352,27 @@ def main(argv: Sequence[str] | None = None) -> int:
     lines.append(markdown_table(joint_rows))
     if data is not None and (data / "ui_prmd").is_dir() and not args.quick:
         lines += ["", uiprmd_realism(data)]
+    occluded = data / "kinect_v2_states" / "joints.csv" if data is not None else None
+    if occluded is not None and occluded.is_file() and "front-many-kinect-v2" in names:
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", SkippedLinesWarning)
+            real_occluded = read_recording(occluded)
+        with KinectSimulator("front-many-kinect-v2") as simulator:
+            simulated_occluded = [
+                simulator.simulate(clip, seed=args.seed + index) for index, clip in enumerate(clips)
+            ]
+        lines += [
+            "",
+            "Tracking states of the occluded Kinect v2 (`joints.csv`) beside "
+            "`front-many-kinect-v2` on the clips above (one seed each):",
+            "",
+            markdown_table(
+                [
+                    state_row("sim front-many-kinect-v2", simulated_occluded),
+                    state_row("real Kinect v2 joints.csv (occluded)", [real_occluded]),
+                ]
+            ),
+        ]
     text = "\n".join(lines)
     print(text)
     if args.out is not None:

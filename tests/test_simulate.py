@@ -128,6 +128,29 @@ def test_a_hidden_hand_is_first_inferred_by_default() -> None:
     assert np.all(recording.states[:10, HAND_RIGHT] == 1)
 
 
+def test_tracking_state_flickers_and_inferred_joints_move_calmly() -> None:
+    # A seen joint is reported inferred for short runs; its position stays the seen one.
+    flicker = _blocked_hand_scenario(flicker_rate=0.05, flicker_mean_frames=2.0)
+    still = standing_clip(400)
+    plain = simulate(still, _blocked_hand_scenario(), seed=3)
+    flickering = simulate(still, flicker, seed=3)
+    seen = np.arange(skeleton.NUM_JOINTS) != HAND_RIGHT
+    assert np.all(plain.states[:, seen] == 2)
+    share = np.mean(flickering.states[:, seen] == 1)
+    assert 0.03 < share < 0.2  # about rate × mean length = 10 %, minus overlaps
+    np.testing.assert_array_equal(flickering.states[:, HAND_RIGHT], plain.states[:, HAND_RIGHT])
+    # Smoothing an inferred joint's reported position lowers its jitter, not the seen ones'.
+    calm = simulate(still, _blocked_hand_scenario(inferred_calm=0.8), seed=3)
+    hand_jitter = {name: metrics.jitter(r.positions)[HAND_RIGHT] for name, r in
+                   (("plain", plain), ("calm", calm))}  # fmt: skip
+    assert hand_jitter["calm"] < 0.5 * hand_jitter["plain"]
+    np.testing.assert_array_equal(calm.positions[:, seen], plain.positions[:, seen])
+    with pytest.raises(ValueError, match="inferred_calm"):
+        OcclusionModel(inferred_calm=1.0)
+    with pytest.raises(ValueError, match="flicker_mean_frames"):
+        OcclusionModel(flicker_mean_frames=0.5)
+
+
 def test_back_to_the_sensor_is_reported_mirrored() -> None:
     still = standing_clip(60)
     turned = still.copy()

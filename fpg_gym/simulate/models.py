@@ -285,6 +285,17 @@ class OcclusionModel:
         Mean length of a swap episode, frames.
     mirror_beyond_deg : float
         Beyond this angle (back to the sensor) the whole skeleton is reported mirrored.
+    flicker_rate : float
+        Per-frame chance that a seen joint is reported inferred for a short run (the tracking
+        state of a real Kinect v2 flickers: in ``kinect_v2_states/joints.csv`` half of the
+        inferred runs last 4 frames or less). 0 in the papers' scenarios.
+    flicker_mean_frames : float
+        Mean length of such a run, frames (geometric).
+    inferred_calm : float
+        Share of the previous reported position an inferred joint keeps each frame (an
+        exponential smoothing, 0 = off): the tracker's body model moves inferred joints more
+        calmly than it reports seen ones (in ``joints.csv`` a joint's inferred frames have 0.6
+        times the jitter of its tracked frames).
     """
 
     hidden_below: float = 0.3
@@ -307,6 +318,9 @@ class OcclusionModel:
     swap_rate: float = 0.05
     swap_mean_frames: float = 20.0
     mirror_beyond_deg: float = 110.0
+    flicker_rate: float = 0.0
+    flicker_mean_frames: float = 4.0
+    inferred_calm: float = 0.0
 
     def __post_init__(self) -> None:
         for name in (
@@ -319,6 +333,7 @@ class OcclusionModel:
             "recovery",
             "not_tracked_probability",
             "swap_rate",
+            "flicker_rate",
         ):
             value = getattr(self, name)
             if not 0.0 <= value <= 1.0:
@@ -338,6 +353,10 @@ class OcclusionModel:
             raise ValueError("expected 0 <= swap_start_deg <= 90 <= mirror_beyond_deg <= 180")
         if self.swap_mean_frames < 1:
             raise ValueError(f"swap_mean_frames: expected >= 1, got {self.swap_mean_frames}")
+        if self.flicker_mean_frames < 1:
+            raise ValueError(f"flicker_mean_frames: expected >= 1, got {self.flicker_mean_frames}")
+        if not 0.0 <= self.inferred_calm < 1.0:
+            raise ValueError(f"inferred_calm: expected a value in [0, 1), got {self.inferred_calm}")
         for name in ("inferred_sigma", "glitch_deg", "drift_sigma", "snap_max_distance"):
             if getattr(self, name) < 0:
                 raise ValueError(f"{name}: expected >= 0, got {getattr(self, name)}")

@@ -128,9 +128,19 @@ KINECT_V2_NOISE = NoiseModel(
     white_sigma={"core": 0.0011, "mid": 0.0018, "distal": 0.0028, "end": 0.0052},
 )
 #: Hidden joints of a Kinect v2 as the real occluded stream ``kinect_v2_states/joints.csv``
-#: shows them: reported inferred, never not tracked (0 % in the file), calmer while inferred.
+#: shows them (``scripts/realism.py``, tracking-state table): reported inferred, never not
+#: tracked (0 % in the file); calmer while inferred (a joint's inferred frames have 0.59 times the
+#: jitter of its tracked frames there; smoothing 0.6 gives 0.62 on the 12 slow Bandai ``bow``
+#: takes of dataset-1, 0.93 on the fast takes of the realism table); and seen upper-body joints
+#: flicker to inferred for a frame or two (8 runs of 1-4 frames, mean 1.9, in about 4,000
+#: tracked upper-body joint-frames: 0.002 per frame).
 KINECT_V2_OCCLUSION = OcclusionModel(
-    not_tracked_probability=0.0, inferred_sigma=0.001, drift_sigma=0.001
+    not_tracked_probability=0.0,
+    inferred_sigma=0.001,
+    drift_sigma=0.001,
+    flicker_rate=0.002,
+    flicker_mean_frames=2.0,
+    inferred_calm=0.6,
 )
 #: Where a Kinect v2 puts its joints relative to marker-based joint centres: the inverse of the
 #: packaged UI-PRMD map (:func:`fpg_gym.definitions.packaged_map`).

@@ -40,7 +40,7 @@ from fpg_gym.io.recording import Recording
 from fpg_gym.poses import as_poses, facing_yaw, yaw_matrix
 from fpg_gym.rotations import axis_angle_matrix
 from fpg_gym.simulate.camera import Camera
-from fpg_gym.simulate.models import JOINT_GROUP
+from fpg_gym.simulate.models import JOINT_GROUP, OcclusionModel
 from fpg_gym.simulate.scenarios import Scenario, get_scenario
 from fpg_gym.simulate.scene import RayCaster, TraceResult
 from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
@@ -361,6 +361,7 @@ def _occlusion_effects(
     glitch_axis = rng.normal(size=(count, joints, 3))
     glitch_angle = np.radians(rng.normal(size=(count, joints)) * model.glitch_deg)
     vibration = rng.normal(size=(count, joints, 3)) * model.inferred_sigma
+    flicker = _flicker(rng, model, count, joints) if model.flicker_rate > 0 else None
     parent = np.where(skeleton.PARENTS >= 0, skeleton.PARENTS, np.arange(joints))
     bones = truth - truth[:, parent]  # (T, 20, 3): joint minus parent, zero for the root
     near = np.linalg.norm(hits - truth, axis=-1) < model.snap_max_distance
@@ -455,6 +456,15 @@ def _occlusion_effects(
             np.where(mode == _SNAP, TRACKED, np.where(run > limit, NOT_TRACKED, INFERRED)),
             TRACKED,
         )
+        if flicker is not None:  # a seen joint reported inferred for a few frames
+            states[t] = np.where(flicker[t] & ~h, INFERRED, states[t])
+        if model.inferred_calm > 0 and t > 0:  # inferred joints move calmly (smoothed)
+            calm = (states[t] == INFERRED) & (states[t - 1] == INFERRED)
+            out[t] = np.where(
+                calm[:, None],
+                model.inferred_calm * out[t - 1] + (1.0 - model.inferred_calm) * out[t],
+                out[t],
+            )
         snaps += int(np.count_nonzero(snap_here))
         if lost[t]:
             states[t] = NOT_TRACKED
@@ -465,6 +475,18 @@ def _occlusion_effects(
         "lost_frames": int(lost.sum()),
     }
     return out, states, stats
+
+
+def _flicker(
+    rng: np.random.Generator, model: OcclusionModel, count: int, joints: int
+) -> np.ndarray:
+    """``(T, J)`` bool: runs of frames a seen joint is reported inferred (starts at
+    ``flicker_rate`` per frame, geometric lengths of mean ``flicker_mean_frames``)."""
+    starts = rng.random((count, joints)) < model.flicker_rate
+    lengths = rng.geometric(1.0 / model.flicker_mean_frames, size=(count, joints))
+    frame = np.arange(count)[:, None]
+    ends = np.where(starts, frame + lengths, -1)  # first frame after each run
+    return frame < np.maximum.accumulate(ends, axis=0)
 
 
 def _left_right(
