@@ -8,7 +8,7 @@ import json
 import numpy as np
 import pytest
 
-from fpg_gym import poses, skeleton
+from fpg_gym import metrics, poses, skeleton
 from fpg_gym.definitions import (
     TRUNK_JOINTS,
     DefinitionMap,
@@ -20,7 +20,7 @@ from fpg_gym.definitions import (
 from fpg_gym.errors import DataFormatError
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import Clip, Recording
-from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.reconstruct import BoneSettlingConfig, Reconstructor
 from fpg_gym.rotations import axis_rotation
 
 J = skeleton.joint_index
@@ -249,3 +249,26 @@ def test_calibrated_output_moves_onto_the_sensor_definitions(small_graph, rng):
         Reconstructor(small_graph, calibrate_output=True, output_map=head_up)
     with pytest.raises(ValueError, match="calibration_map"):
         Reconstructor(small_graph, calibration_map=head_up)
+
+
+def test_a_mapped_output_keeps_settled_bone_lengths(small_graph, rng):
+    frames = _poses(rng, 60)  # two seconds of changing poses
+    recording = Recording(
+        positions=frames.astype(np.float32),
+        states=np.full((60, 20), skeleton.TRACKED, dtype=np.int8),
+        timestamps=np.arange(60) / 30.0,
+    )
+    offsets = np.zeros((20, 3))
+    offsets[J("ShoulderCenter")] = (0.0, 0.0, 0.08)  # thorax frame
+    offsets[J("Head")] = (0.0, 0.1, -0.05)  # head-bone frame: the neck stretches as poses turn
+    output_map = DefinitionMap(offsets, source="db", target="out")
+    spreads = {}
+    for settle in (True, False):
+        config = BoneSettlingConfig(enabled=settle)
+        out = Reconstructor(small_graph, output_map=output_map, bones=config).reconstruct(
+            recording, "local-search", rng=3
+        )
+        spreads[settle] = metrics.settled_bone_spread(out.poses, timestamps=recording.timestamps)
+    neck = skeleton.BONE_OF_JOINT[J("Head")]
+    assert spreads[False][neck] > 0.01  # the map alone stretches the neck by centimetres
+    assert np.all(spreads[True] <= 0.004 + 1e-6)  # settled like the database-side lengths

@@ -567,6 +567,12 @@ class Reconstructor:
         self._output_smoother = OutputSmoother(config.temporal) if config.temporal.output else None
         self.bones = BoneSettler(config.bones)
         self._calibration = OnlineDefinitionFit() if config.calibrate_output else None
+        mapped_output = config.output_map is not None or config.calibrate_output
+        self._output_bones = (  # settles at once on the mean gathered before it is used
+            BoneSettler(replace(config.bones, settle_s=0.0))
+            if mapped_output and config.bones.enabled
+            else None
+        )
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -611,6 +617,11 @@ class Reconstructor:
         self.bones.reset()
         if self._calibration is not None:
             self._calibration.reset()
+        if self._output_bones is not None:
+            self._output_bones.reset()
+        self._output_length_sum = np.zeros(skeleton.NUM_BONES)
+        self._output_length_count = 0
+        self._output_start: float | None = None
         self._restart_temporal()
 
     def _restart_temporal(self) -> None:
@@ -920,7 +931,28 @@ class Reconstructor:
             if self.config.calibration_map is not None:
                 target = self.config.calibration_map.apply(target)
             pose = self._calibration.update(pose, target, pending.tracked)
+        if self._output_bones is not None and not pending.no_body:
+            pose = self._settle_output_bones(pose, pending.timestamp)
         return pose.astype(np.float32), record
+
+    def _settle_output_bones(self, pose: np.ndarray, timestamp: float) -> np.ndarray:
+        """The mapped output with settled bone lengths.
+
+        A definition map moves each joint in the frame of its own body part, which stretches
+        the bones between parts as the body turns. For the first ``bones.settle_s`` seconds the
+        output passes unchanged while the mean of its bone lengths is gathered; then it is
+        retargeted to lengths that start at that mean and follow the running mean within the
+        bounds of :class:`BoneSettler` (the rule the database-side lengths obey).
+        """
+        assert self._output_bones is not None
+        self._output_length_sum += pose_utils.bone_lengths(pose)
+        self._output_length_count += 1
+        if self._output_start is None:
+            self._output_start = timestamp
+        if timestamp - self._output_start < self.config.bones.settle_s:
+            return pose
+        mean = self._output_length_sum / self._output_length_count
+        return pose_utils.retarget(pose, self._output_bones.update(mean, timestamp))
 
     def _track(self, target: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         """Send a camera-space target through the ragdoll (floor shifted to y = 0)."""
