@@ -201,6 +201,28 @@ def test_sigterm_during_reconstruct_keeps_the_frames_done(tmp_path: Path) -> Non
     assert b"(interrupted)" in stdout
 
 
+def test_kill_9_during_reconstruct_keeps_the_last_checkpoint(tmp_path: Path) -> None:
+    walk = load_default_clips(["walk"])[0]
+    long = simulate(replace(walk, positions=np.concatenate([walk.positions] * 20)), "front-many")
+    source = write_recording(tmp_path / "walk.npz", long)
+    out = tmp_path / "out.npz"
+    env = {**os.environ, "FPG_GYM_CACHE": str(tmp_path / "cache"), "PYTHONPATH": str(REPO)}
+    argv = [sys.executable, "-m", "fpg_gym.cli", "reconstruct", "--input", str(source), "--graph",
+            "default", "--no-ragdoll", "--budget", "300", "--out", str(out),
+            "--checkpoint-s", "0.2"]  # fmt: skip
+    process = subprocess.Popen(argv, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, env=env)
+    deadline = time.monotonic() + 120
+    while not out.exists() and process.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.05)
+    process.kill()  # SIGKILL: no handler runs
+    process.wait(timeout=30)
+    with np.load(out, allow_pickle=False) as archive:  # a whole archive, never a torn one
+        frames = len(archive["poses"])
+        metadata = json.loads(str(archive["metadata"]))
+    assert 0 < frames < long.num_frames
+    assert metadata["partial"] is True and metadata["frames"] == frames
+
+
 def test_an_interrupt_during_the_final_write_waits_until_it_is_written(tmp_path: Path) -> None:
     written = tmp_path / "out.npz"
     with pytest.raises(KeyboardInterrupt), interrupts_deferred():

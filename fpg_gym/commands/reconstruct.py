@@ -84,6 +84,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "sensor, times its reliability (beyond the papers; default 0)",
     )
     add_calibration_arguments(parser)
+    parser.add_argument(
+        "--checkpoint-s",
+        type=float,
+        default=30.0,
+        metavar="S",
+        help="write the frames done so far to --out every S seconds, so a killed run keeps them "
+        "(metadata 'partial': true; default 30, 0 = never)",
+    )
     parser.add_argument("--progress", action="store_true", help="show a progress bar")
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 
@@ -208,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym.commands.output import emit_json
     from fpg_gym.graph import load_graph
     from fpg_gym.io import read_recording
-    from fpg_gym.outputs import interrupts_deferred, save_npz
+    from fpg_gym.outputs import interrupts_deferred
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
 
@@ -218,6 +226,8 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--k: expected >= 1, got {args.k}")
     if not args.prior >= 0:
         raise ValueError(f"--prior: expected >= 0, got {args.prior}")
+    if not args.checkpoint_s >= 0:
+        raise ValueError(f"--checkpoint-s: expected >= 0 seconds, got {args.checkpoint_s}")
     args.out = _check_out(args)
     if args.method:
         from fpg_gym.methods import parse_method
@@ -247,6 +257,10 @@ def run(args: argparse.Namespace) -> int:
         **maps,
     )
     start = time.perf_counter()
+
+    def checkpoint(partial: Any) -> None:  # survives kill -9: the frames done so far, on disk
+        _save_result(args, recording, partial, time.perf_counter() - start, partial=True)
+
     try:
         result = reconstructor.reconstruct(
             recording,
@@ -254,60 +268,16 @@ def run(args: argparse.Namespace) -> int:
             rng=np.random.default_rng(args.seed),
             progress=args.progress,
             stop_on_interrupt=True,
+            checkpoint=checkpoint,
+            checkpoint_s=args.checkpoint_s,
         )
     finally:
         reconstructor.close()
     # the frames are done: an interrupt from here on waits until they are written
     with interrupts_deferred():
-        seconds = time.perf_counter() - start
-        arrays = result.arrays()
-        frames = result.num_frames
-        total = recording.num_frames
-
-        summary: dict[str, Any] = {
-            "frames": frames,
-            "input_frames": total,
-            "interrupted": result.interrupted,
-            "optimizer": args.optimizer,
-            "selector": args.selector,
-            "ragdoll": not args.no_ragdoll,
-            "seed": args.seed,
-            "budget": args.budget,
-            "raw_mean_error_m": None,
-            "mean_error_m": None,
-            "raw_err02_pct": None,
-            "err02_pct": None,
-            "ms_per_frame_median": float(np.median(arrays["ms_per_frame"])) if frames else None,
-            "ms_per_frame_p95": float(np.percentile(arrays["ms_per_frame"], 95))
-            if frames
-            else None,
-            "evaluations_mean": float(arrays["evaluations"].mean()) if frames else None,
-            "recoveries": int(arrays["recovered"].sum()),
-            "seconds": round(seconds, 3),
-            "bone_settling": {k: v for k, v in result.bones.items() if not k.endswith("lengths_m")},
-        }
-        if recording.ground_truth is not None and frames:
-            error_arrays, error_summary = _error_summary(recording.head(frames), result.poses)
-            arrays.update(error_arrays)
-            summary.update(
-                error_summary,
-                histogram_edges_m=list(HISTOGRAM_EDGES),
-                raw_histogram=_histogram(error_arrays["frame_error_raw"]),
-                histogram=_histogram(error_arrays["frame_error"]),
-            )
-        metadata = {
-            "input": str(args.input),
-            "graph": str(args.graph),
-            **{k: summary[k] for k in ("optimizer", "selector", "ragdoll", "seed", "budget")},
-            "prior": args.prior,
-            "k": args.k,
-            "interrupted": result.interrupted,
-            "frames": frames,
-            "input_frames": total,
-            "bone_settling": result.bones,
-        }
-        arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
-        out = save_npz(args.out, arrays)  # beside the target, then renamed: never half-written
+        summary, out = _save_result(args, recording, result, time.perf_counter() - start)
+    frames = result.num_frames
+    total = recording.num_frames
 
     state = " (interrupted)" if result.interrupted else ""
     print(f"frames           {frames} of {total}{state}")
@@ -338,6 +308,70 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         emit_json({**summary, "out": str(out)})
     return 130 if result.interrupted else 0
+
+
+def _save_result(
+    args: argparse.Namespace,
+    recording: Any,
+    result: Any,
+    seconds: float,
+    *,
+    partial: bool = False,
+) -> tuple[dict[str, Any], Path]:
+    """Write the reconstruction (``partial``: a checkpoint of the frames done so far) with its
+    errors and metadata to ``args.out``; return the summary and the path written."""
+    import numpy as np
+
+    from fpg_gym.outputs import save_npz
+
+    arrays = result.arrays()
+    frames = result.num_frames
+    total = recording.num_frames
+
+    summary: dict[str, Any] = {
+        "frames": frames,
+        "input_frames": total,
+        "interrupted": result.interrupted,
+        "optimizer": args.optimizer,
+        "selector": args.selector,
+        "ragdoll": not args.no_ragdoll,
+        "seed": args.seed,
+        "budget": args.budget,
+        "raw_mean_error_m": None,
+        "mean_error_m": None,
+        "raw_err02_pct": None,
+        "err02_pct": None,
+        "ms_per_frame_median": float(np.median(arrays["ms_per_frame"])) if frames else None,
+        "ms_per_frame_p95": float(np.percentile(arrays["ms_per_frame"], 95)) if frames else None,
+        "evaluations_mean": float(arrays["evaluations"].mean()) if frames else None,
+        "recoveries": int(arrays["recovered"].sum()),
+        "seconds": round(seconds, 3),
+        "bone_settling": {k: v for k, v in result.bones.items() if not k.endswith("lengths_m")},
+    }
+    if recording.ground_truth is not None and frames:
+        error_arrays, error_summary = _error_summary(recording.head(frames), result.poses)
+        arrays.update(error_arrays)
+        summary.update(
+            error_summary,
+            histogram_edges_m=list(HISTOGRAM_EDGES),
+            raw_histogram=_histogram(error_arrays["frame_error_raw"]),
+            histogram=_histogram(error_arrays["frame_error"]),
+        )
+    metadata = {
+        "input": str(args.input),
+        "graph": str(args.graph),
+        **{k: summary[k] for k in ("optimizer", "selector", "ragdoll", "seed", "budget")},
+        "prior": args.prior,
+        "k": args.k,
+        "interrupted": result.interrupted,
+        "partial": partial,  # a checkpoint: the run was still going when it was written
+        "frames": frames,
+        "input_frames": total,
+        "bone_settling": result.bones,
+    }
+    arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
+    out = save_npz(args.out, arrays)  # beside the target, then renamed: never half-written
+    return summary, out
 
 
 def _run_filter(args: argparse.Namespace, method: Any) -> int:

@@ -1053,6 +1053,8 @@ class Reconstructor:
         *,
         progress: bool = False,
         stop_on_interrupt: bool = False,
+        checkpoint: Callable[[ReconstructionResult], None] | None = None,
+        checkpoint_s: float = 30.0,
     ) -> ReconstructionResult:
         """Reconstruct a whole recording.
 
@@ -1068,8 +1070,15 @@ class Reconstructor:
             Show a tqdm progress bar on stderr.
         stop_on_interrupt : bool
             On Ctrl-C return the frames done (``interrupted=True``) instead of raising.
+        checkpoint : callable, optional
+            Called every ``checkpoint_s`` seconds (0: never) with the frames done so far (a
+            :class:`ReconstructionResult` with ``interrupted=True``), e.g. to write them so that
+            a killed run keeps them.
+        checkpoint_s : float
+            Seconds between checkpoints (30).
         """
         total = len(recording.positions)
+        last_checkpoint = time.monotonic()
         poses = np.zeros((total, skeleton.NUM_JOINTS, 3), dtype=np.float32)
         records: list[FrameRecord] = []
         bar = None
@@ -1084,6 +1093,19 @@ class Reconstructor:
                 records.append(record)
                 if bar is not None:
                     bar.update(1)
+                now = time.monotonic()
+                if (
+                    checkpoint is not None
+                    and checkpoint_s > 0
+                    and now - last_checkpoint >= (checkpoint_s)
+                ):
+                    done = len(records)
+                    checkpoint(
+                        ReconstructionResult(
+                            poses[:done].copy(), list(records), True, bones=self.bones.report()
+                        )
+                    )
+                    last_checkpoint = time.monotonic()
         except KeyboardInterrupt:
             if not stop_on_interrupt:
                 raise
