@@ -430,3 +430,17 @@ def test_prior_method_uses_the_prior_energy(recording: Any, graph: Any) -> None:
     # Same pose sought (closed form ignores Ep), so the prior's energy is the plain energy + w Ep.
     assert np.all(prior.energy >= plain.energy - 1e-12)
     assert np.any(prior.energy > plain.energy + 1e-9)
+
+
+def test_compare_with_a_calibrated_output_runs_and_is_its_own_setting(tmp_path: Path) -> None:
+    plain = _config(tmp_path / "plain", methods=["fpg:none"], clips=["default:walk"])
+    calibrated = _config(
+        tmp_path / "calibrated", methods=["fpg:none"], clips=["default:walk"], calibrate_output=True
+    )
+    assert calibrated.reconstructor_options()["calibrate_output"] is True
+    assert plain.resume_key() != calibrated.resume_key()  # rows of one never resume the other
+    errors = {}
+    for name, config in (("plain", plain), ("calibrated", calibrated)):
+        outcome = run_compare(config, progress=False, plots=False)
+        errors[name] = outcome.summary["methods"]["fpg:none"]["mean_error_m"]
+    assert np.isfinite(errors["calibrated"]) and errors["calibrated"] != errors["plain"]
