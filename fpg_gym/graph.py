@@ -30,7 +30,9 @@ format version, the build parameters and the stats.
 
 from __future__ import annotations
 
+import functools
 import hashlib
+import importlib
 import json
 import os
 import time
@@ -494,6 +496,21 @@ def cache_directory(cache_dir: str | os.PathLike[str] | None = None) -> Path:
     return Path(env) if env else Path.home() / ".cache" / "fpg-gym"
 
 
+#: The modules whose code decides what the default graph holds (its cache key covers them).
+_DEFAULT_GRAPH_CODE = ("fpg_gym.graph", "fpg_gym.io.deepmimic", "fpg_gym.poses", "fpg_gym.skeleton")
+
+
+@functools.cache
+def _code_digest() -> str:
+    """SHA-256 of the source of :data:`_DEFAULT_GRAPH_CODE`: an edited builder never gets a
+    graph cached by the code before it."""
+    digest = hashlib.sha256()
+    for name in _DEFAULT_GRAPH_CODE:
+        module = importlib.import_module(name)
+        digest.update(Path(str(module.__file__)).read_bytes())
+    return digest.hexdigest()
+
+
 def _default_cache_key(
     exclude: Sequence[str], thres1: float, thres2: float | None, mirror: bool
 ) -> str:
@@ -509,6 +526,7 @@ def _default_cache_key(
         {
             "format_version": FORMAT_VERSION,
             "fpg_gym": __version__,
+            "code": _code_digest(),
             "pybullet": pybullet_version,
             "thres1": float(thres1),
             "thres2": None if thres2 is None else float(thres2),
@@ -560,9 +578,9 @@ def default_graph(
     """The graph of the embedded DeepMimic clips (:func:`fpg_gym.io.load_default_clips`).
 
     Built on first use and cached as ``default-<key>.npz`` in :func:`cache_directory`; the key
-    covers the parameters, the excluded clip names, the format version and the fpg-gym and
-    pybullet versions. An unreadable cache file is rebuilt; an unwritable cache folder only
-    gives a warning.
+    covers the parameters, the excluded clip names, the format version, the fpg-gym and
+    pybullet versions and the source of the modules that build it. An unreadable cache file is
+    rebuilt; an unwritable cache folder only gives a warning.
 
     Parameters
     ----------

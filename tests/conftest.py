@@ -1,8 +1,10 @@
-"""Shared fixtures: the real data folder ``../shared/data`` (skipped when absent), a seeded RNG."""
+"""Shared fixtures: the real data folder ``../shared/data`` (skipped when absent), a seeded RNG,
+and a cache folder of the session's own (the tests never touch the user's ``~/.cache/fpg-gym``)."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 from pathlib import Path
 
 import numpy as np
@@ -50,6 +52,16 @@ def shared_path(*parts: str) -> Path:
     if not path.exists():
         pytest.skip(f"needs the shared data set: {path} is absent (set FPG_GYM_SHARED_DATA)")
     return path
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _session_cache(tmp_path_factory: pytest.TempPathFactory) -> Iterator[None]:
+    """``$FPG_GYM_CACHE`` points into the session's temporary folder (subprocesses inherit it):
+    the default graph is built once per session and never read from, or written to, the user's
+    cache."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("FPG_GYM_CACHE", str(tmp_path_factory.mktemp("fpg-gym-cache")))
+        yield
 
 
 @pytest.fixture

@@ -4,6 +4,7 @@ invariants, persistence, the default graph cache and the ``build-graph`` command
 from __future__ import annotations
 
 import json
+import os
 import zipfile
 from pathlib import Path
 
@@ -333,6 +334,21 @@ def test_default_graph_is_cached_and_honours_exclude(tmp_path, monkeypatch):
     np.testing.assert_array_equal(rebuilt.poses, first.poses)
     with pytest.raises(ValueError, match="unknown default clip"):
         default_graph(exclude=["moonwalk"])
+
+
+def test_default_graph_cache_key_covers_the_code_that_builds_it(monkeypatch):
+    from fpg_gym import graph as graph_module
+
+    key = graph_module._default_cache_key(["walk"], 0.2, None, True)
+    assert key == graph_module._default_cache_key(["walk"], 0.2, None, True)
+    assert key != graph_module._default_cache_key(["run"], 0.2, None, True)
+    monkeypatch.setattr(graph_module, "_code_digest", lambda: "edited builder")
+    assert key != graph_module._default_cache_key(["walk"], 0.2, None, True)
+
+
+def test_tests_never_use_the_users_cache():
+    cache = Path(os.environ["FPG_GYM_CACHE"]).resolve()
+    assert Path.home().resolve() / ".cache" not in cache.parents
 
 
 # --------------------------------------------------------------------------- CLI and real data
