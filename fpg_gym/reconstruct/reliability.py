@@ -293,8 +293,10 @@ class ReliabilityEstimator:
 
     Examples
     --------
+    >>> import numpy as np
+    >>> from fpg_gym import poses
     >>> est = ReliabilityEstimator()
-    >>> terms = est.update(positions, states)   # doctest: +SKIP
+    >>> terms = est.update(poses.rest_pose(), np.full(20, 2))  # one frame, every joint tracked
     >>> terms.reliability.shape
     (20,)
     """
