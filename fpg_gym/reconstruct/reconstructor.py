@@ -237,7 +237,8 @@ class ReconstructorConfig:
     output_map : PoseMap, optional
         Maps the database's definitions onto the definitions the output is wanted in (e.g.
         marker-based joint centres); applied to the returned pose only (the history that
-        drives continuity stays in the database's definitions).
+        drives continuity stays in the database's definitions). A mapped output gets settled
+        bone lengths of its own after the first ``bones.settle_s`` seconds.
     sensor_blend : float
         Beyond the papers (0 = off, the papers' pipeline): after the search, each joint of the
         back-projected pose moves this fraction of the way towards the (mapped) sensor joint,
@@ -1094,11 +1095,7 @@ class Reconstructor:
                 if bar is not None:
                     bar.update(1)
                 now = time.monotonic()
-                if (
-                    checkpoint is not None
-                    and checkpoint_s > 0
-                    and now - last_checkpoint >= (checkpoint_s)
-                ):
+                if checkpoint is not None and 0 < checkpoint_s <= now - last_checkpoint:
                     done = len(records)
                     checkpoint(
                         ReconstructionResult(
