@@ -1,11 +1,14 @@
 """fpg-gym: Kinect pose reconstruction (Shum 2013, Filtered Pose Graph 2016) as a Gymnasium env.
 
-Importing the package is cheap; heavy parts (pybullet, the graph, the environment) load on use.
+Importing the package costs gymnasium's import (about 70 ms beyond numpy); the env module, the
+graph and pybullet load on use. The optimiser layer (:mod:`optimizers`) does not import it.
 Importing it registers the environment ``fpg_gym/KinectPose-v0`` (:mod:`fpg_gym.env`) with
 Gymnasium, so that ``gymnasium.make("fpg_gym/KinectPose-v0")`` works after ``import fpg_gym``.
 """
 
 from __future__ import annotations
+
+from gymnasium.envs import registration as _registration
 
 __version__ = "0.1.0"
 
@@ -14,10 +17,8 @@ __all__ = ["__version__"]
 
 def _register_envs() -> None:
     """Register ``fpg_gym/KinectPose-v0`` (once; the env module itself loads on ``make``)."""
-    from gymnasium.envs.registration import register, registry
-
-    if "fpg_gym/KinectPose-v0" not in registry:
-        register(id="fpg_gym/KinectPose-v0", entry_point="fpg_gym.env:KinectPoseEnv")
+    if "fpg_gym/KinectPose-v0" not in _registration.registry:
+        _registration.register(id="fpg_gym/KinectPose-v0", entry_point="fpg_gym.env:KinectPoseEnv")
 
 
 _register_envs()

@@ -23,6 +23,7 @@ from typing import Any, NoReturn
 
 from fpg_gym import __version__
 from fpg_gym.errors import FpgGymError
+from optimizers import OptimizerError
 
 #: Command modules under ``fpg_gym.commands``, in the order ``--help`` lists them.
 COMMAND_MODULES: tuple[str, ...] = (
@@ -161,7 +162,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("fpg-gym: interrupted; results written so far are kept", file=sys.stderr)
         return 130
-    except (FpgGymError, OSError, ValueError) as error:
+    except (FpgGymError, OptimizerError, OSError, ValueError) as error:
         print(f"fpg-gym {args.command}: error: {_one_line(error)}", file=sys.stderr)
         return 2
 

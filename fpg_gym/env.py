@@ -17,7 +17,6 @@ The env is registered as ``fpg_gym/KinectPose-v0`` when :mod:`fpg_gym` is import
 
 from __future__ import annotations
 
-import functools
 import os
 import time
 import warnings
@@ -34,11 +33,15 @@ from fpg_gym import skeleton
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
+from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.kinect import read_recording
 from fpg_gym.io.recording import Recording
 from fpg_gym.metrics import frame_error
+from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem, TemporalConfig
-from fpg_gym.simulate import KinectSimulator
+from fpg_gym.rendering import HumanWindow, render_panels
+from fpg_gym.simulate import KinectSimulator, get_scenario
 
 __all__ = [
     "ACTION_MODES",
@@ -60,9 +63,6 @@ ACTION_MODES: tuple[str, ...] = ("delta", "absolute")
 OBSERVATION_MODES: tuple[str, ...] = ("vector", "dict")
 #: Keys ``reset(options=...)`` accepts.
 RESET_OPTIONS: tuple[str, ...] = ("recording", "clip", "scenario", "seed")
-
-_NON_INTERACTIVE_BACKENDS = {"agg", "pdf", "ps", "svg", "pgf", "cairo", "template"}
-_PANEL = 320
 
 
 class StageTimes(Mapping[str, float]):
@@ -99,11 +99,11 @@ class StageTimes(Mapping[str, float]):
 
 
 class _RagdollProbe:
-    """The env's ragdoll: a :class:`~fpg_gym.ragdoll.Ragdoll` that counts resets and builds.
+    """The env's ragdoll: a :class:`~fpg_gym.physics.ragdoll.Ragdoll` that counts resets and builds.
 
     A divergence already resets the body to its target and is counted in the step's info (from
-    the frame record's ``new_divergences``), so its :class:`~fpg_gym.ragdoll.PhysicsWarning` is
-    not repeated as a Python warning.
+    the frame record's ``new_divergences``), so its
+    :class:`~fpg_gym.physics.ragdoll.PhysicsWarning` is not repeated as a Python warning.
     """
 
     def __init__(self, ragdoll: Any, counts: dict[str, int]) -> None:
@@ -115,7 +115,6 @@ class _RagdollProbe:
         return np.asarray(self.ragdoll.reset(pose))
 
     def track(self, target_pose: np.ndarray) -> np.ndarray:
-        from fpg_gym.ragdoll import PhysicsWarning
 
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", PhysicsWarning)
@@ -145,7 +144,6 @@ class _RagdollFactory:
         self.counts = counts
 
     def __call__(self, lengths: np.ndarray) -> _RagdollProbe:
-        from fpg_gym.ragdoll import Ragdoll
 
         self.counts["ragdoll_builds"] += 1
         return _RagdollProbe(Ragdoll(bone_lengths=lengths, **self.kwargs), self.counts)
@@ -292,7 +290,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     ``latent_dim`` = 20; ``energy_weights`` (an ``EnergyWeights``, a mapping or 4 numbers; 1.0,
     0.5, 1.5, 0.25); ``reward_mode``, ``error_weight``; ``action_mode``, ``action_scale``,
     ``clip_actions``; ``observation_mode`` ``"vector"`` or ``"dict"``; ``ragdoll`` (True, False,
-    or a mapping of :class:`~fpg_gym.ragdoll.Ragdoll` keyword arguments); ``max_episode_steps``;
+    or a mapping of :class:`~fpg_gym.physics.ragdoll.Ragdoll` keyword arguments);
+    ``max_episode_steps``;
     ``simulator_seeds`` (None: any seed; n: seeds 0..n-1, simulated streams cached);
     ``max_evaluations`` (energy evaluations an optimiser may spend per frame, 2,000);
     ``render_mode`` ``"rgb_array"`` or ``"human"``; ``cache_dir`` for the default graph;
@@ -471,9 +470,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._last_obs: np.ndarray | None = None
         self._last_pose: np.ndarray | None = None
         self._render_centre: np.ndarray | None = None
-        self._figure: Any = None
-        self._image: Any = None
-        self._human_disabled = False
+        self._window: HumanWindow | None = None
         self._prepare_ms = self._observation_ms = 0.0
         self._simulated: dict[tuple[int, int, int], Recording] = {}
         self._simulators: dict[int, KinectSimulator] = {}
@@ -481,7 +478,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     # ------------------------------------------------------------------ construction helpers
 
     def _load_recordings(self, recordings: Sequence[str | os.PathLike[str] | Recording]) -> None:
-        from fpg_gym.io.kinect import read_recording
 
         if isinstance(recordings, (str, os.PathLike, Recording)):
             recordings = [recordings]
@@ -514,7 +510,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
                 )
 
     def _load_clips(self, clips: Sequence[str | Clip]) -> None:
-        from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 
         if isinstance(clips, (str, Clip)):
             clips = [clips]
@@ -541,7 +536,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._recording_names = _unique([c.name for c in self._clips])
 
     def _load_scenarios(self, scenarios: Sequence[Any]) -> None:
-        from fpg_gym.simulate import get_scenario
 
         if isinstance(scenarios, str):
             scenarios = [scenarios]
@@ -556,8 +550,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         """The current frame's :class:`~fpg_gym.reconstruct.SearchProblem` (None after the
         episode's last step or before ``reset``).
 
-        An optimiser may evaluate it (within its budget, ``problem.max_evaluations``) and step
-        with the action of the point it found (:meth:`action_for`).
+        An optimiser may search it (``env.unwrapped.reconstructor.search(optimizer, rng)``, within
+        the env's ``max_evaluations``) and step with the action of the point it found
+        (:meth:`action_for`).
         """
         return self._problem
 
@@ -793,7 +788,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         frame = self._render_frame()
         if self.render_mode == "rgb_array":
             return frame
-        self._show(frame)
+        if self._window is None:
+            self._window = HumanWindow(self.metadata["render_fps"])
+        self._window.show(frame)
         return None
 
     def close(self) -> None:
@@ -804,12 +801,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         for simulator in getattr(self, "_simulators", {}).values():
             simulator.close()
         self._simulators = {}
-        if self._figure is not None:
-            import matplotlib.pyplot as plt
-
-            plt.close(self._figure)
-            self._figure = None
-            self._image = None
+        if self._window is not None:
+            self._window.close()
 
     # ------------------------------------------------------------------ episodes
 
@@ -965,98 +958,17 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     # ------------------------------------------------------------------ rendering
 
     def _render_frame(self) -> np.ndarray:
-        from PIL import Image, ImageDraw
-
-        image = Image.new("RGB", (2 * _PANEL, _PANEL), (255, 255, 255))
-        draw = ImageDraw.Draw(image)
         recording = self._recording
         if recording is None:
-            draw.text((8, 8), "call reset() first", fill=(0, 0, 0))
-            return np.asarray(image)
+            return render_panels(None, None, None, None)
         shown = self._t - 1 if self._last_pose is not None else self._t
         shown = min(max(shown, 0), recording.num_frames - 1)
-        truth = None if recording.ground_truth is None else recording.ground_truth[shown]
-        centre = self._render_centre if self._render_centre is not None else np.zeros(2)
-        panels = [
-            ("Kinect input", recording.positions[shown], recording.states[shown], (60, 60, 60)),
-            ("reconstruction", self._last_pose, None, (40, 90, 160)),
-        ]
-        for index, (title, pose, states, colour) in enumerate(panels):
-            offset = index * _PANEL
-            if truth is not None:
-                _draw_skeleton(draw, truth, centre, offset, (200, 200, 200), None)
-            if pose is not None:
-                _draw_skeleton(draw, pose, centre, offset, colour, states)
-            draw.text((offset + 8, 6), title, fill=(0, 0, 0))
-            draw.line([(offset, 0), (offset, _PANEL)], fill=(180, 180, 180))
-        error = ""
-        if truth is not None and self._last_pose is not None:
-            error = f"   error {1000 * float(frame_error(truth, self._last_pose)[0]):.0f} mm"
         name = self._episode.get("recording", "")
-        draw.text(
-            (8, _PANEL - 16),
-            f"{name}  frame {shown + 1}/{recording.num_frames}{error}",
-            fill=(0, 0, 0),
+        return render_panels(
+            recording.positions[shown],
+            recording.states[shown],
+            self._last_pose,
+            None if recording.ground_truth is None else recording.ground_truth[shown],
+            centre=self._render_centre,
+            caption=f"{name}  frame {shown + 1}/{recording.num_frames}",
         )
-        return np.asarray(image)
-
-    def _show(self, frame: np.ndarray) -> None:
-        if self._human_disabled:
-            return
-        import matplotlib
-
-        if self._figure is None:
-            import matplotlib.pyplot as plt
-
-            backend = str(matplotlib.get_backend()).lower()
-            if backend in _NON_INTERACTIVE_BACKENDS:
-                warnings.warn(
-                    f"render_mode='human' needs a display, but matplotlib uses the "
-                    f"non-interactive backend {backend!r}: nothing is shown. Use "
-                    "render_mode='rgb_array' (e.g. to save a GIF) or run with a display.",
-                    UserWarning,
-                    stacklevel=3,
-                )
-                self._human_disabled = True
-                return
-            self._figure, axes = plt.subplots(figsize=(8, 4))
-            axes.axis("off")
-            self._image = axes.imshow(frame)
-            self._figure.tight_layout()
-            plt.show(block=False)
-        else:
-            self._image.set_data(frame)
-        import matplotlib.pyplot as plt
-
-        plt.pause(1.0 / self.metadata["render_fps"])
-
-
-@functools.cache
-def _state_rgb() -> dict[int, tuple[int, int, int]]:
-    """:data:`fpg_gym.plots.STATE_COLOURS` as RGB tuples (imported on first render)."""
-    from fpg_gym.plots import STATE_COLOURS
-
-    return {
-        s: (int(c[1:3], 16), int(c[3:5], 16), int(c[5:7], 16)) for s, c in STATE_COLOURS.items()
-    }
-
-
-def _draw_skeleton(
-    draw: Any,
-    pose: np.ndarray,
-    centre: np.ndarray,
-    offset: int,
-    colour: tuple[int, int, int],
-    states: np.ndarray | None,
-    half_m: float = 1.2,
-) -> None:
-    """Draw a camera-space pose as the sensor sees it (image x = -X, y = -Y)."""
-    scale = _PANEL / (2 * half_m)
-    u = offset + _PANEL / 2 - (np.asarray(pose[:, 0]) - centre[0]) * scale
-    v = _PANEL / 2 - (np.asarray(pose[:, 1]) - centre[1]) * scale
-    points = np.stack([u, v], axis=1).tolist()
-    for parent, child in skeleton.BONES:
-        draw.line([tuple(points[parent]), tuple(points[child])], fill=colour, width=3)
-    for j, (x, y) in enumerate(points):
-        fill = colour if states is None else _state_rgb().get(int(states[j]), colour)
-        draw.ellipse([x - 3, y - 3, x + 3, y + 3], fill=fill)

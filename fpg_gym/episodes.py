@@ -37,8 +37,12 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+from tqdm import tqdm
 
+import optimizers
 from fpg_gym import metrics
+from fpg_gym.env import KinectPoseEnv
+from fpg_gym.methods import METHOD_BASES, MethodRunner, parse_method
 
 __all__ = ["EpisodeResult", "measure_env_throughput", "run_episode"]
 
@@ -129,8 +133,6 @@ class EpisodeResult:
 def _method_agent(name: str, base: Any) -> tuple[str, Any, str] | None:
     """``("filter", Method, label)`` or ``("optimizer", optimiser, label)`` for a method name
     (None when ``name`` is not one)."""
-    import optimizers
-    from fpg_gym.methods import METHOD_BASES, parse_method
 
     head = name.partition("+")[0].partition(":")[0].strip().lower()
     if head not in METHOD_BASES:
@@ -156,7 +158,6 @@ def _method_agent(name: str, base: Any) -> tuple[str, Any, str] | None:
 
 def _agent_kind(agent: Any, base: Any = None) -> tuple[str, Any, str]:
     """``("optimizer" | "filter" | "policy" | "callable", object, label)``."""
-    import optimizers
 
     if isinstance(agent, str):
         as_method = _method_agent(agent, base)
@@ -221,7 +222,6 @@ def run_episode(
     optimizers.OptimizerNotFound
         If ``agent`` names no registered optimiser.
     """
-    import optimizers
 
     base: Any = env.unwrapped
     kind, actor, label = _agent_kind(agent, base)
@@ -238,8 +238,6 @@ def run_episode(
         return _run_filter_episode(base.recording, actor, label, total, reset_info)
     bar = None
     if progress:
-        from tqdm import tqdm
-
         bar = tqdm(total=total, unit="frame", desc=f"episode ({label})", leave=False)
     poses: list[np.ndarray] = []
     rewards: list[float] = []
@@ -259,7 +257,7 @@ def run_episode(
             t0 = time.perf_counter()
             if kind == "optimizer":
                 problem = base.problem
-                z = optimizers.run_optimizer(problem, actor, generator)
+                z = base.reconstructor.search(actor, generator).x
                 action: Any = base.action_for(z, problem)
             elif kind == "policy":
                 action, _ = actor.predict(obs, deterministic=deterministic)
@@ -310,7 +308,6 @@ def _run_filter_episode(
     recording: Any, method: Any, label: str, frames: int | None, reset_info: dict[str, Any]
 ) -> EpisodeResult:
     """A reference filter over the episode's recording (the env is not stepped)."""
-    from fpg_gym.methods import MethodRunner
 
     part = recording.head(frames)
     count = part.num_frames
@@ -377,8 +374,6 @@ def measure_env_throughput(
     kwargs = dict(env_kwargs or {})
     kwargs["ragdoll"] = ragdoll
     if make_env is None:
-        from fpg_gym.env import KinectPoseEnv
-
         make_env = KinectPoseEnv
     env: Any = make_env(**kwargs)
     try:

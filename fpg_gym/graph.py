@@ -41,16 +41,21 @@ import warnings
 import zipfile
 import zlib
 from collections.abc import Sequence
+from importlib import metadata
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
-from fpg_gym import skeleton
+from fpg_gym import __version__, graph_build, skeleton
 from fpg_gym.errors import DataFormatError
+from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.npz import check_npz
 from fpg_gym.jsonable import jsonable
+from fpg_gym.poses import mirror as mirror_poses
+from fpg_gym.poses import normalise
 
 __all__ = [
     "DEFAULT_EMBEDDED_MIRROR",
@@ -81,7 +86,6 @@ _ARRAYS = ("poses", "clip_index", "frame_index", "mirrored", "indptr", "indices"
 
 
 def _progress_bar(enabled: bool, total: int, desc: str, unit: str) -> Any:
-    from tqdm.auto import tqdm
 
     return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, leave=False)
 
@@ -271,9 +275,6 @@ class FilteredPoseGraph:
             If ``clips`` is empty, a threshold is not positive and finite, or thres2 cannot be
             computed (no distance recorded).
         """
-        from fpg_gym import graph_build
-        from fpg_gym.poses import mirror as mirror_poses
-        from fpg_gym.poses import normalise
 
         clips = list(clips)
         if not clips:
@@ -497,7 +498,16 @@ def cache_directory(cache_dir: str | os.PathLike[str] | None = None) -> Path:
 
 
 #: The modules whose code decides what the default graph holds (its cache key covers them).
-_DEFAULT_GRAPH_CODE = ("fpg_gym.graph", "fpg_gym.io.deepmimic", "fpg_gym.poses", "fpg_gym.skeleton")
+_DEFAULT_GRAPH_CODE = (
+    "fpg_gym.graph",
+    "fpg_gym.graph_build",
+    "fpg_gym.io.clip",
+    "fpg_gym.io.deepmimic",
+    "fpg_gym.physics.pybullet_utils",
+    "fpg_gym.poses",
+    "fpg_gym.rotations",
+    "fpg_gym.skeleton",
+)
 
 
 @functools.cache
@@ -514,9 +524,6 @@ def _code_digest() -> str:
 def _default_cache_key(
     exclude: Sequence[str], thres1: float, thres2: float | None, mirror: bool
 ) -> str:
-    from importlib import metadata
-
-    from fpg_gym import __version__
 
     try:
         pybullet_version = metadata.version("pybullet")
@@ -603,7 +610,6 @@ def default_graph(
     ValueError
         If ``exclude`` names an unknown clip or excludes every clip.
     """
-    from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 
     excluded = [str(name) for name in exclude]
     unknown = sorted(set(excluded) - set(DEFAULT_CLIP_NAMES))

@@ -28,9 +28,10 @@ suffixes); the option of a filter is its preset (the SDK's documented default wh
 ``+prior`` (``shum``/``fpg`` only, beyond the papers) adds the latent prior term ``Ep`` with
 the weight chosen on a validation split (:meth:`EnergyWeights.with_prior
 <fpg_gym.reconstruct.EnergyWeights.with_prior>`). ``+ragdoll``
-sends the method's output through the pybullet PD ragdoll (:class:`fpg_gym.ragdoll.Ragdoll`) as a
-final filter — for ``shum``/``fpg`` inside the :class:`~fpg_gym.reconstruct.Reconstructor`
-(Shum §VII, FPG §7), for a filter on its output (see :class:`RagdollStage`).
+sends the method's output through the pybullet PD ragdoll
+(:class:`fpg_gym.physics.ragdoll.Ragdoll`) as a final filter — for ``shum``/``fpg`` inside the
+:class:`~fpg_gym.reconstruct.Reconstructor` (Shum §VII, FPG §7), for a filter on its output
+(see :class:`RagdollStage`).
 
 Canonical names (:attr:`Method.name`) spell the optimiser of a reconstruction method and omit a
 filter's default preset: ``fpg`` is ``fpg:local-search``, ``holt:default`` is ``holt``.
@@ -57,8 +58,12 @@ from typing import Any
 import numpy as np
 
 from fpg_gym import skeleton
+from fpg_gym.filters import PRESETS, make_filter
 from fpg_gym.metrics import bones_tracked
+from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
 from fpg_gym.poses import bone_lengths
+from fpg_gym.reconstruct import EnergyWeights, Reconstructor
+from optimizers import make
 
 __all__ = [
     "BASELINE",
@@ -166,7 +171,6 @@ def parse_method(text: str) -> Method:
         Empty text, an unknown base, an unknown filter preset or a ``+`` suffix other than
         ``+ragdoll``.
     """
-    from fpg_gym.filters import PRESETS
 
     raw = str(text).strip()
     if not raw:
@@ -349,7 +353,6 @@ class RagdollStage:
         self, poses: np.ndarray, lengths: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
         """Track ``poses`` ``(T, 20, 3)``; return the output poses, ms per frame and info."""
-        from fpg_gym.ragdoll import FloorShift, Ragdoll
 
         lengths = np.asarray(lengths, dtype=np.float64)
         if self._ragdoll is None:
@@ -407,7 +410,6 @@ class MethodRunner:
         self._ragdoll_stage: RagdollStage | None = None
 
     def _reconstructor(self, selector: str, ragdoll: bool, prior: bool = False) -> Any:
-        from fpg_gym.reconstruct import EnergyWeights, Reconstructor
 
         key = (selector, ragdoll, prior)
         if key not in self._reconstructors:
@@ -443,7 +445,6 @@ class MethodRunner:
         return self._run_reconstruction(spec, recording, seed, stop_on_interrupt)
 
     def _run_filter(self, spec: Method, recording: Any) -> MethodResult:
-        from fpg_gym.filters import make_filter
 
         assert spec.filter_name is not None
         flt = make_filter(spec.filter_name)
@@ -477,7 +478,6 @@ class MethodRunner:
         seed: int | np.random.Generator,
         stop_on_interrupt: bool,
     ) -> MethodResult:
-        from optimizers import make
 
         assert spec.selector is not None and spec.optimizer is not None
         reconstructor = self._reconstructor(spec.selector, spec.ragdoll, spec.prior)

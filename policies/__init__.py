@@ -13,7 +13,7 @@ quadratic terms, :func:`quadratic_anchor`):
 Train with ``fpg-gym train-sampler`` (:func:`policies.training.train_sampler`), load with
 :func:`load_sampler`, act in the env with ``sampler.predict(obs)`` (so
 :func:`fpg_gym.episodes.run_episode` runs it), or search with the optimisers
-``learned:PATH`` / ``learned+search:PATH`` (:mod:`optimizers.learned`).
+``learned:PATH`` / ``learned+search:PATH`` (:mod:`policies.learned_optimizers`).
 
 torch and stable-baselines3 are the optional extra ``pip install 'fpg-gym[learn]'``: importing
 this package needs neither; using a sampler without them raises
@@ -22,6 +22,7 @@ this package needs neither; using a sampler without them raises
 
 from __future__ import annotations
 
+from policies.loading import load_sampler
 from policies.sampler import (
     DEFAULT_FEATURES,
     FEATURE_SETS,
@@ -33,7 +34,6 @@ from policies.sampler import (
     GaussianSampler,
     SamplerSpec,
     import_learn,
-    load_sampler,
     problem_observation,
     quadratic_anchor,
 )

@@ -31,8 +31,11 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
+from tqdm.auto import tqdm
 
+from fpg_gym.env import KinectPoseEnv
 from fpg_gym.errors import DataFormatError
 from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
@@ -119,8 +122,6 @@ class RLSampler(GaussianSampler):
         DataFormatError
             If ``net_arch`` or ``log_std_init`` in the JSON are not sensible.
         """
-        import gymnasium as gym
-
         import_learn("stable_baselines3")
         if spec.algo not in ALGOS:
             raise DataFormatError(
@@ -222,7 +223,6 @@ def make_training_env(
     """The training env: ``KinectPoseEnv`` with the energy reward, no ragdoll (the compared
     methods run without one), episodes from ``clips`` x ``scenarios``, unclipped actions (the
     policy's action is added to the sampler's anchor, :meth:`FeatureMap.wrap`)."""
-    from fpg_gym.env import KinectPoseEnv
 
     return KinectPoseEnv(
         graph,
@@ -363,8 +363,6 @@ def train_rl(
             if evaluate is not None and eval_every:
                 self._evaluate(0)  # the untrained policy: the reference of the curve
             if progress:
-                from tqdm.auto import tqdm
-
                 self.bar = tqdm(total=timesteps, desc=f"train {algo}", unit="step", leave=False)
 
         def _on_step(self) -> bool:

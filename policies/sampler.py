@@ -16,7 +16,7 @@ A sampler acts in the env loop (``predict(obs, deterministic=True)``, so
 :func:`fpg_gym.episodes.run_episode` runs it) and outside it: :meth:`GaussianSampler.observe`
 builds a :class:`~fpg_gym.reconstruct.SearchProblem`'s observation with the same
 :meth:`~fpg_gym.env_observation.ObservationLayout.build` the env uses, which is what the
-optimiser adapter ``learned:PATH`` (:mod:`optimizers.learned`) does.
+optimiser adapter ``learned:PATH`` (:mod:`policies.learned_optimizers`) does.
 
 Features
 --------
@@ -47,7 +47,7 @@ features, action mode and scale, hyper-parameters, training summary). The weight
 users share: loading one never runs code from it. Anything else is refused with a
 :class:`~fpg_gym.errors.DataFormatError`, stable-baselines3's ``.zip`` format (whose entries
 are unpickled on load, which earlier versions of fpg-gym wrote for RL samplers) included.
-:func:`load_sampler` takes ``MODEL``, ``MODEL.json`` or ``MODEL.pt``.
+:func:`policies.loading.load_sampler` takes ``MODEL``, ``MODEL.json`` or ``MODEL.pt``.
 
 torch and stable-baselines3 are the optional extra ``fpg-gym[learn]``: this module imports
 neither; :func:`import_learn` raises :class:`~optimizers.MissingDependency` naming the extra.
@@ -64,9 +64,10 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
 
-from fpg_gym.env_observation import CONTEXT_NAMES, ObservationLayout
+from fpg_gym.env_observation import CONTEXT_NAMES, LATENT_LIMIT, ObservationLayout
 from fpg_gym.errors import DataFormatError
 from fpg_gym.jsonable import jsonable
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE, quadratic_minimiser
@@ -88,7 +89,6 @@ __all__ = [
     "GaussianSampler",
     "SamplerSpec",
     "import_learn",
-    "load_sampler",
     "model_paths",
     "problem_observation",
     "quadratic_anchor",
@@ -209,7 +209,6 @@ def quadratic_anchor(
         The actions that select the minimiser (zero on unused axes), clipped to the
         observation's latent bounds.
     """
-    from fpg_gym.env_observation import LATENT_LIMIT
 
     n = parts["kinect"].shape[0]
     mask = parts["latent_mask"] > 0.5
@@ -276,7 +275,6 @@ class FeatureMap:
         energy_weights: Sequence[float] = PAPER_WEIGHTS,
         anchor_style: float = DEFAULT_STYLE,
     ) -> None:
-        from fpg_gym.env_observation import LATENT_LIMIT
 
         unknown = [f for f in fields if f not in layout.slices]
         if unknown or not fields:
@@ -352,37 +350,36 @@ class FeatureMap:
         """Features ``(..., size)`` float32 of observations ``(..., layout.size)``."""
         return self.transform(observation)[0]
 
-    def wrap(self, env: Any) -> Any:
+    def wrap(self, env: Any) -> SamplerFeatures:
         """``env`` seen through this map (a Gymnasium wrapper): observations become features
         and an action ``a`` becomes ``anchor + a`` (the env should not clip actions then)."""
-        import gymnasium as gym
+        return SamplerFeatures(env, self)
 
-        feature_map = self
 
-        class SamplerFeatures(gym.Wrapper):
-            """Observations replaced by a sampler's features; actions relative to its anchor."""
+class SamplerFeatures(gym.Wrapper):
+    """An env seen through a :class:`FeatureMap`: observations replaced by the sampler's
+    features, actions taken relative to its anchor (:meth:`FeatureMap.wrap`)."""
 
-            def __init__(self, inner: Any) -> None:
-                super().__init__(inner)
-                self.observation_space = gym.spaces.Box(
-                    feature_map.low, feature_map.high, dtype=np.float32
-                )
-                self._anchor = np.zeros(feature_map.layout.latent_dim)
+    def __init__(self, env: Any, feature_map: FeatureMap) -> None:
+        super().__init__(env)
+        self.feature_map = feature_map
+        self.observation_space = gym.spaces.Box(feature_map.low, feature_map.high, dtype=np.float32)
+        self._anchor = np.zeros(feature_map.layout.latent_dim)
 
-            def _features(self, observation: Any) -> np.ndarray:
-                features, self._anchor = feature_map.transform(observation)
-                return np.asarray(features, dtype=np.float32)
+    def _features(self, observation: Any) -> np.ndarray:
+        features, self._anchor = self.feature_map.transform(observation)
+        return np.asarray(features, dtype=np.float32)
 
-            def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
-                observation, info = self.env.reset(**kwargs)
-                return self._features(observation), info
+    def reset(self, **kwargs: Any) -> tuple[np.ndarray, dict[str, Any]]:
+        """Reset the env; the first observation as features."""
+        observation, info = self.env.reset(**kwargs)
+        return self._features(observation), info
 
-            def step(self, action: Any) -> tuple[np.ndarray, Any, bool, bool, dict[str, Any]]:
-                full = self._anchor + np.asarray(action, dtype=np.float64)
-                observation, reward, terminated, truncated, info = self.env.step(full)
-                return self._features(observation), reward, terminated, truncated, info
-
-        return SamplerFeatures(env)
+    def step(self, action: Any) -> tuple[np.ndarray, Any, bool, bool, dict[str, Any]]:
+        """Step with ``anchor + action``; the next observation as features."""
+        full = self._anchor + np.asarray(action, dtype=np.float64)
+        observation, reward, terminated, truncated, info = self.env.step(full)
+        return self._features(observation), reward, terminated, truncated, info
 
 
 def problem_observation(
@@ -829,56 +826,3 @@ class AnchorSampler(GaussianSampler):
         """Zero offset, constant std."""
         shape = (len(features), self.spec.latent_dim)
         return np.zeros(shape), np.full(shape, self.std)
-
-
-def load_sampler(
-    path: str | os.PathLike[str], *, env: Any = None, seed: int | None = 0
-) -> GaussianSampler:
-    """Load a sampler saved by ``fpg-gym train-sampler`` (``MODEL``, ``.json`` or ``.pt``).
-
-    The weights are tensors only, read with ``weights_only=True``, and the network is rebuilt
-    from the JSON: nothing in the files is executed. An RL sampler saved by an earlier fpg-gym as
-    SB3's ``.zip`` is refused.
-
-    With ``env`` (a :class:`~fpg_gym.env.KinectPoseEnv`, wrapped or not), refuse an env whose
-    observation or actions differ from the ones the model was trained on
-    (:meth:`SamplerSpec.check_env`).
-
-    Raises
-    ------
-    FileNotFoundError
-        No ``MODEL.json`` or no weights file beside it.
-    DataFormatError
-        Not a sampler description, a weights file that is not a tensor file (an SB3 ``.zip``
-        included), or tensors that do not fit the network the JSON describes.
-    ValueError
-        ``env`` has another observation size or action mode.
-    optimizers.MissingDependency
-        torch / stable-baselines3 are not installed (``pip install 'fpg-gym[learn]'``).
-    """
-    json_path, stem = model_paths(path)
-    if not json_path.is_file():
-        raise FileNotFoundError(
-            f"{path}: no sampler description {json_path} (models are saved as MODEL.json "
-            "beside MODEL.pt by fpg-gym train-sampler)"
-        )
-    spec = SamplerSpec.load(json_path)
-    if env is not None:
-        spec.check_env(env)
-    name = spec.weights or stem.name + (".zip" if spec.kind == "rl" else WEIGHTS_SUFFIX)
-    if not isinstance(name, str) or Path(name).name != name or name in ("", ".", ".."):
-        raise DataFormatError(
-            json_path, f"expected a file name beside the JSON, got {name!r}", field="weights"
-        )
-    weights = json_path.parent / name
-    if weights.suffix != WEIGHTS_SUFFIX:
-        load_weights_file(weights)  # refuses it, naming the format
-    if not weights.is_file():
-        raise FileNotFoundError(f"{json_path}: its weights file {weights} is missing")
-    if spec.kind == "supervised":
-        from policies.supervised import SupervisedSampler
-
-        return SupervisedSampler.load_weights(spec, weights, seed=seed)
-    from policies.rl import RLSampler
-
-    return RLSampler.load_weights(spec, weights, seed=seed)

@@ -36,6 +36,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from fpg_gym.errors import DataFormatError
 from fpg_gym.outputs import atomic_path
@@ -131,7 +132,7 @@ def masked_mse(mean: Any, target: Any, mask: Any) -> Any:
 class SupervisedSampler(GaussianSampler):
     """A :class:`~policies.sampler.GaussianSampler` backed by a torch MLP.
 
-    Build one with :meth:`create` (fresh weights) or :func:`policies.sampler.load_sampler`.
+    Build one with :meth:`create` (fresh weights) or :func:`policies.loading.load_sampler`.
 
     Attributes
     ----------
@@ -341,8 +342,6 @@ def fit_supervised(
     best_mse, best_state, best_record = np.inf, None, None
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=epochs, desc="train supervised", unit="epoch", leave=False)
     start = time.perf_counter()
     try:

@@ -8,12 +8,14 @@
 * :func:`collect_imitation_data`: (observation, target action) pairs for the supervised sampler,
   rolled through the :class:`~fpg_gym.reconstruct.Reconstructor` with the papers' local search.
 * :func:`evaluate_agents`: mean energy, mean error, Err0.2, evaluations and ms per frame of
-  optimisers (a learned sampler through :mod:`optimizers.learned`) on episodes.
+  optimisers (a learned sampler through :mod:`policies.learned_optimizers`) on episodes.
 * :func:`train_sampler`: the whole run (:class:`TrainConfig` -> :class:`TrainResult`).
 """
 
 from __future__ import annotations
 
+import importlib.metadata as md
+import importlib.util
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -21,18 +23,33 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
+from fpg_gym import metrics
+from fpg_gym import poses as pose_utils
+from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.env_observation import ObservationLayout
+from fpg_gym.graph import load_graph
+from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, resolve_clips
+from fpg_gym.poses import mirror
+from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.reconstruct.energy import EnergyWeights
-from fpg_gym.reconstruct.temporal import TemporalConfig
+from fpg_gym.simulate import KinectSimulator
+from optimizers import make, run_optimizer
+from optimizers.random_search import RandomSearch
+from policies.learned_optimizers import LearnedSampler, LearnedSearch
+from policies.rl import train_rl
 from policies.sampler import (
     DEFAULT_FEATURES,
+    AnchorSampler,
     GaussianSampler,
     SamplerSpec,
+    import_learn,
     model_paths,
     problem_observation,
 )
+from policies.supervised import SupervisedSampler, fit_supervised
 
 __all__ = [
     "TARGETS",
@@ -55,8 +72,6 @@ TARGETS: tuple[str, ...] = ("best", "search", "truth")
 
 def default_training_clip_names() -> list[str]:
     """The embedded clips of the default graph (all but the held-out evaluation clips)."""
-    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-    from fpg_gym.io import DEFAULT_CLIP_NAMES
 
     return [n for n in DEFAULT_CLIP_NAMES if n not in DEFAULT_HOLDOUT_CLIPS]
 
@@ -66,7 +81,6 @@ def training_clips(
 ) -> list[Any]:
     """Clips named by ``--clips``: None or ``"default"`` for :func:`default_training_clip_names`,
     embedded clip names, mocap files or folders (as ``fpg-gym compare --clips``)."""
-    from fpg_gym.compare import resolve_clips
 
     names: list[str] = []
     for item in items or ["default"]:
@@ -85,8 +99,6 @@ def training_clips(
 
 def mirror_clip(clip: Any) -> Any:
     """The left/right mirror image of a clip (``name~mirror``), for data augmentation."""
-    from fpg_gym.io import Clip
-    from fpg_gym.poses import mirror
 
     return Clip(
         name=f"{clip.name}~mirror",
@@ -122,7 +134,6 @@ def simulate_episodes(
 ) -> list[Any]:
     """Recordings of every clip x scenario x seed (first ``max_frames`` frames), in that
     order (seed outermost)."""
-    from fpg_gym.simulate import KinectSimulator
 
     simulators = {name: KinectSimulator(name) for name in scenarios}
     try:
@@ -183,11 +194,11 @@ def collect_imitation_data(
     Every frame is searched with the papers' local search (``local-search``, 2,000
     evaluations, from ``x0``); with ``target="best"`` a second local search starts from the
     spec's anchor (:class:`~policies.sampler.FeatureMap`) on the same problem. The stream
-    continues from ``problem.best_z`` (the best point found), as a search-driven
+    continues from the best point found, as a search-driven
     reconstruction would. The target action selects:
 
-    * ``"search"``: ``problem.best_z`` after the papers' local search alone;
-    * ``"best"``: ``problem.best_z`` after both searches (the lowest energy found; the same as
+    * ``"search"``: the best point of the papers' local search alone;
+    * ``"best"``: the best point of both searches (the lowest energy found; the same as
       ``"search"`` without an anchor);
     * ``"truth"``: the ground-truth pose, moved into the frame's space with the sensor pose's
       root and heading (as the reconstructor normalises it) and projected (needs recordings
@@ -207,11 +218,6 @@ def collect_imitation_data(
     progress : bool
         A tqdm bar over the frames.
     """
-    from fpg_gym import poses as pose_utils
-    from fpg_gym.reconstruct import Reconstructor
-    from optimizers import make, run_optimizer
-    from optimizers.learned import LearnedSearch
-    from policies.sampler import AnchorSampler
 
     if target not in TARGETS:
         raise ValueError(f"target: expected one of {TARGETS}, got {target!r}")
@@ -248,8 +254,6 @@ def collect_imitation_data(
     energies = np.zeros(limit)
     bar = None
     if progress:
-        from tqdm.auto import tqdm
-
         bar = tqdm(total=limit, desc="imitation data", unit="frame", leave=False)
     n = 0
     try:
@@ -264,9 +268,11 @@ def collect_imitation_data(
                 problem = reconstructor.prepare(
                     recording.positions[t], recording.states[t], float(recording.timestamps[t])
                 )
-                z = run_optimizer(problem, search, rng)
+                found = run_optimizer(problem, search, rng)
                 if anchored is not None:
-                    z = run_optimizer(problem, anchored, rng)  # best of both searches
+                    other = run_optimizer(problem, anchored, rng)
+                    found = other if other.energy < found.energy else found  # best of both
+                z = found.x
                 d = min(problem.dim, latent_dim)
                 if target == "truth":
                     assert truth is not None
@@ -283,7 +289,7 @@ def collect_imitation_data(
                     problem, layout, action_scale=scale, delta=delta, frame_dt=spec.frame_dt
                 )
                 episodes[n] = e
-                energies[n] = problem.best_energy
+                energies[n] = found.energy
                 reconstructor.finish(z)
                 n += 1
                 if bar is not None:
@@ -314,8 +320,6 @@ def evaluate_agents(
     frames with error >= 0.2 m), ``evaluations`` and ``ms`` per frame, ``frames``. Errors need
     ground truth (NaN otherwise).
     """
-    from fpg_gym import metrics
-    from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 
     reconstructor = Reconstructor(
         graph, k=k, latent_dim=latent_dim, ragdoll=False, temporal=TemporalConfig.off()
@@ -507,8 +511,6 @@ class TrainResult:
 
 
 def _load_graph(name: str) -> Any:
-    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-    from fpg_gym.graph import load_graph
 
     if name != "default" and not Path(name).is_file():
         raise FileNotFoundError(f"--graph: {name}: no such file")
@@ -517,7 +519,6 @@ def _load_graph(name: str) -> Any:
 
 def _held_out_clash(graph_name: str, clips: Sequence[Any]) -> list[str]:
     """Training clips that are evaluation clips of the default protocol."""
-    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
 
     if graph_name != "default":
         return []
@@ -536,9 +537,6 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     optimizers.MissingDependency
         torch / stable-baselines3 missing (``pip install 'fpg-gym[learn]'``).
     """
-    from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
-    from optimizers.learned import LearnedSampler, LearnedSearch
-    from policies.sampler import import_learn
 
     import_learn("torch")
     if config.kind == "rl":
@@ -609,8 +607,6 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             say,
         )
     else:
-        from policies.rl import train_rl
-
         t0 = time.perf_counter()
         sampler, history = train_rl(
             graph=graph,
@@ -638,8 +634,6 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         seconds["train"] = time.perf_counter() - t0
     sampler.spec.training = {**training_info, "seconds": dict(seconds), "history": history}
     t0 = time.perf_counter()
-    from optimizers.random_search import RandomSearch
-    from policies.sampler import AnchorSampler
 
     final = evaluate(
         sampler,
@@ -674,7 +668,6 @@ def _train_supervised(
     seconds: dict[str, float],
     say: Callable[[str], None],
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
-    from policies.supervised import SupervisedSampler, fit_supervised
 
     spec = SamplerSpec(
         kind="supervised",
@@ -788,7 +781,6 @@ def _train_supervised(
 
 
 def _tensorboard_available() -> bool:
-    import importlib.util
 
     return importlib.util.find_spec("tensorboard") is not None
 
@@ -811,7 +803,6 @@ def _tensorboard_writer(folder: str | None, say: Callable[[str], None]) -> Any:
 
 
 def _versions(kind: str) -> dict[str, str]:
-    import importlib.metadata as md
 
     names = ["fpg-gym", "numpy", "torch"] + (
         ["stable-baselines3", "gymnasium"] if kind == "rl" else []

@@ -1,4 +1,4 @@
-"""Benchmark the PD ragdoll (fpg_gym.ragdoll): time per Kinect frame, tracking error, bone lengths.
+"""Benchmark the PD ragdoll (fpg_gym.physics.ragdoll): time per frame, tracking error, bone lengths.
 
 Tracks clean mocap clips — the embedded DeepMimic clips walk, punch, kick, dance_a, dance_b, and
 with ``--bandai N`` the first N Bandai Namco dataset-1 clips of ../shared/data when present —
@@ -28,7 +28,7 @@ from tqdm.auto import tqdm
 
 from fpg_gym import metrics, poses
 from fpg_gym.io import BANDAI_NAMCO_MAP, Clip, load_default_clips, read_bvh
-from fpg_gym.ragdoll import PhysicsWarning, Ragdoll
+from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 
 DEFAULT_CLIPS = ("walk", "punch", "kick", "dance_a", "dance_b")
 SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"

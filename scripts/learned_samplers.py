@@ -109,9 +109,10 @@ def diagnostics(
     episodes as the main comparison (in this process: the extra optimisers are registered
     here)."""
     import optimizers
-    from fpg_gym.compare import CompareConfig, run_compare
-    from optimizers.learned import LearnedSampler
-    from policies.sampler import AnchorSampler, load_sampler
+    from fpg_gym.experiments import CompareConfig, run_compare
+    from policies.learned_optimizers import LearnedSampler
+    from policies.loading import load_sampler
+    from policies.sampler import AnchorSampler
 
     def mean_only(path: str, **_: Any) -> Any:
         return LearnedSampler(path, samples=1)

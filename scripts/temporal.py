@@ -35,7 +35,7 @@ if str(REPO) not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(REPO))
 
 from fpg_gym import metrics  # noqa: E402
-from fpg_gym.compare import markdown_table, plan_episodes  # noqa: E402
+from fpg_gym.experiments import markdown_table, plan_episodes  # noqa: E402
 from fpg_gym.reconstruct import (  # noqa: E402
     BoneSettlingConfig,
     Reconstructor,

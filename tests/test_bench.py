@@ -6,8 +6,8 @@ import json
 
 import pytest
 
-from fpg_gym.bench import BenchSettings, format_bench, run_bench
 from fpg_gym.cli import main
+from fpg_gym.experiments.bench import BenchSettings, format_bench, run_bench
 
 
 def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:

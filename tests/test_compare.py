@@ -10,8 +10,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym import compare, metrics
-from fpg_gym.compare import CompareConfig, run_compare
+from fpg_gym import metrics
+from fpg_gym.experiments import CSV_FIELDS, TABLE_COLUMNS, CompareConfig, plan_episodes, run_compare
+from fpg_gym.experiments import run as compare_run
+from fpg_gym.experiments import stats as compare_stats
+from fpg_gym.io import resolve_clips
 from fpg_gym.methods import (
     BASELINE,
     Method,
@@ -162,33 +165,33 @@ def test_runner_without_graph_refuses_reconstruction(recording: Any) -> None:
 
 
 def test_plan_episodes_ids_and_seeds() -> None:
-    episodes = compare.plan_episodes(["walk", "kick"], ["front-many", "left45-many"], [0, 1])
+    episodes = plan_episodes(["walk", "kick"], ["front-many", "left45-many"], [0, 1])
     assert len(episodes) == 8
     assert len({e.id for e in episodes}) == 8
     assert episodes[0].id == "walk__front-many__s0"
-    swapped = compare.plan_episodes(["kick", "walk"], ["left45-many", "front-many"], [0, 1])
+    swapped = plan_episodes(["kick", "walk"], ["left45-many", "front-many"], [0, 1])
     seeds = {e.id: e.sim_seed for e in episodes}
     assert all(seeds[e.id] == e.sim_seed for e in swapped)  # order does not matter
     assert len(set(seeds.values())) == 8
-    duplicate = compare.plan_episodes(["a", "a"], ["front-few"], [0])
+    duplicate = plan_episodes(["a", "a"], ["front-few"], [0])
     assert [e.id for e in duplicate] == ["a__front-few__s0", "a__front-few__s0-2"]
 
 
 def test_resolve_clips_embedded_names() -> None:
-    clips, embedded = compare.resolve_clips(["default:walk", "kick"])
+    clips, embedded = resolve_clips(["default:walk", "kick"])
     assert [c.name for c in clips] == ["walk", "kick"]
     assert embedded == ["kick", "walk"]
     with pytest.raises(ValueError, match="unknown embedded clip"):
-        compare.resolve_clips(["default:moonwalk"])
+        resolve_clips(["default:moonwalk"])
 
 
 def test_held_out_warning() -> None:
     class FakeGraph:
         clip_names = ("walk", "run")
 
-    episodes = compare.plan_episodes(["walk", "kick"], ["front-many"], [0])
-    assert "walk" in compare._held_out_warning(FakeGraph(), episodes)
-    assert compare._held_out_warning(FakeGraph(), episodes[1:]) == ""
+    episodes = plan_episodes(["walk", "kick"], ["front-many"], [0])
+    assert "walk" in compare_run._held_out_warning(FakeGraph(), episodes)
+    assert compare_run._held_out_warning(FakeGraph(), episodes[1:]) == ""
 
 
 # --------------------------------------------------------------------------- statistics
@@ -199,17 +202,17 @@ def test_paired_test() -> None:
     base = {e: 0.10 + 0.01 * i for i, e in enumerate(episodes)}
     worse = {e: v + 0.02 + 0.001 * i for i, (e, v) in enumerate(base.items())}
     rows = {"fpg:local-search": base, "raw": worse, "same": dict(base)}
-    result = compare._paired_test(rows, "raw", "fpg:local-search")
+    result = compare_stats._paired_test(rows, "raw", "fpg:local-search")
     assert result["paired_episodes"] == 8
     assert result["mean_difference_m"] == pytest.approx(0.0235)
     assert result["lower_error_episodes"] == 0
     assert result["wilcoxon_p"] is not None and result["wilcoxon_p"] < 0.01
-    tie = compare._paired_test(rows, "same", "fpg:local-search")
+    tie = compare_stats._paired_test(rows, "same", "fpg:local-search")
     assert tie["wilcoxon_p"] is None and "differ" in tie["note"]
     few = {"fpg:local-search": dict(list(base.items())[:3]), "raw": worse}
-    small = compare._paired_test(few, "raw", "fpg:local-search")
+    small = compare_stats._paired_test(few, "raw", "fpg:local-search")
     assert small["paired_episodes"] == 3 and "cannot fall below 0.05" in small["note"]
-    none = compare._paired_test({"raw": worse}, "raw", "fpg:local-search")
+    none = compare_stats._paired_test({"raw": worse}, "raw", "fpg:local-search")
     assert none["paired_episodes"] == 0
 
 
@@ -241,7 +244,7 @@ def test_compare_writes_results_report_and_plots(tmp_path: Path) -> None:
     with (out / "results.csv").open() as handle:
         rows = list(csv.DictReader(handle))
     assert len(rows) == 8
-    assert list(rows[0]) == list(compare.CSV_FIELDS)
+    assert list(rows[0]) == list(CSV_FIELDS)
     raw = [r for r in rows if r["method"] == "raw"]
     # The raw method's error is the input's error.
     assert all(
@@ -261,7 +264,7 @@ def test_compare_writes_results_report_and_plots(tmp_path: Path) -> None:
     means = np.array([float(r["mean_error_m"]) for r in fpg_rows])
     assert fpg["mean_error_m"] == pytest.approx(np.average(means, weights=weights))
     report = (out / "report.md").read_text()
-    header = "| " + " | ".join(compare.TABLE_COLUMNS) + " |"
+    header = "| " + " | ".join(TABLE_COLUMNS) + " |"
     assert header in report
     assert "Wilcoxon" in report and "![" in report
     assert outcome.table.splitlines()[0] == header
@@ -295,7 +298,7 @@ def test_compare_interrupted_keeps_finished_rows(
     tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     calls = {"n": 0}
-    real = compare._execute
+    real = compare_run._execute
 
     def flaky(*args: Any) -> Any:
         calls["n"] += 1
@@ -303,14 +306,14 @@ def test_compare_interrupted_keeps_finished_rows(
             raise KeyboardInterrupt
         return real(*args)
 
-    monkeypatch.setattr(compare, "_execute", flaky)
+    monkeypatch.setattr(compare_run, "_execute", flaky)
     out = tmp_path / "run"
     outcome = run_compare(_config(out, methods=["raw", "holt"]), progress=False)
     assert outcome.interrupted
     with (out / "results.csv").open() as handle:
         assert len(list(csv.DictReader(handle))) == 2
     assert "Interrupted" in (out / "report.md").read_text()
-    monkeypatch.setattr(compare, "_execute", real)
+    monkeypatch.setattr(compare_run, "_execute", real)
     rest = run_compare(_config(out, methods=["raw", "holt"]), progress=False, plots=False)
     assert rest.tasks_run == 2 and rest.tasks_skipped == 2
 
@@ -379,7 +382,7 @@ def test_compare_command_reads_argument_files(
     lines = capsys.readouterr().out.strip().splitlines()
     summary = json.loads(lines[-1])
     assert summary["episodes"] == 2 and set(summary["methods"]) == {"raw", "kalman"}
-    assert lines[0] == "| " + " | ".join(compare.TABLE_COLUMNS) + " |"
+    assert lines[0] == "| " + " | ".join(TABLE_COLUMNS) + " |"
     assert main(["compare", "--clips", "default:walk", "--methods", "sgd", "--out", str(out)]) == 2
     assert "unknown base" in capsys.readouterr().err
 

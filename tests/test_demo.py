@@ -9,8 +9,8 @@ import imageio.v3 as iio
 import pytest
 
 from fpg_gym.cli import main
-from fpg_gym.compare import TABLE_COLUMNS
-from fpg_gym.demo import DEMO_METHODS, QUICK_METHODS
+from fpg_gym.experiments import TABLE_COLUMNS
+from fpg_gym.experiments.demo import DEMO_METHODS, QUICK_METHODS
 
 
 def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:

@@ -208,19 +208,17 @@ def test_out_of_bound_actions_are_clipped_unless_disabled(cache_dir: Path) -> No
 def test_problem_is_public_and_an_optimiser_point_is_reconstructed_exactly(
     cache_dir: Path,
 ) -> None:
-    from optimizers import run_optimizer
-
     env = make(cache_dir, clip_actions=False)
     env.reset(seed=7)
     env.step(np.zeros(20, np.float32))
     problem = env.problem
-    assert isinstance(problem, SearchProblem) and problem.max_evaluations == 2000
-    z = run_optimizer(problem, "local-search", np.random.default_rng(0))
-    assert 0 < problem.evaluations <= 2000
-    _, reward, _, _, info = env.step(env.action_for(z))
+    assert isinstance(problem, SearchProblem) and env.reconstructor.config.max_evaluations == 2000
+    found = env.reconstructor.search("local-search", np.random.default_rng(0))
+    assert 0 < problem.evaluations == found.evaluations <= 2000
+    _, reward, _, _, info = env.step(env.action_for(found.x))
     assert info["evaluations"] == problem.evaluations
-    assert info["energy"] == pytest.approx(problem.best_energy, rel=1e-9)
-    assert reward == pytest.approx(-problem.best_energy, rel=1e-9)
+    assert info["energy"] == pytest.approx(found.energy, rel=1e-9)
+    assert reward == pytest.approx(-found.energy, rel=1e-9)
     assert env.problem is not problem
     env.close()
 

@@ -27,10 +27,11 @@ import numpy as np
 import pytest
 from conftest import tiny_bvh
 
-from fpg_gym import compare, skeleton
+from fpg_gym import skeleton
 from fpg_gym.cli import main
-from fpg_gym.compare import CompareConfig, run_compare
 from fpg_gym.errors import DataFormatError, FpgGymError, OutputError, TaskError
+from fpg_gym.experiments import CSV_FIELDS, MANIFEST_NAME, CompareConfig, plan_episodes, run_compare
+from fpg_gym.experiments import run as compare_run
 from fpg_gym.io import (
     load_clips,
     load_default_clips,
@@ -276,7 +277,7 @@ def test_compare_fresh_deletes_only_what_compare_wrote(tmp_path: Path) -> None:
     out = tmp_path / "run"
     first = run_compare(_config(out), progress=False, plots=False)
     assert first.tasks_run == 2
-    listed = (out / compare.MANIFEST_NAME).read_text().splitlines()
+    listed = (out / MANIFEST_NAME).read_text().splitlines()
     assert "results.csv" in listed and "config.json" in listed
     assert any(line.startswith("frames/") for line in listed)
     (out / "notes.txt").write_text("mine")
@@ -298,7 +299,7 @@ def test_a_compare_folder_of_an_earlier_version_resumes_but_is_never_wiped(
 ) -> None:
     out = tmp_path / "run"
     run_compare(_config(out), progress=False, plots=False)
-    (out / compare.MANIFEST_NAME).unlink()  # as an fpg-gym without manifests left it
+    (out / MANIFEST_NAME).unlink()  # as an fpg-gym without manifests left it
     config = json.loads((out / "config.json").read_text())
     for episode in config["episodes"]:
         del episode["key"]
@@ -310,7 +311,7 @@ def test_a_compare_folder_of_an_earlier_version_resumes_but_is_never_wiped(
     resumed = run_compare(_config(out), progress=False, plots=False, log=messages.append)
     assert any("earlier fpg-gym compare" in m for m in messages), messages
     assert resumed.tasks_run == 2  # no content key: recomputed, not trusted
-    assert (out / compare.MANIFEST_NAME).is_file()
+    assert (out / MANIFEST_NAME).is_file()
     assert run_compare(_config(out), progress=False, plots=False).tasks_skipped == 2
 
 
@@ -346,8 +347,8 @@ def test_a_torn_last_row_is_repaired_with_a_warning(tmp_path: Path) -> None:
     assert rerun.tasks_run == 1 and rerun.tasks_skipped == 3
     with results.open(newline="") as handle:
         rows = list(csv.reader(handle))
-    assert rows[0] == list(compare.CSV_FIELDS)
-    assert all(len(row) == len(compare.CSV_FIELDS) for row in rows)
+    assert rows[0] == list(CSV_FIELDS)
+    assert all(len(row) == len(CSV_FIELDS) for row in rows)
     keys = [(row[0], row[4]) for row in rows[1:]]
     assert len(keys) == 4 and len(set(keys)) == 4
     assert all(row[4] in ("raw", "holt") for row in rows[1:])
@@ -394,21 +395,21 @@ def test_two_clips_with_the_same_file_name_stay_distinct(tmp_path: Path) -> None
     # Two recordings with the same file name too.
     one = write_recording(tmp_path / "a" / "rec.npz", simulate(walk, "front-few", seed=0).head(9))
     two = write_recording(tmp_path / "b" / "rec.npz", simulate(kick, "front-few", seed=0).head(9))
-    planned = compare.plan_episodes([], [], [0], [str(one), str(two)], ["1" * 64, "2" * 64])
+    planned = plan_episodes([], [], [0], [str(one), str(two)], ["1" * 64, "2" * 64])
     assert [e.id for e in planned] == ["rec_11111111__s0", "rec_22222222__s0"]
-    swapped = compare.plan_episodes([], [], [0], [str(two), str(one)], ["2" * 64, "1" * 64])
+    swapped = plan_episodes([], [], [0], [str(two), str(one)], ["2" * 64, "1" * 64])
     assert {e.id: e.recording for e in swapped} == {e.id: e.recording for e in planned}
 
 
 def test_a_failing_task_names_its_episode_and_method(tmp_path: Path, monkeypatch: Any) -> None:
-    real = compare._execute
+    real = compare_run._execute
 
     def failing(runner: Any, task: Any, recording: Any) -> Any:
         if task.method == "holt":
             raise RuntimeError("boom")
         return real(runner, task, recording)
 
-    monkeypatch.setattr(compare, "_execute", failing)
+    monkeypatch.setattr(compare_run, "_execute", failing)
     with pytest.raises(TaskError, match=r"episode 'walk__front-many__s0'.*method 'holt'.*boom"):
         run_compare(_config(tmp_path / "run"), progress=False, plots=False)
 
@@ -484,7 +485,7 @@ def test_sigterm_stops_compare_and_its_workers_and_keeps_a_report(tmp_path: Path
 def test_compare_workers_exit_when_the_parent_is_killed(tmp_path: Path) -> None:
     script = (
         "import sys\n"
-        "from fpg_gym.compare import CompareConfig, run_compare\n"
+        "from fpg_gym.experiments import CompareConfig, run_compare\n"
         f"config = CompareConfig(out={str(tmp_path / 'run')!r}, methods=['fpg:local-search'], "
         "clips=['default:walk', 'default:punch', 'default:kick'], scenarios=['front-many'], "
         "budget=2000, workers=2)\n"

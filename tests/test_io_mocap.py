@@ -196,7 +196,7 @@ def test_default_clip_duration_survives_resampling() -> None:
 
 
 def test_deepmimic_forward_kinematics_matches_pybullet() -> None:
-    from fpg_gym.pybullet_utils import connect_direct, data_path, pybullet, quiet_stdout
+    from fpg_gym.physics.pybullet_utils import connect_direct, data_path, pybullet, quiet_stdout
 
     frames = np.array(json.loads(default_clip_path("dance_a").read_text())["Frames"])
     ours = forward_kinematics(frames[[10, 60]])

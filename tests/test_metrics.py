@@ -133,7 +133,7 @@ def test_bad_input_gives_clear_errors(call: object, message: str) -> None:
 
 
 def test_error_band_edges_are_the_papers_and_shared_with_plots() -> None:
-    from fpg_gym import plots
+    from fpg_gym.experiments import plots
 
     assert metrics.ERROR_BAND_EDGES[:-1] == (0.0, 0.05, 0.10, 0.15, 0.20, 0.30)
     assert np.isinf(metrics.ERROR_BAND_EDGES[-1])

@@ -20,7 +20,8 @@ import pytest
 import optimizers
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.errors import DataFormatError, FpgGymError
-from policies.sampler import FORMAT, SamplerSpec, load_sampler
+from policies.loading import load_sampler
+from policies.sampler import FORMAT, SamplerSpec
 
 torch = pytest.importorskip("torch")
 pytest.importorskip("stable_baselines3")

@@ -1,4 +1,4 @@
-"""The ask/tell protocol, the registry, the built-in optimisers and the problem's budget."""
+"""The ask/tell protocol, the registry, the built-in optimisers and run_optimizer's budget."""
 
 from __future__ import annotations
 
@@ -9,14 +9,12 @@ import optimizers
 from fpg_gym import poses, skeleton
 from fpg_gym.reconstruct.energy import EnergyModel
 from fpg_gym.reconstruct.latent import LatentSpace
-from fpg_gym.reconstruct.problem import BudgetExhausted, FrameContext, SearchProblem
+from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
 from fpg_gym.reconstruct.reliability import ReliabilityTerms
 from fpg_gym.reconstruct.selection import Selection
 
 
-def make_problem(
-    seed: int = 0, max_evaluations: int | None = 2000, time_budget_s: float | None = None
-) -> SearchProblem:
+def make_problem(seed: int = 0) -> SearchProblem:
     rng = np.random.default_rng(seed)
     base = poses.rest_pose().astype(np.float64)
     k = 30
@@ -38,8 +36,6 @@ def make_problem(
         previous=previous,
         x0=latent.encode(previous),
         context=FrameContext(0, 0.0, 1 / 30, False),
-        max_evaluations=max_evaluations,
-        time_budget_s=time_budget_s,
     )
 
 
@@ -83,29 +79,79 @@ def test_a_third_party_toy_optimizer_runs_through_the_protocol() -> None:
     with pytest.raises(ValueError, match="already registered"):
         optimizers.register(name, Toy)
     problem = make_problem()
-    z = optimizers.run_optimizer(problem, name, rng=0)
+    found = optimizers.run_optimizer(problem, name, rng=0)
     assert calls == ["reset", "ask", "tell2", "ask", "tell2"]
-    assert problem.evaluations == 4
+    assert problem.evaluations == 4 == found.evaluations and found.asks == 3
     energies = problem.evaluate_terms(np.stack([problem.x0, -problem.x0]), count=False)["E"]
-    assert np.allclose(z, [problem.x0, -problem.x0][int(np.argmin(energies))])
-    assert problem.best_energy == pytest.approx(energies.min())
+    assert np.allclose(found.x, [problem.x0, -problem.x0][int(np.argmin(energies))])
+    assert found.energy == pytest.approx(energies.min())
+
+
+class Sphere:
+    """The smallest problem: exactly the documented members (dim, x0, evaluate)."""
+
+    dim = 4
+    x0 = np.full(4, 2.0)
+
+    def evaluate(self, z: np.ndarray) -> np.ndarray:
+        return np.sum((z - 0.5) ** 2, axis=1)
+
+
+def test_run_optimizer_owns_the_best_point_on_a_toy_problem() -> None:
+    """A problem with only dim, x0 and evaluate gets the best point found, not x0 back."""
+    assert isinstance(Sphere(), optimizers.Problem)
+    start = float(Sphere().evaluate(Sphere.x0[None])[0])  # 4 * 1.5**2 = 9
+    assert start == 9.0
+    for name in ("local-search", "random-search"):
+        found = optimizers.run_optimizer(Sphere(), name, rng=0, max_evaluations=2000)
+        assert found.energy < 0.1 * start, (name, found.energy)
+        assert found.energy == pytest.approx(float(Sphere().evaluate(found.x[None])[0]))
+        assert not np.allclose(found.x, Sphere.x0)
+    none = optimizers.run_optimizer(Sphere(), "none", rng=0)
+    assert np.array_equal(none.x, Sphere.x0) and none.energy == np.inf and none.evaluations == 0
+
+
+def test_a_fifteen_line_custom_optimizer() -> None:
+    """The cmaes-style example of the docs: a coordinate search in a few lines."""
+
+    class CoordinateSearch(optimizers.BaseOptimizer):
+        def reset(self, problem, rng):
+            super().reset(problem, rng)
+            self.center, self.step, self.best = np.array(problem.x0, float), 1.0, np.inf
+
+        def ask(self):
+            if self.step < 1e-3:
+                return None
+            return self.center + self.step * np.vstack([np.eye(self.dim), -np.eye(self.dim)])
+
+        def tell(self, z, energies):
+            i = int(np.argmin(energies))
+            if energies[i] < self.best:
+                self.best, self.center = float(energies[i]), z[i]
+            else:
+                self.step /= 2
+
+    found = optimizers.run_optimizer(Sphere(), CoordinateSearch(), rng=0)
+    assert np.allclose(found.x, 0.5, atol=1e-3) and found.energy < 1e-5
 
 
 def test_local_search_improves_on_x0_within_the_paper_budget() -> None:
     problem = make_problem()
     e0 = problem.evaluate_terms(problem.x0, count=False)["E"][0]
-    z = optimizers.run_optimizer(problem, optimizers.make("local-search"), rng=1)
-    assert problem.evaluations <= 2000
+    found = optimizers.run_optimizer(
+        problem, optimizers.make("local-search"), rng=1, max_evaluations=2000
+    )
+    assert problem.evaluations == found.evaluations <= 2000
     assert problem.evaluations % 100 == 0
-    assert problem.best_energy < e0
-    assert problem.evaluate_terms(z, count=False)["E"][0] == pytest.approx(problem.best_energy)
+    assert found.energy < e0
+    assert problem.evaluate_terms(found.x, count=False)["E"][0] == pytest.approx(found.energy)
 
 
 def test_local_search_beats_random_search_and_none_keeps_x0() -> None:
     energies = {}
     for name in ("local-search", "random-search", "none"):
         problem = make_problem(seed=3)
-        z = optimizers.run_optimizer(problem, name, rng=2)
+        z = optimizers.run_optimizer(problem, name, rng=2).x
         energies[name] = problem.evaluate_terms(z, count=False)["E"][0]
         if name == "none":
             assert problem.evaluations == 0 and np.array_equal(z, problem.x0)
@@ -117,54 +163,67 @@ def test_local_search_beats_random_search_and_none_keeps_x0() -> None:
 
 def test_cma_es_warm_starts_at_x0_and_respects_the_budget() -> None:
     pytest.importorskip("cmaes")
-    problem = make_problem(seed=4, max_evaluations=600)
+    problem = make_problem(seed=4)
     e0 = problem.evaluate_terms(problem.x0, count=False)["E"][0]
-    optimizers.run_optimizer(problem, "cma-es", rng=5)
-    assert problem.evaluations == 600
-    assert problem.best_energy < e0
+    found = optimizers.run_optimizer(problem, "cma-es", rng=5, max_evaluations=600)
+    assert problem.evaluations == 600 == found.evaluations
+    assert found.energy < e0
 
 
 def test_same_seed_same_result_different_seed_different_path() -> None:
     runs = []
     for seed in (7, 7, 8):
         problem = make_problem()
-        runs.append(optimizers.run_optimizer(problem, "local-search", rng=seed))
+        runs.append(optimizers.run_optimizer(problem, "local-search", rng=seed).x)
     assert np.array_equal(runs[0], runs[1])
     assert not np.array_equal(runs[0], runs[2])
 
 
-def test_budget_clips_a_batch_then_raises() -> None:
-    problem = make_problem(max_evaluations=150)
-    z = np.zeros((100, problem.dim))
-    assert np.all(np.isfinite(problem.evaluate(z)))
-    assert problem.remaining == 50
-    out = problem.evaluate(np.ones((100, problem.dim)))
-    assert np.all(np.isfinite(out[:50])) and np.all(np.isinf(out[50:]))
-    assert problem.evaluations == 150 and problem.exhausted
-    with pytest.raises(BudgetExhausted, match="evaluation budget 150"):
-        problem.evaluate(z[:1])
-    # Uncounted diagnostics still work.
-    assert problem.evaluate_terms(z[:2], count=False)["Ec"].shape == (2,)
+def test_budget_clips_a_batch_and_stops() -> None:
+    """A batch larger than what is left is clipped: its first rows are scored, the rest get
+    inf (told to the optimiser), and the search ends."""
+    told: list[np.ndarray] = []
+
+    class Wide(optimizers.BaseOptimizer):
+        def ask(self):
+            return np.zeros((100, self.dim)) + len(told)
+
+        def tell(self, z, energies):
+            told.append(energies)
+
+    problem = make_problem()
+    found = optimizers.run_optimizer(problem, Wide(), rng=0, max_evaluations=150)
+    assert found.evaluations == problem.evaluations == 150 and found.asks == 2
+    assert np.all(np.isfinite(told[0])) and np.all(np.isfinite(told[1][:50]))
+    assert np.all(np.isinf(told[1][50:]))
+    # Uncounted diagnostics still work; a wrong shape is an error naming Z.
+    assert problem.evaluate_terms(np.zeros((2, problem.dim)), count=False)["Ec"].shape == (2,)
     with pytest.raises(ValueError, match="Z"):
         problem.evaluate(np.zeros((3, problem.dim + 1)))
+    with pytest.raises(ValueError, match="max_evaluations"):
+        optimizers.run_optimizer(problem, Wide(), max_evaluations=-1)
 
 
 def test_time_budget_stops_the_search() -> None:
-    problem = make_problem(max_evaluations=None, time_budget_s=1e-9)
-    problem.evaluate(np.zeros((1, problem.dim)))
-    assert problem.remaining == 0
-    with pytest.raises(BudgetExhausted, match="time budget"):
-        problem.evaluate(np.zeros((1, problem.dim)))
-    problem = make_problem(max_evaluations=None, time_budget_s=1e-9)
-    optimizers.run_optimizer(problem, "random-search", rng=0)
-    assert problem.evaluations == 100  # one batch, then the clock ran out
+    problem = make_problem()
+    found = optimizers.run_optimizer(problem, "random-search", rng=0, time_budget_s=1e-9)
+    assert found.evaluations == problem.evaluations == 100  # one batch, then the clock ran out
 
 
 def test_unlimited_budget_with_a_stopping_optimizer() -> None:
-    problem = make_problem(max_evaluations=None)
-    assert problem.remaining is None
-    optimizers.run_optimizer(problem, optimizers.make("random-search", iterations=3), rng=0)
-    assert problem.evaluations == 300
+    problem = make_problem()
+    found = optimizers.run_optimizer(problem, optimizers.make("random-search", iterations=3), rng=0)
+    assert found.evaluations == 300 and found.asks == 4
+
+
+def test_registry_takes_module_attr_strings_without_importing() -> None:
+    optimizers.register("lazy-for-test", "optimizers.none:NoSearch", overwrite=True)
+    assert type(optimizers.make("lazy-for-test")).__name__ == "NoSearch"
+    optimizers.register("missing-for-test", "no_such_module_xyz:Thing", overwrite=True)
+    with pytest.raises(ModuleNotFoundError):
+        optimizers.make("missing-for-test")
+    with pytest.raises(ValueError, match="module:attr"):
+        optimizers.register("bad-for-test", "no-colon")
 
 
 def _quadratic_energy(problem: SearchProblem, points: np.ndarray, style: float) -> np.ndarray:
@@ -192,7 +251,7 @@ def test_closed_form_minimises_the_quadratic_energy_with_one_evaluation() -> Non
     rec = Reconstructor(graph)
     for t in range(3):
         problem = rec.prepare(recording.positions[t], recording.states[t], recording.timestamps[t])
-        z = optimizers.run_optimizer(problem, "closed-form", np.random.default_rng(0))
+        z = optimizers.run_optimizer(problem, "closed-form", np.random.default_rng(0)).x
         assert problem.evaluations == 1
         h = 1e-4
         steps = np.vstack([np.eye(problem.dim), -np.eye(problem.dim)]) * h

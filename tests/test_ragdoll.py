@@ -1,4 +1,4 @@
-"""Tests of the PD ragdoll (fpg_gym.ragdoll) and its body model (fpg_gym.ragdoll_model)."""
+"""Tests of the PD ragdoll (fpg_gym.physics.ragdoll) and its body model (.ragdoll_model)."""
 
 from __future__ import annotations
 
@@ -11,8 +11,8 @@ from conftest import shared_path
 
 from fpg_gym import poses, skeleton
 from fpg_gym.io import BANDAI_NAMCO_MAP, load_default_clips, read_bvh
-from fpg_gym.ragdoll import PhysicsError, PhysicsWarning, Ragdoll
-from fpg_gym.ragdoll_model import (
+from fpg_gym.physics.ragdoll import PhysicsError, PhysicsWarning, Ragdoll
+from fpg_gym.physics.ragdoll_model import (
     MASS_FRACTIONS,
     REFERENCE_BODY_MASS_KG,
     build_body_model,

@@ -9,7 +9,7 @@ from conftest import shared_path
 from fpg_gym import metrics, poses
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import load_clips, load_default_clips
-from fpg_gym.ragdoll import Ragdoll
+from fpg_gym.physics.ragdoll import Ragdoll
 
 pytestmark = pytest.mark.slow
 

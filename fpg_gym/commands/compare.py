@@ -161,7 +161,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the comparison, print the table and where the files are."""
     from fpg_gym.commands.output import emit_json
-    from fpg_gym.compare import CompareConfig, format_tests, run_compare
+    from fpg_gym.experiments import CompareConfig, format_tests, run_compare
     from fpg_gym.methods import expand_methods
 
     methods = expand_methods(args.methods, args.optimizers, args.selectors, args.ragdoll)

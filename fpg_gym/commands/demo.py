@@ -37,7 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the demo and print the comparison."""
     from fpg_gym.commands.output import emit_json
-    from fpg_gym.demo import print_outcome, run_demo
+    from fpg_gym.experiments.demo import print_outcome, run_demo
 
     if args.seed < 0:
         raise ValueError(f"--seed: expected a non-negative integer, got {args.seed}")

@@ -14,6 +14,9 @@ from concurrent.futures import ProcessPoolExecutor
 from functools import partial
 from pathlib import Path
 
+from tqdm.auto import tqdm
+
+from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.errors import DataFormatError, FpgGymError
 from fpg_gym.io.bvh import BANDAI_NAMCO_MAP, BvhPoint, JointSource, read_bvh
 from fpg_gym.io.clip import Clip
@@ -39,6 +42,7 @@ __all__ = [
     "read_deepmimic",
     "read_positions",
     "read_recording",
+    "resolve_clips",
     "write_positions",
     "write_recording",
 ]
@@ -183,7 +187,6 @@ def load_clips(
     DataFormatError
         The first bad file, named in the message.
     """
-    from tqdm.auto import tqdm
 
     # Each input becomes a list of ready clips ("default") or of files to read, in input order.
     groups: list[list[Clip] | list[Path]] = []
@@ -212,3 +215,48 @@ def load_clips(
     finally:
         bar.close()
     return [read[item] if isinstance(item, Path) else item for group in groups for item in group]
+
+
+def resolve_clips(
+    items: Sequence[str], units: str = "auto", progress: bool = False
+) -> tuple[list[Clip], list[str]]:
+    """Read the clips named by ``--clips`` (as ``fpg-gym compare`` takes them), in order.
+
+    ``default`` means the embedded held-out clips; ``walk`` / ``default:walk`` an embedded clip;
+    anything else a mocap file or folder.
+
+    Returns
+    -------
+    clips : list of Clip
+    embedded : list of str
+        Names of the embedded clips among them (the default graph leaves these out).
+    """
+    clips: list[Clip] = []
+    embedded: list[str] = []
+    files: list[str] = []
+
+    def flush_files() -> None:
+        if files:
+            clips.extend(load_clips(list(files), units=units, progress=progress))
+            files.clear()
+
+    for item in items:
+        text = str(item)
+        name = text.removeprefix("default:")
+        if text == "default":
+            flush_files()
+            clips.extend(load_default_clips(list(DEFAULT_HOLDOUT_CLIPS)))
+            embedded.extend(DEFAULT_HOLDOUT_CLIPS)
+        elif name in DEFAULT_CLIP_NAMES and not Path(text).exists():
+            flush_files()
+            clips.extend(load_default_clips([name]))
+            embedded.append(name)
+        elif text.startswith("default:"):
+            raise ValueError(
+                f"--clips: unknown embedded clip {name!r}; expected one of "
+                + ", ".join(DEFAULT_CLIP_NAMES)
+            )
+        else:
+            files.append(text)
+    flush_files()
+    return clips, sorted(set(embedded))

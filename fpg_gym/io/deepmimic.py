@@ -31,7 +31,7 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io.clip import Clip
-from fpg_gym.pybullet_utils import connect_direct, data_path, pybullet, quiet_stdout
+from fpg_gym.physics.pybullet_utils import connect_direct, data_path, pybullet, quiet_stdout
 from fpg_gym.rotations import axis_rotation, quaternion_to_matrix, slerp
 
 #: The 15 DeepMimic humanoid clips shipped inside the pybullet wheel (the embedded default).

@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
 from fpg_gym import poses
 from fpg_gym.errors import DataFormatError
@@ -277,7 +278,6 @@ def import_uiprmd(
     progress : bool
         Show a progress bar on stderr.
     """
-    from tqdm.auto import tqdm
 
     folder = _root_folder(Path(root)).resolve()
     out_dir = Path(out)

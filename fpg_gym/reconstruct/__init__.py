@@ -21,7 +21,7 @@ from fpg_gym.reconstruct.energy import (
     style_energy,
 )
 from fpg_gym.reconstruct.latent import LatentSpace
-from fpg_gym.reconstruct.problem import BudgetExhausted, FrameContext, SearchProblem
+from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
 from fpg_gym.reconstruct.reconstructor import (
     LABELLINGS,
     STAGES,
@@ -64,7 +64,6 @@ __all__ = [
     "BoneSettler",
     "BoneSettlingConfig",
     "BruteForceSelector",
-    "BudgetExhausted",
     "CandidateSelector",
     "EnergyModel",
     "EnergyWeights",

@@ -4,32 +4,23 @@ A :class:`SearchProblem` is what :meth:`fpg_gym.reconstruct.Reconstructor.prepar
 frame's sensor data, reliability, candidates and latent space as public attributes, and the
 energy as a vectorised function of whitened latent points.
 
-Budget
-------
-``evaluate`` and ``evaluate_terms`` count one evaluation per row. With ``max_evaluations`` set,
-a batch larger than what is left is **clipped**: its first ``remaining`` rows are evaluated and
-the others get ``+inf`` (so no optimiser can pick them). A call made when nothing is left — the
-evaluation budget is spent or ``time_budget_s`` has elapsed since the first evaluation — raises
-:class:`BudgetExhausted`. :func:`optimizers.run_optimizer` stops on it cleanly.
+It follows :class:`optimizers.Problem` (``dim``, ``x0``, ``evaluate``): the budget and the best
+point belong to :func:`optimizers.run_optimizer`, which the reconstructor calls with its
+configured budget (:meth:`fpg_gym.reconstruct.Reconstructor.search`). ``evaluate`` counts the
+rows it scores in ``evaluations`` (a tally for reports, not a limit).
 """
 
 from __future__ import annotations
 
 import functools
-import time
 from dataclasses import dataclass
 
 import numpy as np
 
-from fpg_gym.errors import FpgGymError
 from fpg_gym.reconstruct.energy import EnergyModel, EnergyWeights
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.reliability import ReliabilityTerms
 from fpg_gym.reconstruct.selection import Selection
-
-
-class BudgetExhausted(FpgGymError, RuntimeError):
-    """Raised by :meth:`SearchProblem.evaluate` when the evaluation or time budget is spent."""
 
 
 @dataclass(frozen=True)
@@ -72,10 +63,6 @@ class SearchProblem:
         Starting point: the previous reconstruction projected into the space, or the best
         candidate's projection on a first frame.
     context : FrameContext
-    max_evaluations : int or None
-        Evaluation budget (None: unlimited).
-    time_budget_s : float or None
-        Seconds allowed from the first evaluation (None: unlimited).
 
     Attributes
     ----------
@@ -101,10 +88,6 @@ class SearchProblem:
     x0 : ndarray, shape (d,)
     evaluations : int
         Rows evaluated so far (counted calls only).
-    best_z : ndarray, shape (d,)
-        Best point evaluated so far (``x0`` before any evaluation).
-    best_energy : float
-        Its energy (``inf`` before any evaluation).
     """
 
     def __init__(
@@ -118,13 +101,7 @@ class SearchProblem:
         previous: np.ndarray | None,
         x0: np.ndarray,
         context: FrameContext,
-        max_evaluations: int | None = 2000,
-        time_budget_s: float | None = None,
     ) -> None:
-        if max_evaluations is not None and max_evaluations < 0:
-            raise ValueError(f"max_evaluations: expected >= 0 or None, got {max_evaluations}")
-        if time_budget_s is not None and time_budget_s <= 0:
-            raise ValueError(f"time_budget_s: expected > 0 or None, got {time_budget_s}")
         self.energy = energy
         self.latent: LatentSpace = energy.latent
         self.kinect_pose = np.asarray(kinect_pose, dtype=np.float64)
@@ -149,12 +126,7 @@ class SearchProblem:
         if x0.shape != (self.dim,):
             raise ValueError(f"x0: expected shape ({self.dim},), got {x0.shape}")
         self.x0 = x0
-        self.max_evaluations = max_evaluations
-        self.time_budget_s = time_budget_s
         self.evaluations = 0
-        self._started: float | None = None
-        self.best_z = x0.copy()
-        self.best_energy = float("inf")
 
     # ------------------------------------------------------------------ space
 
@@ -192,26 +164,7 @@ class SearchProblem:
         """Whitened coordinates ``(..., d)`` of normalised poses ``(..., 20, 3)``."""
         return self.latent.encode(poses)
 
-    # ------------------------------------------------------------------ budget
-
-    @property
-    def elapsed_s(self) -> float:
-        """Seconds since the first counted evaluation (0 before it)."""
-        return 0.0 if self._started is None else time.perf_counter() - self._started
-
-    @property
-    def remaining(self) -> int | None:
-        """Evaluations left (None when unlimited); 0 once the time budget has elapsed."""
-        if self.time_budget_s is not None and self.elapsed_s >= self.time_budget_s:
-            return 0
-        if self.max_evaluations is None:
-            return None
-        return max(self.max_evaluations - self.evaluations, 0)
-
-    @property
-    def exhausted(self) -> bool:
-        """Whether the next evaluation would raise :class:`BudgetExhausted`."""
-        return self.remaining == 0
+    # ------------------------------------------------------------------ energy
 
     def _check(self, z: np.ndarray) -> np.ndarray:
         z = np.asarray(z, dtype=np.float64)
@@ -223,69 +176,27 @@ class SearchProblem:
             raise ValueError("Z: non-finite latent coordinates")
         return z
 
-    def _admit(self, n: int) -> int:
-        """How many of ``n`` rows may be evaluated; raises when none may."""
-        remaining = self.remaining
-        if remaining == 0:
-            spent = (
-                f"time budget {self.time_budget_s} s"
-                if self.max_evaluations is None or self.evaluations < self.max_evaluations
-                else f"evaluation budget {self.max_evaluations}"
-            )
-            raise BudgetExhausted(f"search problem: {spent} spent ({self.evaluations} evaluations)")
-        if self._started is None:
-            self._started = time.perf_counter()
-        return n if remaining is None else min(n, remaining)
-
-    # ------------------------------------------------------------------ energy
-
     def evaluate_terms(self, z: np.ndarray, *, count: bool = True) -> dict[str, np.ndarray]:
         """``Ec``, ``Es``, ``Ek``, ``Em`` and the total ``E`` for latent points ``(n, d)``.
 
-        Counts against the budget like :meth:`evaluate` unless ``count=False``; rows beyond the
-        budget get ``inf`` in every entry.
+        Adds the rows to ``evaluations`` unless ``count=False``.
         """
         z = self._check(z)
-        n = len(z)
-        admitted = self._admit(n) if count else n
-        terms = self.energy.terms(z[:admitted])
+        terms = self.energy.terms(z)
         terms["E"] = self.energy.total(terms)
-        if admitted < n:
-            terms = {
-                k: np.concatenate([v, np.full(n - admitted, np.inf)]) for k, v in terms.items()
-            }
         if count:
-            self._record(z, terms["E"], admitted)
+            self.evaluations += len(z)
         return terms
 
     def evaluate(self, z: np.ndarray) -> np.ndarray:
-        """Energy ``E`` (Shum Eq. 10, lower is better) of latent points ``(n, d) -> (n,)``.
-
-        Raises
-        ------
-        BudgetExhausted
-            If the budget was already spent (a partly over-budget batch is clipped instead).
-        """
+        """Energy ``E`` (Shum Eq. 10, lower is better) of latent points ``(n, d) -> (n,)``."""
         return self.evaluate_terms(z)["E"]
-
-    def _record(self, z: np.ndarray, energies: np.ndarray, admitted: int) -> None:
-        self.evaluations += admitted
-        if admitted:
-            i = int(np.argmin(energies[:admitted]))
-            if energies[i] < self.best_energy:
-                self.best_energy = float(energies[i])
-                self.best_z = z[i].copy()
-
-    def solution(self) -> np.ndarray:
-        """The point to reconstruct from: ``best_z`` after evaluations, else ``x0``."""
-        return self.best_z.copy() if self.evaluations else self.x0.copy()
 
     def __repr__(self) -> str:
         return (
             f"SearchProblem(frame={self.context.index}, dim={self.dim}, K={len(self.nodes)}, "
-            f"evaluations={self.evaluations}/{self.max_evaluations}, "
-            f"best_energy={self.best_energy:.6g})"
+            f"evaluations={self.evaluations})"
         )
 
 
-__all__ = ["BudgetExhausted", "FrameContext", "SearchProblem"]
+__all__ = ["FrameContext", "SearchProblem"]

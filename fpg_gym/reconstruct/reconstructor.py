@@ -49,7 +49,7 @@ anchored on the previous reconstruction with a larger weight, a Kalman stage fil
 
 Ragdoll
 -------
-With ``ragdoll=`` (a factory ``lengths -> Ragdoll`` or ``True`` for :class:`fpg_gym.ragdoll.
+With ``ragdoll=`` (a factory ``lengths -> Ragdoll`` or ``True`` for :class:`fpg_gym.physics.ragdoll.
 Ragdoll`), the camera-space target is tracked by the ragdoll and its simulated pose is the output.
 The ragdoll runs in camera space shifted down by the floor height, estimated as the lowest joint
 of the targets so far (camera space has no floor); it is rebuilt when the user's reference bone
@@ -66,11 +66,12 @@ from dataclasses import dataclass, field, fields, replace
 from typing import Any, Protocol
 
 import numpy as np
+from tqdm import tqdm
 
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
 from fpg_gym.definitions import OnlineDefinitionFit, PoseMap
-from fpg_gym.ragdoll import FloorShift
+from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights, motion_target
 from fpg_gym.reconstruct.latent import LatentSpace
@@ -93,6 +94,7 @@ from fpg_gym.reconstruct.temporal import (
     TemporalConfig,
     align_basis,
 )
+from optimizers import SearchResult, make, run_optimizer
 
 STAGES: tuple[str, ...] = (
     "normalise",
@@ -160,7 +162,7 @@ def left_right_costs(
 
 
 class RagdollLike(Protocol):
-    """What the reconstructor needs of a ragdoll (:class:`fpg_gym.ragdoll.Ragdoll`)."""
+    """What the reconstructor needs of a ragdoll (:class:`fpg_gym.physics.ragdoll.Ragdoll`)."""
 
     def reset(self, pose: np.ndarray) -> np.ndarray:
         """Place the body on ``pose``."""
@@ -479,6 +481,7 @@ class _Pending:
     lengths: np.ndarray | None = None
     sensor: np.ndarray | None = None  # the raw input frame, before the sensor map
     tracked: np.ndarray | None = None  # its tracked joints
+    found: np.ndarray | None = None  # the best point of search(), if one ran
 
 
 def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -496,9 +499,9 @@ class Reconstructor:
         ``poses`` (N, 20, 3) normalised and the CSR adjacency (``neighbors_of``).
     config : ReconstructorConfig, optional
     ragdoll : bool or callable, optional
-        ``True`` uses :class:`fpg_gym.ragdoll.Ragdoll`; a callable ``lengths -> ragdoll`` builds
-        any object with ``reset(pose)``, ``track(target) -> pose`` and ``close()``; None/False:
-        no ragdoll.
+        ``True`` uses :class:`fpg_gym.physics.ragdoll.Ragdoll`; a callable ``lengths -> ragdoll``
+        builds any object with ``reset(pose)``, ``track(target) -> pose`` and ``close()``;
+        None/False: no ragdoll.
     **overrides
         Fields of :class:`ReconstructorConfig` (e.g. ``selector="brute-force"``).
 
@@ -552,8 +555,6 @@ class Reconstructor:
             ),
         )
         if ragdoll is True:
-            from fpg_gym.ragdoll import Ragdoll
-
             self._ragdoll_factory: RagdollFactory | None = Ragdoll  # Ragdoll(bone_lengths)
         elif callable(ragdoll):
             self._ragdoll_factory = ragdoll
@@ -806,8 +807,6 @@ class Reconstructor:
             previous=previous,
             x0=x0,
             context=FrameContext(index=self._index, timestamp=timestamp, dt=dt, first=first),
-            max_evaluations=cfg.max_evaluations,
-            time_budget_s=cfg.time_budget_s,
         )
         t4 = time.perf_counter()
         ms = {
@@ -841,8 +840,8 @@ class Reconstructor:
         Parameters
         ----------
         z : array_like, shape (d,), optional
-            The chosen latent point; ``problem.solution()`` (best evaluated, else ``x0``) when
-            omitted.
+            The chosen latent point; when omitted, the best point of :meth:`search` on this
+            frame, else ``problem.x0``.
 
         Returns
         -------
@@ -860,7 +859,9 @@ class Reconstructor:
             raise RuntimeError("finish: no prepared frame (call prepare first)")
         t0 = time.perf_counter()
         problem = pending.problem
-        z = problem.solution() if z is None else np.asarray(z, dtype=np.float64).reshape(-1)
+        if z is None:
+            z = problem.x0 if pending.found is None else pending.found
+        z = np.asarray(z, dtype=np.float64).reshape(-1)
         if z.shape != (problem.dim,) or not np.all(np.isfinite(z)):
             raise ValueError(f"z: expected {problem.dim} finite values, got shape {z.shape}")
         chosen = problem.evaluate_terms(np.stack([z, problem.x0]), count=False)
@@ -1002,18 +1003,44 @@ class Reconstructor:
         optimizer: Any = "local-search",
         rng: np.random.Generator | int | None = None,
     ) -> tuple[np.ndarray, FrameRecord]:
-        """``prepare``, run ``optimizer`` (a registered name or an object), ``finish``."""
-        from optimizers import make, run_optimizer
-
+        """``prepare``, :meth:`search` with ``optimizer`` (a registered name or an object),
+        ``finish``."""
         opt = make(optimizer)
         generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-        problem = self.prepare(positions, states, timestamp)
+        self.prepare(positions, states, timestamp)
         try:
-            z = run_optimizer(problem, opt, generator)
+            found = self.search(opt, generator)
         except BaseException:
             self._pending = None
             raise
-        return self.finish(z)
+        return self.finish(found.x)
+
+    def search(
+        self, optimizer: Any = "local-search", rng: np.random.Generator | int | None = None
+    ) -> SearchResult:
+        """Run ``optimizer`` on the prepared frame's problem within the configured budget.
+
+        The budget is the config's ``max_evaluations`` and ``time_budget_s``
+        (:func:`optimizers.run_optimizer` enforces it); :meth:`finish` without a point then
+        uses the best point found.
+
+        Raises
+        ------
+        RuntimeError
+            If no frame was prepared.
+        """
+        pending = self._pending
+        if pending is None:
+            raise RuntimeError("search: no prepared frame (call prepare first)")
+        found = run_optimizer(
+            pending.problem,
+            make(optimizer),
+            rng,
+            max_evaluations=self.config.max_evaluations,
+            time_budget_s=self.config.time_budget_s,
+        )
+        pending.found = found.x
+        return found
 
     def iter_frames(
         self,
@@ -1026,8 +1053,6 @@ class Reconstructor:
         ``recording`` needs ``positions`` (T,20,3), ``states`` (T,20) and optionally
         ``timestamps`` (T,).
         """
-        from optimizers import make
-
         positions = pose_utils.as_poses(recording.positions, "recording.positions", ndim=3)
         states = np.asarray(recording.states)
         if states.shape != positions.shape[:2]:
@@ -1084,8 +1109,6 @@ class Reconstructor:
         records: list[FrameRecord] = []
         bar = None
         if progress:
-            from tqdm import tqdm
-
             bar = tqdm(total=total, unit="frame", desc="reconstruct", leave=False)
         interrupted = False
         try:

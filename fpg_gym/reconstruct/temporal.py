@@ -46,6 +46,7 @@ import numpy as np
 
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
+from fpg_gym.filters import make_filter
 from fpg_gym.filters.one_euro import OneEuroFilter
 from fpg_gym.reconstruct.latent import LatentSpace
 
@@ -163,7 +164,6 @@ class OutputSmoother:
     """A per-joint filter on camera-space output poses, root-relative, bone lengths restored."""
 
     def __init__(self, config: TemporalConfig) -> None:
-        from fpg_gym.filters import make_filter
 
         self._filter = make_filter(config.output, **dict(config.output_options))
 

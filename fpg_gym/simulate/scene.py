@@ -25,7 +25,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpg_gym import poses, skeleton
-from fpg_gym.pybullet_utils import connect_direct, pybullet
+from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
 from fpg_gym.rotations import matrix_to_quaternion_xyzw, shortest_arc
 
 __all__ = ["Box", "RayCaster", "TraceResult", "body_shape_poses", "box_poses"]

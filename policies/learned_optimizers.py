@@ -14,7 +14,7 @@ with ``problem.evaluate``: the same budget accounting as every other optimiser.
     batch's best on improvement, else halve the step) seeded at the best one: ``iterations``
     (2) x ``search_samples`` (50). 200 evaluations in all by default.
 
-``PATH`` is a model path as :func:`policies.sampler.load_sampler` takes it (``MODEL``,
+``PATH`` is a model path as :func:`policies.loading.load_sampler` takes it (``MODEL``,
 ``MODEL.json`` or ``.pt``). A model is data: its weights are tensors read with
 ``weights_only=True`` and its network is rebuilt from the JSON, so loading one never runs code
 from the files; anything else (stable-baselines3's pickling ``.zip`` included) is refused with a
@@ -25,7 +25,7 @@ Examples
 --------
 >>> import optimizers                                                    # doctest: +SKIP
 >>> opt = optimizers.make("learned+search:runs/sampler")                 # doctest: +SKIP
->>> z = optimizers.run_optimizer(problem, opt, rng=0)                    # doctest: +SKIP
+>>> z = optimizers.run_optimizer(problem, opt, rng=0).x                  # doctest: +SKIP
 """
 
 from __future__ import annotations
@@ -36,14 +36,13 @@ from typing import Any
 import numpy as np
 
 from optimizers import BaseOptimizer
+from policies.loading import load_sampler
 
 __all__ = ["LearnedSampler", "LearnedSearch"]
 
 
 def _sampler(model: Any) -> Any:
     if isinstance(model, str | os.PathLike):
-        from policies.sampler import load_sampler
-
         return load_sampler(model)
     if not callable(getattr(model, "latent_gaussian", None)):
         raise ValueError(

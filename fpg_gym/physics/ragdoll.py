@@ -2,9 +2,9 @@
 
 A :class:`Ragdoll` simulates one body of 19 rigid capsules, one per Kinect bone of
 :data:`fpg_gym.skeleton.BONES`, joined by ball joints (point-to-point constraints) at the Kinect
-joints, with masses and sizes from :mod:`fpg_gym.ragdoll_model` (de Leva 1996), on a floor plane
-under gravity. Each :meth:`Ragdoll.track` call advances one Kinect frame: the targets are
-interpolated between the previous and the new frame over ``substeps`` physics steps (8 at 30 Hz:
+joints, with masses and sizes from :mod:`fpg_gym.physics.ragdoll_model` (de Leva 1996), on a
+floor plane under gravity. Each :meth:`Ragdoll.track` call advances one Kinect frame: the targets
+are interpolated between the previous and the new frame over ``substeps`` physics steps (8 at 30 Hz:
 240 Hz physics) and the simulated pose is returned.
 
 Frame of the poses
@@ -69,7 +69,7 @@ disagree); beyond ``max_joint_gap`` the step counts as a divergence. Self-collis
 Examples
 --------
 >>> from fpg_gym import poses
->>> from fpg_gym.ragdoll import Ragdoll
+>>> from fpg_gym.physics.ragdoll import Ragdoll
 >>> pose = poses.rest_pose() + (0.0, 0.96, 0.0)
 >>> with Ragdoll() as body:
 ...     _ = body.reset(pose)
@@ -89,8 +89,8 @@ import numpy as np
 
 from fpg_gym import poses, skeleton
 from fpg_gym.errors import FpgGymError
-from fpg_gym.pybullet_utils import connect_direct, pybullet
-from fpg_gym.ragdoll_model import GRAVITY, BodyModel, build_body_model
+from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
+from fpg_gym.physics.ragdoll_model import GRAVITY, BodyModel, build_body_model
 from fpg_gym.rotations import shortest_arc
 
 __all__ = ["PhysicsError", "PhysicsWarning", "Ragdoll"]
@@ -243,7 +243,7 @@ class Ragdoll:
         :data:`poses.DEFAULT_BONE_LENGTHS` when omitted.
     body_mass : float, optional
         Body mass in kg; de Leva's 73 kg scaled by size when omitted
-        (:func:`fpg_gym.ragdoll_model.default_body_mass`).
+        (:func:`fpg_gym.physics.ragdoll_model.default_body_mass`).
     frame_rate : float
         Target (Kinect) frames per second; one :meth:`track` call advances ``1 / frame_rate`` s.
     physics_rate : float

@@ -17,11 +17,11 @@ from matplotlib.figure import Figure
 
 from fpg_gym import metrics, skeleton
 from fpg_gym.metrics import ERROR_BAND_EDGES
+from fpg_gym.rendering import STATE_COLOURS
 
 __all__ = [
     "ERROR_BAND_EDGES",
     "METHOD_COLOURS",
-    "STATE_COLOURS",
     "band_labels",
     "method_colours",
     "plot_cumulative",
@@ -33,7 +33,6 @@ __all__ = [
     "skeleton_animation",
 ]
 
-STATE_COLOURS = {2: "#2a9d4b", 1: "#f4a020", 0: "#d62828"}  # tracked, inferred, not tracked
 _PANEL_COLOURS = ("#3d5a80", "#e07a5f", "#2a9d8f", "#6d597a", "#bc4749")
 #: Colours of the methods in the metric plots (matplotlib's tab10 then the light tab20 tones):
 #: twenty distinct colours before any repeats.

@@ -29,6 +29,8 @@ they are noisy on a shared machine (each figure is a median over frames or repea
 
 from __future__ import annotations
 
+import os
+import platform
 import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
@@ -36,8 +38,17 @@ from datetime import datetime, timezone
 from typing import Any
 
 import numpy as np
+from tqdm.auto import tqdm
 
-from fpg_gym.compare import markdown_table
+from fpg_gym import metrics
+from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.episodes import measure_env_throughput
+from fpg_gym.experiments import markdown_table
+from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1, FilteredPoseGraph
+from fpg_gym.holdout import holdout_indices
+from fpg_gym.io import load_clips, load_default_clips
+from fpg_gym.reconstruct import STAGES, Reconstructor
+from fpg_gym.simulate import simulate
 
 __all__ = ["BenchSettings", "format_bench", "run_bench"]
 
@@ -89,7 +100,6 @@ class BenchSettings:
     def graph_thres1(self) -> float:
         """``thres1`` of the graph of the stage timing and of the build rows (metres): FPG's
         0.2 for mocap takes, the embedded graph's 0.1 for the embedded clips."""
-        from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1
 
         return DEFAULT_THRES1 if self.mocap else DEFAULT_EMBEDDED_THRES1
 
@@ -107,9 +117,6 @@ class _Data:
 
 
 def _load_data(settings: BenchSettings, progress: bool) -> _Data:
-    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-    from fpg_gym.holdout import holdout_indices
-    from fpg_gym.io import load_clips, load_default_clips
 
     start = time.perf_counter()
     if settings.mocap:
@@ -131,8 +138,6 @@ def _load_data(settings: BenchSettings, progress: bool) -> _Data:
 
 
 def _episodes(data: _Data, settings: BenchSettings) -> list[Any]:
-    from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
-    from fpg_gym.simulate import simulate
 
     recordings = []
     for i in range(settings.episodes):
@@ -143,7 +148,6 @@ def _episodes(data: _Data, settings: BenchSettings) -> list[Any]:
 
 
 def _build(clips: list[Any], thres1: float, mirror: bool) -> tuple[Any, float]:
-    from fpg_gym.graph import FilteredPoseGraph
 
     start = time.perf_counter()
     graph = FilteredPoseGraph.build(clips, thres1=thres1, mirror=mirror, progress=False)
@@ -155,7 +159,6 @@ def _build(clips: list[Any], thres1: float, mirror: bool) -> tuple[Any, float]:
 
 def _quality(outputs: list[np.ndarray], recordings: list[Any]) -> dict[str, float | None]:
     """Error, Err0.2, jitter, lag and bone spread after 1 s of outputs on their recordings."""
-    from fpg_gym import metrics
 
     errors, jitters, lags, spreads = [], [], [], []
     for poses, recording in zip(outputs, recordings, strict=True):
@@ -180,7 +183,6 @@ def _quality(outputs: list[np.ndarray], recordings: list[Any]) -> dict[str, floa
 def _stages(
     graph: Any, recordings: list[Any]
 ) -> tuple[list[dict[str, Any]], dict[str, dict[str, float | None]]]:
-    from fpg_gym.reconstruct import STAGES, Reconstructor
 
     rows = []
     per: dict[str, dict[str, np.ndarray]] = {}
@@ -213,7 +215,6 @@ def _stages(
 def _selection(
     data: _Data, recordings: list[Any], settings: BenchSettings, mirror: bool
 ) -> list[dict[str, Any]]:
-    from fpg_gym.reconstruct import Reconstructor
 
     rows = []
     for thres1 in settings.thresholds:
@@ -267,7 +268,6 @@ def _build_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
 
 def _env_rows(settings: BenchSettings) -> list[dict[str, Any]]:
     """Env steps per second, with and without the ragdoll (random actions)."""
-    from fpg_gym.episodes import measure_env_throughput
 
     rows = []
     for ragdoll in (True, False):
@@ -287,8 +287,6 @@ def _read_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
         }
     ]
     if not settings.mocap:  # a second read: the first includes imports and file caching
-        from fpg_gym.io import load_default_clips
-
         start = time.perf_counter()
         frames = sum(c.num_frames for c in load_default_clips())
         seconds = time.perf_counter() - start
@@ -308,10 +306,6 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
 
     Ctrl-C stops it; the sections finished so far are returned (``"interrupted": True``).
     """
-    import os
-    import platform
-
-    from tqdm.auto import tqdm
 
     settings = settings or BenchSettings.make()
     started = time.perf_counter()

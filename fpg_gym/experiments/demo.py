@@ -5,7 +5,7 @@
 2. Kinect streams simulated from the held-out clips in the scenarios
    :data:`fpg_gym.defaults.DEFAULT_EPISODE_SCENARIOS` (front, 45° left and right, many
    occluders): 12 episodes with ground truth.
-3. Every method of :data:`DEMO_METHODS` on every episode (:func:`fpg_gym.compare.run_compare`):
+3. Every method of :data:`DEMO_METHODS` on every episode (:func:`fpg_gym.experiments.run_compare`):
    the sensor as is, the Kinect SDK and Kalman filters, the graph selection with no search,
    random search and the papers' local search (the baseline), Shum's brute-force selection, the
    baseline with the ragdoll, and two methods beyond the papers: the closed-form minimiser of the
@@ -28,7 +28,10 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fpg_gym.compare import CompareConfig, CompareOutcome, format_tests, run_compare
+from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.experiments import CompareConfig, CompareOutcome, format_tests, plots, run_compare
+from fpg_gym.experiments.store import frames_path, load_frames
+from fpg_gym.io.recording import load_recording
 
 __all__ = ["DEMO_METHODS", "QUICK_METHODS", "DemoOutcome", "run_demo"]
 
@@ -88,12 +91,9 @@ def write_animation(
     out: Path, episode: str, method: str, *, fps: float = 30.0, max_frames: int | None = None
 ) -> tuple[Path, Path]:
     """GIF and one-frame PNG of an episode: Kinect input, ``method``'s output, ground truth."""
-    from fpg_gym import plots
-    from fpg_gym.compare import _frames_path, _load_frames
-    from fpg_gym.io.recording import load_recording
 
     recording = load_recording(out / "episodes" / f"{episode}.npz")
-    poses = _load_frames(_frames_path(out, episode, method))["poses"]
+    poses = load_frames(frames_path(out, episode, method))["poses"]
     count = len(poses) if max_frames is None else min(len(poses), max_frames)
     truth = recording.ground_truth
     assert truth is not None
@@ -141,7 +141,6 @@ def run_demo(
     gif : bool
         Write ``demo.gif`` and ``demo_frame.png``.
     """
-    from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 
     started = time.perf_counter()
     chosen = list(methods) if methods else list(QUICK_METHODS if quick else DEMO_METHODS)

@@ -1,0 +1,188 @@
+"""What a comparison runs: an episode (:class:`EpisodeSpec`) and the run's settings
+(:class:`CompareConfig`)."""
+
+from __future__ import annotations
+
+import hashlib
+import re
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
+from fpg_gym.definitions import DefinitionMap
+from fpg_gym.methods import BASELINE, parse_method
+
+_SAFE = re.compile(r"[^A-Za-z0-9._+-]+")
+
+
+def safe_name(text: str) -> str:
+    """A file-name-safe form of ``text`` (``:`` and spaces become ``_``)."""
+    return _SAFE.sub("_", text).strip("_") or "x"
+
+
+@dataclass(frozen=True)
+class EpisodeSpec:
+    """One episode: a clip simulated in a scenario with a seed, or a recording file.
+
+    Attributes
+    ----------
+    id : str
+        Unique, file-name safe (``clip__scenario__s0``).
+    clip : str
+        Clip name (or the recording's file stem).
+    scenario : str
+        Simulator scenario (``""`` for a recording file).
+    seed : int
+        The user's seed (``--seeds``).
+    sim_seed : int
+        Seed of the simulator and of the optimisers on this episode (every method gets the
+        same one: paired comparisons); derived from ``seed``, the clip and the scenario names.
+    recording : str
+        Recording file of an input episode (``""`` for simulated ones).
+    key : str
+        Content key: a hash of the input (the recording file's bytes, or the clip's poses and
+        rate) and of the episode's settings (scenario, seeds, frame cap). A rerun reuses an
+        episode's files and finished rows only when its key is unchanged (``""``: unknown).
+    """
+
+    id: str
+    clip: str
+    scenario: str
+    seed: int
+    sim_seed: int
+    recording: str = ""
+    key: str = ""
+
+
+@dataclass
+class CompareConfig:
+    """Everything ``fpg-gym compare`` needs (the CLI fills it from its arguments).
+
+    Attributes
+    ----------
+    out : str
+        Output folder.
+    methods : list of str
+        Method names (:mod:`fpg_gym.methods`); canonicalised.
+    graph : str
+        ``"default"`` (the embedded graph without the evaluated embedded clips) or a ``.npz``.
+    clips : list of str
+        Mocap files/folders, ``"default"`` (the embedded held-out clips
+        :data:`fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`), embedded clip names (``walk`` or
+        ``default:walk``).
+    inputs : list of str
+        Recording files (``.npz`` with ground truth for errors; other formats give timing and
+        smoothness only).
+    scenarios : list of str
+        Simulator scenarios for ``clips``.
+    seeds : list of int
+    budget : int
+        Energy evaluations per frame (2,000).
+    k : int
+        Candidates per frame (30).
+    max_frames : int or None
+        Cap on frames per episode (the first ones).
+    workers : int
+        Processes; 1 runs in this process.
+    baseline : str
+        Method the others are tested against (:data:`fpg_gym.methods.BASELINE`).
+    units : str
+        BVH units for ``clips``.
+    sensor_map, output_map : str or None
+        Joint-definition map files (:class:`fpg_gym.definitions.DefinitionMap`) for the
+        reconstruction methods (``ReconstructorConfig.sensor_map`` / ``output_map``).
+    sensor_blend : float
+        ``ReconstructorConfig.sensor_blend`` of the reconstruction methods (0).
+    calibrate_output : bool
+        ``ReconstructorConfig.calibrate_output`` (False).
+    calibration_map : str or None
+        Map file for ``ReconstructorConfig.calibration_map``.
+    input_format : str or None
+        Format of the ``inputs`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`); None guesses it
+        per file.
+    """
+
+    out: str
+    methods: list[str]
+    graph: str = "default"
+    clips: list[str] = field(default_factory=list)
+    inputs: list[str] = field(default_factory=list)
+    scenarios: list[str] = field(default_factory=list)
+    seeds: list[int] = field(default_factory=lambda: [0])
+    budget: int = 2000
+    k: int = 30
+    max_frames: int | None = None
+    workers: int = 1
+    baseline: str = BASELINE.name
+    units: str = "auto"
+    sensor_map: str | None = None
+    output_map: str | None = None
+    sensor_blend: float = 0.0
+    calibrate_output: bool = False
+    calibration_map: str | None = None
+    input_format: str | None = None
+
+    def __post_init__(self) -> None:
+        self.methods = [parse_method(m).name for m in self.methods]
+        if not self.methods:
+            raise ValueError("methods: no method to run")
+        self.baseline = parse_method(self.baseline).name
+        if self.budget < 0:
+            raise ValueError(f"budget: expected >= 0 evaluations per frame, got {self.budget}")
+        if self.k < 1:
+            raise ValueError(f"k: expected >= 1 candidates, got {self.k}")
+        if self.max_frames is not None and self.max_frames < 3:
+            raise ValueError(f"max_frames: expected at least 3 frames, got {self.max_frames}")
+        if not self.clips and not self.inputs:
+            raise ValueError("give --clips (with --scenarios) and/or --inputs")
+        if self.clips and not self.scenarios:
+            self.scenarios = list(DEFAULT_EPISODE_SCENARIOS)
+        if self.calibrate_output and self.output_map:
+            raise ValueError("calibrate_output and output_map: give one (both set the output map)")
+        if self.calibration_map and not self.calibrate_output:
+            raise ValueError("calibration_map: only used with calibrate_output")
+        if not self.seeds:
+            raise ValueError("seeds: at least one seed")
+        if any(s < 0 for s in self.seeds):
+            raise ValueError(f"seeds: expected non-negative integers, got {self.seeds}")
+
+    def resume_key(self) -> dict[str, Any]:
+        """Settings that must match for a rerun to reuse finished rows."""
+        return {
+            "graph": self.graph,
+            "budget": self.budget,
+            "k": self.k,
+            "max_frames": self.max_frames,
+            "units": self.units,
+            "sensor_map": _file_digest(self.sensor_map),
+            "output_map": _file_digest(self.output_map),
+            "sensor_blend": self.sensor_blend,
+            **({"calibrate_output": True} if self.calibrate_output else {}),
+            **(
+                {"calibration_map": _file_digest(self.calibration_map)}
+                if self.calibration_map
+                else {}
+            ),
+        }
+
+    def reconstructor_options(self) -> dict[str, Any]:
+        """The :class:`~fpg_gym.reconstruct.ReconstructorConfig` settings of the methods."""
+        options: dict[str, Any] = {"k": self.k, "sensor_blend": self.sensor_blend}
+        if self.sensor_map:
+            options["sensor_map"] = DefinitionMap.load(self.sensor_map)
+        if self.output_map:
+            options["output_map"] = DefinitionMap.load(self.output_map)
+        if self.calibrate_output:
+            options["calibrate_output"] = True
+        if self.calibration_map:
+            options["calibration_map"] = DefinitionMap.load(self.calibration_map)
+        return options
+
+
+def _file_digest(path: str | None) -> str | None:
+    """SHA-256 of a file's bytes (None for no file): settings that name a file are keyed by
+    its content, so an edited map is not mistaken for the one a finished row used."""
+    if not path:
+        return None
+    return hashlib.sha256(Path(path).read_bytes()).hexdigest()

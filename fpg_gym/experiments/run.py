@@ -1,0 +1,536 @@
+"""Run a comparison of reconstruction methods on many episodes: ``fpg-gym compare``, the demo.
+
+An *episode* is one Kinect stream with ground truth: a mocap clip simulated in one scenario with
+one seed (:func:`plan_episodes`), or a recording file. Every (episode, method) pair is a task;
+tasks run in parallel worker processes (each loads the pose graph once) and each finished task
+appends one row to ``results.csv`` (flushed at once) and writes its per-frame arrays to
+``frames/<episode>/<method>.npz``. Ctrl-C keeps every finished row; the report is then written
+from them, and a rerun with the same ``--out`` skips the finished rows.
+
+Output folder::
+
+    manifest.txt      every file compare wrote here (``--fresh`` deletes these and nothing else)
+    config.json       the run's settings (a rerun must match them to resume)
+    results.csv       one row per episode and method (see :data:`CSV_FIELDS`)
+    episodes/*.npz    the simulated recordings (``fpg_gym.io.load_recording``)
+    frames/E/M.npz    per-frame error, ms, stage ms, evaluations, energy and output poses
+    summary.json      per-method aggregates, the paired tests, the settings
+    report.md         the tables (FPG §8 style) and the plots
+    *.png             error histogram, cumulative curve, error over time, frame times
+
+Safety: compare writes only into a folder it created (or an empty one) and lists every file it
+writes in ``manifest.txt`` before writing it; ``fresh=True`` deletes the listed files and nothing
+else, and is refused on a folder without a manifest. Resuming trusts nothing stale: a torn last
+row of ``results.csv`` (a kill during a write) is dropped with a warning, and episodes are keyed
+by content (:attr:`EpisodeSpec.key`, a hash of the input file or clip and of the episode's
+settings), so a different clip under the same file name is recomputed, and two inputs with the
+same file name stay two episodes.
+
+Hold-out rule: the graph must not contain the evaluated takes. ``--graph default`` builds the
+embedded graph without the evaluated embedded clips; for a graph file, build it from other takes
+(``scripts/holdout_split.py``); the report warns when an evaluated clip's name is a graph clip.
+"""
+
+from __future__ import annotations
+
+import json
+import multiprocessing
+import os
+import signal
+import sys
+import threading
+import time
+import warnings
+from collections.abc import Callable, Iterable, Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from fpg_gym import metrics
+from fpg_gym.errors import TaskError
+from fpg_gym.experiments.config import CompareConfig, EpisodeSpec, safe_name
+from fpg_gym.experiments.planning import plan_keyed_episodes, write_episodes
+from fpg_gym.experiments.report import format_table, write_report
+from fpg_gym.experiments.store import (
+    ResultsWriter,
+    claim_folder,
+    frames_path,
+    read_config,
+    read_rows,
+    repair_results,
+    save_frames,
+)
+from fpg_gym.graph import load_graph
+from fpg_gym.io import DEFAULT_CLIP_NAMES
+from fpg_gym.io.recording import load_recording
+from fpg_gym.methods import MethodRunner, parse_method
+from fpg_gym.outputs import write_text
+from optimizers import make
+
+
+@dataclass(frozen=True)
+class _Task:
+    episode: EpisodeSpec
+    method: str
+    recording_path: str
+
+
+def _nanmean(values: np.ndarray) -> float:
+    finite = values[np.isfinite(values)]
+    return float(finite.mean()) if finite.size else float("nan")
+
+
+def _jitter(poses: np.ndarray, timestamps: np.ndarray) -> float:
+    if len(poses) < 3:
+        return float("nan")
+    stamps = np.asarray(timestamps, dtype=np.float64)
+    if np.all(np.diff(stamps) > 0):
+        return _nanmean(metrics.jitter(poses, timestamps=stamps))
+    return _nanmean(metrics.jitter(poses))
+
+
+def _settled_spread_mm(poses: np.ndarray, timestamps: np.ndarray) -> float:
+    """Largest bone-length range (mm) after the first second (:func:`metrics.
+    settled_bone_spread`); NaN for a stream shorter than that."""
+    stamps = np.asarray(timestamps, dtype=np.float64)
+    spread = metrics.settled_bone_spread(poses, timestamps=stamps)
+    finite = spread[np.isfinite(spread)]
+    return float(1000.0 * finite.max()) if finite.size else float("nan")
+
+
+def _frame_interval(timestamps: np.ndarray) -> float:
+    """Median frame interval in seconds (1/30 without usable timestamps)."""
+    steps = np.diff(np.asarray(timestamps, dtype=np.float64))
+    steps = steps[steps > 0]
+    return float(np.median(steps)) if steps.size else 1.0 / 30.0
+
+
+def _execute(
+    runner: MethodRunner, task: _Task, recording: Any
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """Run one method on one episode; return the CSV row and the per-frame arrays."""
+    method = parse_method(task.method)
+    episode = task.episode
+    start = time.perf_counter()
+    result = runner.run(method, recording, seed=episode.sim_seed)
+    seconds = time.perf_counter() - start
+    count = result.num_frames
+    poses = result.poses
+    truth = recording.ground_truth
+    row: dict[str, Any] = {
+        "episode": episode.id,
+        "clip": episode.clip,
+        "scenario": episode.scenario,
+        "seed": episode.seed,
+        "method": method.name,
+        "base": method.base,
+        "selector": method.selector or "",
+        "optimizer": method.optimizer or "",
+        "ragdoll": int(method.ragdoll),
+        "budget": runner.budget if not method.is_filter else "",
+        "frames": count,
+        "input_frames": recording.num_frames,
+        "interrupted": int(result.interrupted),
+        "seconds": round(seconds, 4),
+        "recoveries": result.info.get("recoveries", ""),
+        "ragdoll_divergences": result.info.get("ragdoll_divergences", ""),
+    }
+    arrays: dict[str, np.ndarray] = {
+        "poses": poses.astype(np.float32),
+        "ms": result.ms.astype(np.float64),
+        "stage_names": np.array(list(result.stage_ms)),
+        "stage_ms": (
+            np.stack([result.stage_ms[s] for s in result.stage_ms], axis=1)
+            if result.stage_ms
+            else np.zeros((count, 0))
+        ),
+    }
+    if count:
+        times = metrics.time_summary(result.ms)
+        row.update(ms_median=times["median"], ms_p95=times["p95"], ms_mean=times["mean"])
+        spread = metrics.bone_length_variation(poses)
+        row["bone_length_spread_mm"] = 1000.0 * _nanmean(spread)
+        row["jitter_ms2"] = _jitter(poses, recording.timestamps[:count])
+        row["settled_bone_spread_mm"] = _settled_spread_mm(poses, recording.timestamps[:count])
+    bones = result.info.get("bone_settling")
+    if isinstance(bones, dict):
+        row["bone_changes_after_settling"] = bones.get("changes_after_settling", "")
+    if result.evaluations is not None and count:
+        row["evaluations_mean"] = float(result.evaluations.mean())
+        arrays["evaluations"] = result.evaluations
+    if result.energy is not None and count:
+        row["energy_mean"] = _nanmean(result.energy)
+        arrays["energy"] = result.energy
+    if truth is not None and count:
+        errors = metrics.frame_error(truth[:count], poses)
+        row.update(
+            mean_error_m=float(errors.mean()),
+            std_error_m=float(errors.std()),
+            median_error_m=float(np.median(errors)),
+            p95_error_m=float(np.percentile(errors, 95)),
+            err02_pct=100.0 * metrics.err_ratio(errors),
+            input_mean_error_m=metrics.mean_error(truth[:count], recording.positions[:count]),
+            truth_jitter_ms2=_jitter(truth[:count], recording.timestamps[:count]),
+        )
+        arrays["errors"] = errors
+        arrays["per_joint_error"] = metrics.per_joint_error(truth[:count], poses)
+        arrays["per_joint_root_error"] = metrics.root_relative_error(truth[:count], poses)
+        if count >= 3:
+            frames_lag = metrics.lag(poses, truth[:count])
+            row["lag_frames"] = frames_lag
+            row["lag_ms"] = 1000.0 * frames_lag * _frame_interval(recording.timestamps[:count])
+    return row, arrays
+
+
+# Worker processes: one runner per process, set by the pool initializer (process-local).
+_WORKER_RUNNER: MethodRunner | None = None
+
+
+def _exit_with_parent(parent: int, interval: float = 1.0) -> None:
+    """Exit this worker process as soon as its parent is gone (killed with SIGKILL, say): a
+    daemon thread polls the parent's id, and the process exits when it changes."""
+
+    def watch() -> None:
+        while True:
+            if os.getppid() != parent:
+                os._exit(1)
+            time.sleep(interval)
+
+    threading.Thread(target=watch, name="fpg-gym-parent-watch", daemon=True).start()
+
+
+def _init_worker(
+    graph: str,
+    exclude: list[str],
+    budget: int,
+    options: dict[str, Any],
+    parent: int | None = None,
+) -> None:
+    global _WORKER_RUNNER
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+    if parent is not None:
+        _exit_with_parent(parent)
+    warnings.simplefilter("ignore")
+    _WORKER_RUNNER = MethodRunner(
+        load_graph(graph, exclude=exclude), budget=budget, reconstructor_options=options
+    )
+
+
+def _worker_task(task: _Task) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+
+    assert _WORKER_RUNNER is not None, "worker not initialised"
+    return _run_task(_WORKER_RUNNER, task, load_recording)
+
+
+@dataclass
+class CompareOutcome:
+    """What :func:`run_compare` did.
+
+    Attributes
+    ----------
+    out : Path
+    summary : dict
+        The content of ``summary.json``.
+    table : str
+        The main table (markdown).
+    tasks_run, tasks_skipped : int
+        Tasks finished now, and finished ones found from an earlier run.
+    interrupted : bool
+        Ctrl-C stopped the run (the report covers the finished tasks).
+    seconds : float
+    files : list of Path
+        Everything written at the top of ``out``.
+    """
+
+    out: Path
+    summary: dict[str, Any]
+    table: str
+    tasks_run: int
+    tasks_skipped: int
+    interrupted: bool
+    seconds: float
+    files: list[Path]
+
+
+def _check_optimizers(methods: Sequence[str]) -> None:
+    """Make every optimiser once, so a missing one or a missing dependency fails first."""
+
+    for name in methods:
+        method = parse_method(name)
+        if method.optimizer is not None:
+            make(method.optimizer)
+
+
+def _held_out_warning(
+    graph: Any, episodes: Sequence[EpisodeSpec], extra_names: Sequence[str] = ()
+) -> str:
+    names = {str(n) for n in getattr(graph, "clip_names", ())}
+    shared = sorted(({e.clip for e in episodes} | set(extra_names)) & names)
+    if not shared:
+        return ""
+    listed = ", ".join(shared[:5]) + (" ..." if len(shared) > 5 else "")
+    return (
+        f"{len(shared)} evaluated clip(s) are also graph clips ({listed}): the graph was not "
+        "built without the evaluated takes, so accuracy is optimistic"
+    )
+
+
+#: Files :func:`write_report` may write at the top of a compare folder.
+_REPORT_FILES: tuple[str, ...] = (
+    "summary.json",
+    "report.md",
+    "error_histogram.png",
+    "cumulative.png",
+    "error_over_time.png",
+    "frame_times.png",
+)
+
+
+def _stale_episodes(
+    out: Path, episodes: Sequence[EpisodeSpec], previous_config: dict[str, Any] | None
+) -> set[str]:
+    """Ids of the planned episodes whose files in ``out`` cannot be trusted: an earlier run
+    wrote the id with another content key (or none). Their rows are dropped
+    (:func:`repair_results`), their recordings rewritten (:func:`write_episodes`) and their
+    tasks run again (which rewrites their per-frame files)."""
+    previous: dict[str, str] = {}
+    if previous_config is not None:
+        for entry in previous_config.get("episodes", []):
+            if isinstance(entry, dict) and isinstance(entry.get("id"), str):
+                previous[entry["id"]] = str(entry.get("key", ""))
+    rows = {r.get("episode") for r in read_rows(out / "results.csv")}
+    stale: set[str] = set()
+    for episode in episodes:
+        episode_file = out / "episodes" / f"{episode.id}.npz"
+        frames_folder = out / "frames" / safe_name(episode.id)
+        exists = episode_file.exists() or frames_folder.exists() or episode.id in rows
+        if exists and previous.get(episode.id) != episode.key:
+            stale.add(episode.id)
+    return stale
+
+
+def _run_task(
+    runner: MethodRunner, task: _Task, load: Callable[[str], Any]
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """:func:`_execute` with its failure named: a :class:`~fpg_gym.errors.TaskError` says which
+    episode and method failed, and why."""
+    try:
+        return _execute(runner, task, load(task.recording_path))
+    except (KeyboardInterrupt, SystemExit):
+        raise
+    except Exception as error:
+        raise TaskError(
+            f"episode {task.episode.id!r} ({task.recording_path}), method {task.method!r} "
+            f"failed: {type(error).__name__}: {' '.join(str(error).split())}"
+        ) from error
+
+
+def run_compare(
+    config: CompareConfig,
+    *,
+    progress: bool = True,
+    fresh: bool = False,
+    plots: bool = True,
+    log: Callable[[str], None] | None = None,
+) -> CompareOutcome:
+    """Run every episode x method of ``config`` and write the report (see the module docstring).
+
+    Parameters
+    ----------
+    config : CompareConfig
+    progress : bool
+        tqdm progress bars on stderr.
+    fresh : bool
+        Delete the results of an earlier run in ``config.out`` instead of resuming.
+    plots : bool
+        Write the PNG plots.
+    log : callable, optional
+        Receives one-line messages (default: print to stderr).
+
+    Raises
+    ------
+    ValueError
+        Bad settings, an unknown optimiser/scenario, or ``out`` holding a run with other
+        settings (pass ``fresh=True``).
+    """
+
+    say = log or (lambda text: print(text, file=sys.stderr))
+    started = time.perf_counter()
+    out = Path(config.out)
+    _check_optimizers(config.methods)
+    manifest = claim_folder(out, fresh, say)
+    config_path = out / "config.json"
+    results_path = out / "results.csv"
+    previous_config = read_config(config_path)
+    if not fresh and results_path.is_file() and previous_config is not None:
+        previous = previous_config.get("resume_key")
+        if previous != config.resume_key():
+            raise ValueError(
+                f"{out} holds results of a run with other settings ({previous}); use another "
+                "--out or --fresh"
+            )
+
+    episodes, by_name, embedded, clip_names = plan_keyed_episodes(config, progress, say)
+    stale = _stale_episodes(out, episodes, previous_config)
+    if stale:
+        say(
+            f"resuming: {len(stale)} episode(s) changed since the last run (another input under "
+            f"the same name, or no content key): recomputed ({', '.join(sorted(stale)[:3])}"
+            + (" ...)" if len(stale) > 3 else ")")
+        )
+    manifest.add(results_path, config_path)
+    repair_results(results_path, say, drop_episodes=stale)
+    recorded = write_episodes(
+        config, episodes, by_name, out / "episodes", progress, manifest, rewrite=stale
+    )
+
+    embedded = sorted({*embedded, *(n for n in recorded if n in DEFAULT_CLIP_NAMES)})
+    exclude = embedded if config.graph == "default" else []
+    graph = load_graph(config.graph, exclude=exclude)
+    warning = _held_out_warning(graph, episodes, [*recorded, *clip_names])
+    if warning:
+        say(f"warning: {warning}")
+    write_text(
+        config_path,
+        json.dumps(
+            {
+                "config": asdict(config),
+                "resume_key": config.resume_key(),
+                "graph_exclude": exclude,
+                "graph_summary": repr(graph),
+                "held_out_warning": warning,
+                "episodes": [asdict(e) for e in episodes],
+            },
+            indent=2,
+        ),
+    )
+
+    done = {
+        (r["episode"], r["method"])
+        for r in read_rows(results_path)
+        if r.get("interrupted") in ("0", "")
+        and frames_path(out, r["episode"], r["method"]).is_file()
+    }
+    tasks = [
+        _Task(e, m, str(out / "episodes" / f"{e.id}.npz"))
+        for e in episodes
+        for m in config.methods
+        if (e.id, m) not in done
+    ]
+    skipped = len(episodes) * len(config.methods) - len(tasks)
+    if skipped:
+        say(f"resuming: {skipped} finished task(s) in {results_path} are kept")
+    options = config.reconstructor_options()
+    writer = ResultsWriter(results_path)
+    bar = tqdm(total=len(tasks), desc="compare", unit="run", disable=not progress)
+    interrupted = False
+    completed = [0]
+
+    def finish(row: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        path = frames_path(out, row["episode"], row["method"])
+        manifest.add(path)
+        save_frames(path, arrays)
+        writer.write(row)
+        completed[0] += 1
+        error = row.get("mean_error_m")
+        bar.set_postfix_str(
+            f"{row['method']} {error:.3f} m" if isinstance(error, float) else row["method"],
+            refresh=False,
+        )
+        bar.update(1)
+
+    workers = max(1, min(int(config.workers), len(tasks)))
+    try:
+        if workers <= 1:
+            with MethodRunner(graph, budget=config.budget, reconstructor_options=options) as runner:
+                for task in tasks:
+                    finish(*_run_task(runner, task, load_recording))
+        else:
+            interrupted = _run_pool(tasks, workers, config, exclude, options, finish)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        bar.close()
+        writer.close()
+    if interrupted:
+        say("interrupted: finished results are kept; writing the report from them")
+    manifest.add(*(out / name for name in _REPORT_FILES))
+    summary = write_report(out, plots=plots, baseline=config.baseline, interrupted=interrupted)
+    files = sorted(p for p in out.iterdir() if p.is_file())
+    return CompareOutcome(
+        out=out,
+        summary=summary,
+        table=format_table(summary),
+        tasks_run=completed[0],
+        tasks_skipped=skipped,
+        interrupted=interrupted,
+        seconds=time.perf_counter() - started,
+        files=files,
+    )
+
+
+def _run_pool(
+    tasks: Sequence[_Task],
+    workers: int,
+    config: CompareConfig,
+    exclude: list[str],
+    options: dict[str, Any],
+    finish: Callable[[dict[str, Any], dict[str, np.ndarray]], None],
+) -> bool:
+    """Run ``tasks`` in ``workers`` spawned processes; True when interrupted by Ctrl-C."""
+
+    # The per-frame matrices are tiny: one BLAS thread per worker avoids oversubscription.
+    for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(name, "1")
+    executor = ProcessPoolExecutor(
+        max_workers=workers,
+        mp_context=multiprocessing.get_context("spawn"),
+        initializer=_init_worker,
+        initargs=(config.graph, list(exclude), config.budget, options, os.getpid()),
+    )
+    pending: dict[Future[Any], _Task] = {}
+    try:
+        queue = list(tasks)
+        # Keep a few tasks queued per worker so that Ctrl-C leaves little to cancel.
+        while queue or pending:
+            while queue and len(pending) < 2 * workers:
+                task = queue.pop(0)
+                pending[executor.submit(_worker_task, task)] = task
+            finished, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in finished:
+                task = pending.pop(future)
+                try:
+                    result = future.result()
+                except BrokenProcessPool:
+                    raise TaskError(
+                        f"a worker process died (killed, or out of memory) while running "
+                        f"episode {task.episode.id!r}, method {task.method!r} or a task beside "
+                        "it; finished results are kept, rerun to resume"
+                    ) from None
+                finish(*result)
+    except KeyboardInterrupt:
+        _stop_pool(executor, pending)
+        return True
+    except BaseException:
+        _stop_pool(executor, pending)
+        raise
+    executor.shutdown(wait=True)
+    return False
+
+
+def _stop_pool(executor: ProcessPoolExecutor, pending: Iterable[Future[Any]]) -> None:
+    """Cancel what is queued and stop the workers still running (they ignore SIGINT)."""
+    for future in pending:
+        future.cancel()
+    processes = list(getattr(executor, "_processes", {}).values())
+    executor.shutdown(wait=False, cancel_futures=True)
+    for process in processes:
+        process.terminate()
+    for process in processes:
+        process.join(timeout=5)
