@@ -21,7 +21,6 @@ import os
 import time
 import warnings
 from collections.abc import Iterator, Mapping, Sequence
-from pathlib import Path
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -30,18 +29,16 @@ from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
 from fpg_gym import skeleton
-from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.env_episodes import RESET_OPTIONS, EpisodeSource
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
-from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 from fpg_gym.io.clip import Clip
-from fpg_gym.io.kinect import read_recording
 from fpg_gym.io.recording import Recording
 from fpg_gym.metrics import frame_error
 from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem, TemporalConfig
 from fpg_gym.rendering import HumanWindow, render_panels
-from fpg_gym.simulate import KinectSimulator, get_scenario
 
 __all__ = [
     "ACTION_MODES",
@@ -61,8 +58,6 @@ REWARD_MODES: tuple[str, ...] = ("energy", "error", "combined")
 ACTION_MODES: tuple[str, ...] = ("delta", "absolute")
 #: Values of ``observation_mode``.
 OBSERVATION_MODES: tuple[str, ...] = ("vector", "dict")
-#: Keys ``reset(options=...)`` accepts.
-RESET_OPTIONS: tuple[str, ...] = ("recording", "clip", "scenario", "seed")
 
 
 class StageTimes(Mapping[str, float]):
@@ -169,22 +164,6 @@ def _energy_weights(value: Any) -> EnergyWeights:
             f"prior]), got {len(values)}"
         )
     return EnergyWeights(*(float(v) for v in values))
-
-
-def _recording_name(recording: Recording, fallback: object) -> str:
-    """A recording's name: its metadata's ``name``, else its ``clip``, else ``fallback``."""
-    return str(recording.metadata.get("name") or recording.metadata.get("clip") or fallback)
-
-
-def _unique(names: list[str]) -> list[str]:
-    """Names made unique by a ``#i`` suffix on repeats."""
-    seen: dict[str, int] = {}
-    out = []
-    for name in names:
-        count = seen.get(name, 0)
-        seen[name] = count + 1
-        out.append(name if count == 0 else f"{name}#{count}")
-    return out
 
 
 class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
@@ -401,15 +380,14 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._needs_truth = reward_mode != "energy"
 
         # Episode source.
-        self._recordings: list[Recording] = []
-        self._recording_names: list[str] = []
-        self._clips: list[Clip] = []
-        self._scenarios: list[Any] = []
-        if recordings is not None:
-            self._load_recordings(recordings)
-        else:
-            self._load_clips(DEFAULT_HOLDOUT_CLIPS if clips is None else clips)
-            self._load_scenarios(DEFAULT_EPISODE_SCENARIOS if scenarios is None else scenarios)
+        self.episodes = EpisodeSource(
+            recordings=recordings,
+            clips=clips,
+            scenarios=scenarios,
+            simulator_seeds=self.simulator_seeds,
+            needs_truth=self._needs_truth,
+            reward_mode=reward_mode,
+        )
 
         # Reconstruction core.
         self.graph = load_graph(graph, exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=cache_dir)
@@ -472,76 +450,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._render_centre: np.ndarray | None = None
         self._window: HumanWindow | None = None
         self._prepare_ms = self._observation_ms = 0.0
-        self._simulated: dict[tuple[int, int, int], Recording] = {}
-        self._simulators: dict[int, KinectSimulator] = {}
 
     # ------------------------------------------------------------------ construction helpers
-
-    def _load_recordings(self, recordings: Sequence[str | os.PathLike[str] | Recording]) -> None:
-
-        if isinstance(recordings, (str, os.PathLike, Recording)):
-            recordings = [recordings]
-        names = []
-        for i, item in enumerate(recordings):
-            if isinstance(item, Recording):
-                rec = item
-                names.append(_recording_name(rec, i))
-            elif isinstance(item, (str, os.PathLike)):
-                rec = read_recording(Path(item))
-                names.append(Path(item).name)
-            else:
-                raise TypeError(
-                    f"recordings[{i}]: expected a path or a Recording, got {type(item).__name__}"
-                )
-            self._recordings.append(rec)
-        if not self._recordings:
-            raise ValueError("recordings: expected at least one recording, got none")
-        self._recording_names = _unique(names)
-        if self._needs_truth:
-            missing = [
-                name
-                for name, rec in zip(self._recording_names, self._recordings, strict=True)
-                if rec.ground_truth is None
-            ]
-            if missing:
-                raise ValueError(
-                    f"reward_mode={self.reward_mode!r} needs ground truth, but recording(s) "
-                    f"{missing} have none; use reward_mode='energy' or simulated recordings"
-                )
-
-    def _load_clips(self, clips: Sequence[str | Clip]) -> None:
-
-        if isinstance(clips, (str, Clip)):
-            clips = [clips]
-        names = [c for c in clips if isinstance(c, str)]
-        unknown = sorted(set(names) - set(DEFAULT_CLIP_NAMES))
-        if unknown:
-            raise ValueError(
-                f"clips: unknown embedded clip name(s) {unknown}; expected some of "
-                + ", ".join(DEFAULT_CLIP_NAMES)
-                + " or Clip objects"
-            )
-        embedded = {c.name: c for c in load_default_clips(tuple(dict.fromkeys(names)))}
-        for i, item in enumerate(clips):
-            if isinstance(item, Clip):
-                self._clips.append(item)
-            elif isinstance(item, str):
-                self._clips.append(embedded[item])
-            else:
-                raise TypeError(
-                    f"clips[{i}]: expected a clip name or a Clip, got {type(item).__name__}"
-                )
-        if not self._clips:
-            raise ValueError("clips: expected at least one clip, got none")
-        self._recording_names = _unique([c.name for c in self._clips])
-
-    def _load_scenarios(self, scenarios: Sequence[Any]) -> None:
-
-        if isinstance(scenarios, str):
-            scenarios = [scenarios]
-        self._scenarios = [get_scenario(s) for s in scenarios]
-        if not self._scenarios:
-            raise ValueError("scenarios: expected at least one scenario, got none")
 
     # ------------------------------------------------------------------ public state
 
@@ -575,12 +485,12 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     @property
     def episode_names(self) -> list[str]:
         """Names of the recordings (or clips) episodes are drawn from."""
-        return list(self._recording_names)
+        return self.episodes.names
 
     @property
     def scenario_names(self) -> list[str]:
         """Names of the scenarios episodes are simulated in (empty with ``recordings``)."""
-        return [s.name for s in self._scenarios]
+        return self.episodes.scenario_names
 
     @property
     def frame(self) -> int:
@@ -658,7 +568,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         ``full_search``, ``recovered``.
         """
         super().reset(seed=seed)
-        recording, episode = self._draw_episode(dict(options or {}))
+        recording, episode = self.episodes.draw(self.np_random, dict(options or {}))
         self._recording = recording
         self._episode = episode
         for key in self._counts:
@@ -798,115 +708,11 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         reconstructor = getattr(self, "reconstructor", None)
         if reconstructor is not None:
             reconstructor.close()
-        for simulator in getattr(self, "_simulators", {}).values():
-            simulator.close()
-        self._simulators = {}
+        episodes = getattr(self, "episodes", None)
+        if episodes is not None:
+            episodes.close()
         if self._window is not None:
             self._window.close()
-
-    # ------------------------------------------------------------------ episodes
-
-    def _draw_episode(self, options: dict[str, Any]) -> tuple[Recording, dict[str, Any]]:
-        unknown = sorted(set(options) - set(RESET_OPTIONS))
-        if unknown:
-            raise ValueError(
-                f"reset options: unknown key(s) {unknown}; expected some of {list(RESET_OPTIONS)}"
-            )
-        # Draw every choice first, whatever the options fix: the random stream stays the same.
-        rng = self.np_random
-        if self._recordings:
-            index = int(rng.integers(len(self._recordings)))
-        else:
-            index = int(rng.integers(len(self._clips)))
-            s_index = int(rng.integers(len(self._scenarios)))
-            seed = int(rng.integers(self.simulator_seeds or 2**31 - 1))
-        choice = options.get("recording")
-        if isinstance(choice, Recording):  # any env plays a recording given here
-            if set(options) - {"recording"}:
-                raise ValueError("reset options: a Recording comes alone (no clip/scenario/seed)")
-            name = _recording_name(choice, "given")
-            if self._needs_truth and choice.ground_truth is None:
-                raise ValueError(
-                    f"reset options: recording {name!r} has no ground truth, which "
-                    f"reward_mode={self.reward_mode!r} needs"
-                )
-            recording = choice
-            episode: dict[str, Any] = {"recording": name, "clip": "", "scenario": "", "seed": -1}
-        elif self._recordings:
-            wrong = sorted(set(options) - {"recording"})
-            if wrong:
-                raise ValueError(
-                    f"reset options: {wrong} apply to clip episodes; this env plays recordings "
-                    "(use {'recording': index or name})"
-                )
-            if choice is not None:
-                index = self._index_of(choice, "recording")
-            recording, name = self._recordings[index], self._recording_names[index]
-            episode = {"recording": name, "clip": "", "scenario": "", "seed": -1}
-        else:
-            if choice is not None:
-                raise ValueError(
-                    "reset options: a recording name applies to recording episodes; this env "
-                    "simulates clips (use 'clip', 'scenario', 'seed', or give a Recording)"
-                )
-            if options.get("clip") is not None:
-                index = self._index_of(options["clip"], "clip")
-            if options.get("scenario") is not None:
-                names = self.scenario_names
-                wanted = getattr(options["scenario"], "name", options["scenario"])
-                if wanted not in names:
-                    raise ValueError(
-                        f"reset options: scenario {wanted!r} is not one of this env's "
-                        f"scenarios {names}"
-                    )
-                s_index = names.index(wanted)
-            if options.get("seed") is not None:
-                seed = int(options["seed"])
-                if seed < 0:
-                    raise ValueError(f"reset options: seed must be >= 0, got {seed}")
-            recording = self._simulate(index, s_index, seed)
-            name = self._recording_names[index]
-            scenario_name = self._scenarios[s_index].name
-            episode = {
-                "recording": f"{name}/{scenario_name}/{seed}",
-                "clip": name,
-                "scenario": scenario_name,
-                "seed": seed,
-            }
-        episode["num_frames"] = recording.num_frames
-        episode["has_ground_truth"] = recording.ground_truth is not None
-        return recording, episode
-
-    def _simulate(self, index: int, s_index: int, seed: int) -> Recording:
-        """The simulated stream of clip ``index`` in scenario ``s_index`` (cached when the seed
-        is below ``simulator_seeds``)."""
-        key = (index, s_index, seed)
-        recording = self._simulated.get(key)
-        if recording is None:
-            simulator = self._simulators.get(s_index)
-            if simulator is None:  # one per scenario, reused: no new pybullet client per reset
-                simulator = self._simulators[s_index] = KinectSimulator(self._scenarios[s_index])
-            recording = simulator.simulate(self._clips[index], seed=seed)
-            if self.simulator_seeds is not None and seed < self.simulator_seeds:
-                self._simulated[key] = recording
-        return recording
-
-    def _index_of(self, choice: Any, what: str) -> int:
-        names = self._recording_names
-        if isinstance(choice, (int, np.integer)) and not isinstance(choice, bool):
-            if not 0 <= int(choice) < len(names):
-                raise ValueError(
-                    f"reset options: {what} index {int(choice)} out of range [0, {len(names)})"
-                )
-            return int(choice)
-        if isinstance(choice, (str, os.PathLike)):
-            key = str(choice)
-            for candidate in (key, Path(key).name):
-                if candidate in names:
-                    return names.index(candidate)
-        raise ValueError(
-            f"reset options: unknown {what} {choice!r}; expected an index or one of {names}"
-        )
 
     # ------------------------------------------------------------------ frames
 
