@@ -39,6 +39,7 @@ from fpg_gym.metrics import frame_error
 from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem, TemporalConfig
 from fpg_gym.rendering import HumanWindow, render_panels
+from fpg_gym.validation import check_choice, check_integer, check_number
 
 __all__ = [
     "ACTION_MODES",
@@ -343,24 +344,16 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             raise ValueError(
                 f"render_mode: expected None, 'human' or 'rgb_array', got {render_mode!r}"
             )
-        if reward_mode not in REWARD_MODES:
-            raise ValueError(f"reward_mode: expected one of {REWARD_MODES}, got {reward_mode!r}")
-        if action_mode not in ACTION_MODES:
-            raise ValueError(f"action_mode: expected one of {ACTION_MODES}, got {action_mode!r}")
-        if observation_mode not in OBSERVATION_MODES:
-            raise ValueError(
-                f"observation_mode: expected one of {OBSERVATION_MODES}, got {observation_mode!r}"
-            )
-        if not (np.isfinite(action_scale) and action_scale > 0):
-            raise ValueError(f"action_scale: expected a positive number, got {action_scale!r}")
-        if not (np.isfinite(error_weight) and error_weight >= 0):
-            raise ValueError(f"error_weight: expected a number >= 0, got {error_weight!r}")
-        if int(latent_dim) < 1:
-            raise ValueError(f"latent_dim: expected >= 1, got {latent_dim!r}")
-        if max_episode_steps is not None and int(max_episode_steps) < 1:
-            raise ValueError(f"max_episode_steps: expected None or >= 1, got {max_episode_steps!r}")
-        if simulator_seeds is not None and int(simulator_seeds) < 1:
-            raise ValueError(f"simulator_seeds: expected None or >= 1, got {simulator_seeds!r}")
+        check_choice(reward_mode, "reward_mode", REWARD_MODES)
+        check_choice(action_mode, "action_mode", ACTION_MODES)
+        check_choice(observation_mode, "observation_mode", OBSERVATION_MODES)
+        check_number(action_scale, "action_scale", low=0.0, low_open=True)
+        check_number(error_weight, "error_weight", low=0.0)
+        check_integer(latent_dim, "latent_dim", low=1)
+        if max_episode_steps is not None:
+            check_integer(max_episode_steps, "max_episode_steps", low=1)
+        if simulator_seeds is not None:
+            check_integer(simulator_seeds, "simulator_seeds", low=1)
         if recordings is not None and clips is not None:
             raise ValueError("give either recordings= or clips= (with scenarios=), not both")
         if recordings is not None and scenarios is not None:

@@ -94,6 +94,7 @@ from fpg_gym.reconstruct.temporal import (
     TemporalConfig,
     align_basis,
 )
+from fpg_gym.validation import check_choice, check_integer, check_number
 from optimizers import SearchResult, make, run_optimizer
 
 STAGES: tuple[str, ...] = (
@@ -288,32 +289,20 @@ class ReconstructorConfig:
     calibration_map: PoseMap | None = None
 
     def __post_init__(self) -> None:
-        if self.k < 1:
-            raise ValueError(f"k: expected >= 1, got {self.k}")
+        check_integer(self.k, "k", low=1)
+        check_integer(self.latent_dim, "latent_dim", low=0)
+        check_number(self.sensor_blend, "sensor_blend", low=0.0, high=1.0)
+        check_number(self.max_gap_s, "max_gap_s", low=0.0, low_open=True)
+        check_number(self.frame_dt, "frame_dt", low=0.0, low_open=True)
+        check_choice(self.selector, "selector", ("graph", "brute-force"))
+        check_choice(self.length_prior, "length_prior", ("database", "default"))
+        check_choice(self.energy_dtype, "energy_dtype", ("float64", "float32"))
         if self.calibrate_output and self.output_map is not None:
             raise ValueError(
                 "calibrate_output and output_map: give one (the calibration fits the output map)"
             )
         if self.calibration_map is not None and not self.calibrate_output:
             raise ValueError("calibration_map: only used with calibrate_output=True")
-        if not 0.0 <= self.sensor_blend <= 1.0:
-            raise ValueError(
-                f"sensor_blend: expected a fraction in [0, 1], got {self.sensor_blend}"
-            )
-        if self.latent_dim < 0:
-            raise ValueError(f"latent_dim: expected >= 0, got {self.latent_dim}")
-        if self.selector not in ("graph", "brute-force"):
-            raise ValueError(f"selector: expected 'graph' or 'brute-force', got {self.selector!r}")
-        if self.max_gap_s <= 0 or self.frame_dt <= 0:
-            raise ValueError("max_gap_s and frame_dt: expected positive values")
-        if self.length_prior not in ("database", "default"):
-            raise ValueError(
-                f"length_prior: expected 'database' or 'default', got {self.length_prior!r}"
-            )
-        if self.energy_dtype not in ("float64", "float32"):
-            raise ValueError(
-                f"energy_dtype: expected 'float64' or 'float32', got {self.energy_dtype!r}"
-            )
         if self.reference_lengths is not None and len(self.reference_lengths) != skeleton.NUM_BONES:
             raise ValueError(
                 f"reference_lengths: expected 19 lengths, got {len(self.reference_lengths)}"
