@@ -843,9 +843,7 @@ class Reconstructor:
         RuntimeError
             If no frame was prepared.
         """
-        pending = self._pending
-        if pending is None:
-            raise RuntimeError("finish: no prepared frame (call prepare first)")
+        pending = self._prepared("finish")
         t0 = time.perf_counter()
         problem = pending.problem
         if z is None:
@@ -1004,6 +1002,12 @@ class Reconstructor:
             raise
         return self.finish(found.x)
 
+    def _prepared(self, caller: str) -> _Pending:
+        """The prepared frame, or a RuntimeError naming ``caller``."""
+        if self._pending is None:
+            raise RuntimeError(f"{caller}: no prepared frame (call prepare first)")
+        return self._pending
+
     def search(
         self, optimizer: Any = "local-search", rng: np.random.Generator | int | None = None
     ) -> SearchResult:
@@ -1018,9 +1022,7 @@ class Reconstructor:
         RuntimeError
             If no frame was prepared.
         """
-        pending = self._pending
-        if pending is None:
-            raise RuntimeError("search: no prepared frame (call prepare first)")
+        pending = self._prepared("search")
         found = run_optimizer(
             pending.problem,
             make(optimizer),
