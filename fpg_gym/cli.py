@@ -30,6 +30,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "read",
     "build_graph",
     "reconstruct",
+    "live",
     "simulate",
     "import_uiprmd",
     "fit_map",
