@@ -17,7 +17,15 @@ HELP = (
 
 #: Formats of ``--format`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`; listed here so that
 #: ``--help`` imports nothing heavy).
-KINECT_FORMATS: tuple[str, ...] = ("msrc12", "kinect_v2", "ntu", "csv", "npz")
+KINECT_FORMATS: tuple[str, ...] = (
+    "msrc12",
+    "kinect_v2",
+    "ntu",
+    "csv",
+    "npz",
+    "azure_kinect",
+    "mapped",
+)
 
 #: Bin edges (metres) of the printed error histogram.
 HISTOGRAM_EDGES: tuple[float, ...] = (0.0, 0.05, 0.1, 0.15, 0.2, 0.3, 0.5)
@@ -38,6 +46,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=KINECT_FORMATS,
         default=None,
         help="format of --input (default: guessed from the extension and the data lines)",
+    )
+    parser.add_argument(
+        "--joint-map",
+        nargs="+",
+        metavar="MAP",
+        help="read --input as a generic per-joint CSV/JSON: a joint-map file (JSON or "
+        "name=KinectName lines) or name=KinectName pairs (docs/input.md)",
+    )
+    parser.add_argument(
+        "--body", type=int, default=0, help="which body of an NTU or Azure Kinect file (default 0)"
     )
     parser.add_argument("--out", required=True, metavar="OUT.npz", help="output .npz")
     parser.add_argument(
@@ -145,6 +163,26 @@ def definition_maps(
     return maps
 
 
+def read_input(args: argparse.Namespace) -> Any:
+    """The recording of ``--input`` (with ``--format``, ``--body`` and ``--joint-map``)."""
+    from fpg_gym.io import read_recording
+    from fpg_gym.io.trackers import JointMap
+
+    joint_map = None
+    items = getattr(args, "joint_map", None)
+    if items:
+        if len(items) == 1 and "=" not in items[0]:
+            joint_map = JointMap.load(items[0])
+        else:
+            try:
+                joint_map = JointMap.from_pairs(items)
+            except ValueError as error:
+                raise ValueError(f"--joint-map: {error}") from None
+    return read_recording(
+        args.input, format=args.format, body=getattr(args, "body", 0), joint_map=joint_map
+    )
+
+
 def _histogram(errors: Any) -> list[int]:
     from fpg_gym.metrics import error_histogram
 
@@ -215,7 +253,6 @@ def run(args: argparse.Namespace) -> int:
 
     from fpg_gym.commands.output import emit_json
     from fpg_gym.graph import load_graph
-    from fpg_gym.io import read_recording
     from fpg_gym.outputs import interrupts_deferred
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
@@ -244,7 +281,7 @@ def run(args: argparse.Namespace) -> int:
     maps = definition_maps(
         args.sensor_map, args.output_map, args.calibrate_output, args.calibration_map
     )
-    recording = read_recording(args.input, format=args.format)
+    recording = read_input(args)
     graph = load_graph(args.graph)
     reconstructor = Reconstructor(
         graph,
@@ -379,11 +416,10 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     import numpy as np
 
     from fpg_gym.commands.output import emit_json
-    from fpg_gym.io import read_recording
     from fpg_gym.methods import MethodRunner
     from fpg_gym.outputs import save_npz
 
-    recording = read_recording(args.input, format=args.format)
+    recording = read_input(args)
     start = time.perf_counter()
     with MethodRunner() as runner:
         result = runner.run(method, recording)

@@ -27,6 +27,9 @@ Formats (:data:`KINECT_FORMATS`), detected from the extension and the first data
     frame: seconds, metres in camera space, state 2/1/0. ``timestamp`` is optional (30 Hz then).
 ``npz``
     A recording file written by :func:`~fpg_gym.io.recording.write_recording`.
+``azure_kinect``, ``mapped``
+    Azure Kinect Body Tracking JSON (detected from a ``.json`` file's content) and any per-joint
+    CSV/JSON through a user-given joint map (``joint_map=``): :mod:`fpg_gym.io.trackers`.
 
 Kinect v2 joints map to the Kinect-20 set with :data:`fpg_gym.skeleton.FROM_KINECT_V2`
 (SpineBase -> HipCenter, SpineMid -> Spine, SpineShoulder -> ShoulderCenter; hand tips, thumbs
@@ -59,6 +62,7 @@ from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io._compression import maybe_gunzip
 from fpg_gym.io.recording import NOT_TRACKED, TRACKED, Recording, load_recording
+from fpg_gym.io.trackers import JointMap, is_azure_kinect_json, read_azure_kinect, read_mapped
 
 __all__ = [
     "KINECT_FORMATS",
@@ -73,7 +77,15 @@ __all__ = [
 ]
 
 #: Formats :func:`read_recording` understands.
-KINECT_FORMATS: tuple[str, ...] = ("msrc12", "kinect_v2", "ntu", "csv", "npz")
+KINECT_FORMATS: tuple[str, ...] = (
+    "msrc12",
+    "kinect_v2",
+    "ntu",
+    "csv",
+    "npz",
+    "azure_kinect",
+    "mapped",
+)
 
 _V1_FIELDS = 1 + skeleton.NUM_JOINTS * 4  # 81
 _V2_JOINTS = len(skeleton.KINECT_V2_JOINT_NAMES)
@@ -670,6 +682,8 @@ def detect_format(path: str | Path) -> str:
         return "npz"
     if name.endswith((".skeleton", ".skeleton.gz")):
         return "ntu"
+    if name.endswith((".json", ".json.gz")) and is_azure_kinect_json(path):
+        return "azure_kinect"
     lines = _read_text(path)
     sample = [t.strip() for t in lines if t.strip() and not t.lstrip().startswith("#")][
         :_DETECT_LINES
@@ -694,16 +708,25 @@ def detect_format(path: str | Path) -> str:
     )
 
 
-def read_recording(path: str | Path, format: str | None = None, body: int = 0) -> Recording:
+def read_recording(
+    path: str | Path,
+    format: str | None = None,
+    body: int = 0,
+    joint_map: JointMap | Sequence[str] | None = None,
+) -> Recording:
     """Read a Kinect recording in any supported format.
 
     Parameters
     ----------
     path : str or Path
-    format : {"msrc12", "kinect_v2", "ntu", "csv", "npz"}, optional
-        Overrides detection (:func:`detect_format`).
+    format : {"msrc12", "kinect_v2", "ntu", "csv", "npz", "azure_kinect", "mapped"}, optional
+        Overrides detection (:func:`detect_format`); a ``joint_map`` implies ``"mapped"``.
     body : int
-        Which body of an NTU file (k-th distinct bodyID); other formats hold one body.
+        Which body of an NTU or Azure Kinect file (k-th distinct body id); other formats hold
+        one body.
+    joint_map : JointMap or sequence of str, optional
+        How a generic per-joint file's joints map to Kinect-20
+        (:class:`fpg_gym.io.trackers.JointMap`, or ``"source=KinectName"`` strings).
 
     Returns
     -------
@@ -721,11 +744,21 @@ def read_recording(path: str | Path, format: str | None = None, body: int = 0) -
     path = Path(path)
     if not path.is_file():
         raise FileNotFoundError(f"{path}: no such file")
-    kind = format or detect_format(path)
+    kind = format or ("mapped" if joint_map is not None else detect_format(path))
     if kind not in KINECT_FORMATS:
         raise ValueError(f"format: expected one of {', '.join(KINECT_FORMATS)}, got {format!r}")
-    if kind != "ntu" and body != 0:
-        raise ValueError(f"body: only NTU files hold several bodies; got body={body} for {kind}")
+    if kind not in ("ntu", "azure_kinect") and body != 0:
+        raise ValueError(
+            f"body: only NTU files (and Azure Kinect ones) hold several bodies; got body={body} "
+            f"for {kind}"
+        )
+    if (kind == "mapped") != (joint_map is not None):
+        raise ValueError("joint_map: needed by format 'mapped', and only by it")
+    if kind == "mapped":
+        assert joint_map is not None
+        return read_mapped(path, joint_map)
+    if kind == "azure_kinect":
+        return read_azure_kinect(path, body=body)
     if kind == "msrc12":
         return read_msrc12(path)
     if kind == "kinect_v2":

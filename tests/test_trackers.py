@@ -1,0 +1,246 @@
+"""Today's body trackers (issue 20): Azure Kinect Body Tracking JSON and generic per-joint
+CSV/JSON files with a user-given joint map, into the Kinect-20 pipeline."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from fpg_gym import skeleton
+from fpg_gym.cli import main
+from fpg_gym.errors import DataFormatError
+from fpg_gym.io import read_recording
+from fpg_gym.io.trackers import (
+    AZURE_KINECT_JOINT_NAMES,
+    AZURE_KINECT_TO_KINECT20,
+    JointMap,
+    read_azure_kinect,
+    read_mapped,
+)
+
+AZURE_INDEX = np.array(
+    [AZURE_KINECT_JOINT_NAMES.index(AZURE_KINECT_TO_KINECT20[n]) for n in skeleton.JOINT_NAMES]
+)
+
+
+def kinect_poses(rng: np.random.Generator, frames: int = 6) -> np.ndarray:
+    """Kinect-20 camera-space poses (metres) about 2 m in front of the sensor."""
+    return (rng.normal(scale=0.3, size=(frames, 20, 3)) + np.array([0.0, 0.0, 2.0])).astype(
+        np.float32
+    )
+
+
+def azure_body(pose: np.ndarray, body_id: int, rng: np.random.Generator, **extra) -> dict:
+    """An Azure body holding ``pose`` (Kinect space, m) in depth-camera space (mm, Y down)."""
+    joints = rng.normal(scale=300.0, size=(32, 3)) + np.array([0.0, 0.0, 2000.0])
+    joints[AZURE_INDEX] = pose.astype(np.float64) * [-1000.0, -1000.0, 1000.0]
+    return {
+        "body_id": body_id,
+        "joint_positions": joints.tolist(),
+        "joint_orientations": [[1.0, 0.0, 0.0, 0.0]] * 32,
+        **extra,
+    }
+
+
+def azure_file(path: Path, frames: list[dict]) -> Path:
+    """The offline processor's layout."""
+    document = {
+        "k4abt_sdk_version": "1.1.2",
+        "source_file": "capture.mkv",
+        "joint_names": list(AZURE_KINECT_JOINT_NAMES),
+        "bone_list": [["SPINE_CHEST", "SPINE_NAVEL"]],
+        "frames": frames,
+    }
+    path.write_text(json.dumps(document, indent=4))
+    return path
+
+
+def test_azure_kinect_positions_bodies_and_confidence(
+    tmp_path: Path, rng: np.random.Generator
+) -> None:
+    poses = kinect_poses(rng)
+    other = kinect_poses(rng)
+    levels = ["MEDIUM"] * 32
+    levels[AZURE_INDEX[skeleton.joint_index("HandLeft")]] = "LOW"
+    levels[AZURE_INDEX[skeleton.joint_index("FootRight")]] = "K4ABT_JOINT_CONFIDENCE_NONE"
+    frames = []
+    for i in range(len(poses)):
+        bodies = [azure_body(other[i], 7, rng), azure_body(poses[i], 3, rng)]
+        if i == 0:
+            bodies[1]["joint_confidences"] = levels
+        if i == 2:
+            bodies = bodies[:1]  # body 3 absent in this frame
+        frames.append({"timestamp_usec": 1_000_000 + 33_333 * i, "frame_id": i, "bodies": bodies})
+    frames.insert(4, {"timestamp_usec": "x", "bodies": []})  # a bad frame: skipped, counted
+    path = azure_file(tmp_path / "azure.json", frames)
+    with pytest.warns(UserWarning, match="skipped 1 of"):
+        recording = read_recording(path, body=1)  # detected from the content
+    assert recording.metadata["format"] == "azure_kinect"
+    assert recording.metadata["body_id"] == 3
+    assert recording.metadata["skipped_lines"]["count"] == 1
+    assert recording.num_frames == len(poses)
+    present = [0, 1, 3, 4, 5]
+    np.testing.assert_allclose(recording.positions[present], poses[present], atol=1e-6)
+    np.testing.assert_allclose(recording.timestamps, 0.033333 * np.arange(6), atol=1e-9)
+    assert recording.metadata["no_body_frames"] == 1
+    assert np.all(recording.states[2] == skeleton.NOT_TRACKED)
+    first = recording.states[0]
+    assert first[skeleton.joint_index("HandLeft")] == skeleton.INFERRED
+    assert first[skeleton.joint_index("FootRight")] == skeleton.NOT_TRACKED
+    assert np.sum(first == skeleton.TRACKED) == 18
+    assert recording.metadata["states_in_file"] is True
+    with pytest.warns(UserWarning, match="skipped 1 of"):
+        body0 = read_azure_kinect(path, body=0)
+    np.testing.assert_allclose(body0.positions[2], other[2], atol=1e-6)
+    with pytest.raises(DataFormatError, match="2 distinct body_id"), pytest.warns(UserWarning):
+        read_azure_kinect(path, body=2)
+
+
+def test_azure_kinect_is_turned_into_kinect_camera_space(
+    tmp_path: Path, rng: np.random.Generator
+) -> None:
+    """The depth camera's Y points down: a standing body's head must come out above its feet."""
+    pose = np.zeros((20, 3))
+    pose[:, 1] = np.linspace(1.0, -1.0, 20)  # higher joints first, in Kinect space
+    joints = np.zeros((32, 3))
+    joints[AZURE_INDEX] = pose * [1.0, -1000.0, 1.0]  # mm, Y down
+    joints[:, 2] = 2500.0
+    body = {"body_id": 1, "joint_positions": joints.tolist()}
+    frames = [{"timestamp_usec": i * 33_333, "bodies": [body]} for i in range(3)]
+    recording = read_azure_kinect(azure_file(tmp_path / "a.json", frames))
+    head, foot = skeleton.joint_index("Head"), skeleton.joint_index("FootLeft")
+    assert recording.positions[0, head, 1] > recording.positions[0, foot, 1]
+    assert recording.positions[0, head, 2] == pytest.approx(2.5)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ("{not json", "not JSON"),
+        ('{"frames": 3}', "'frames' list"),
+        ('{"joint_names": ["A"], "frames": []}', "lacks"),
+        ('{"frames": []}', "no frames"),
+    ],
+)
+def test_azure_kinect_bad_files(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "bad.json"
+    path.write_text(text)
+    with pytest.raises(DataFormatError, match=message) as caught:
+        read_azure_kinect(path)
+    assert str(path) in str(caught.value)
+
+
+def full_map(**overrides: str) -> list[str]:
+    """``src_<Joint>=<Joint>`` for every Kinect-20 joint, with overrides by Kinect name."""
+    return [
+        f"{overrides.get(n, 'src_' + n)}={n}" for n in skeleton.JOINT_NAMES if n not in overrides
+    ] + [f"{v}={k}" for k, v in overrides.items()]
+
+
+def test_mapped_csv_with_units_axes_and_a_mean_joint(
+    tmp_path: Path, rng: np.random.Generator
+) -> None:
+    poses = kinect_poses(rng, 5)
+    names = [f"src_{n}" for n in skeleton.JOINT_NAMES if n != "HipCenter"]
+    source = {f"src_{n}": poses[:, j] for j, n in enumerate(skeleton.JOINT_NAMES)}
+    offset = np.array([0.05, 0.0, 0.0])
+    source["l_hip"] = poses[:, 0] + offset  # the pelvis is the mean of two hips
+    source["r_hip"] = poses[:, 0] - offset
+    names += ["l_hip", "r_hip"]
+    header = ["timestamp"] + [f"{n}_{a}" for n in names for a in "xyz"] + ["src_Head_state"]
+    lines = ["# a tracker export, mm, Y down", ",".join(header)]
+    for t in range(len(poses)):
+        cells = [f"{t / 30:.6f}"]
+        for n in names:  # source frame: mm, X right, Y down  -> Kinect: -x, -y, z
+            x, y, z = source[n][t] * [-1000.0, -1000.0, 1000.0]
+            cells += [repr(float(x)), repr(float(y)), repr(float(z))]
+        cells.append("1")
+        lines.append(",".join(cells))
+    lines.append("1,2,3")  # wrong field count: skipped
+    path = tmp_path / "tracker.csv"
+    path.write_text("\n".join(lines) + "\n")
+    pairs = [*full_map(HipCenter="l_hip"), "r_hip=HipCenter"]
+    joint_map = JointMap.from_pairs(pairs, units="mm", axes="-x,-y,z")
+    assert joint_map.joints["HipCenter"] == ("l_hip", "r_hip")
+    with pytest.warns(UserWarning, match="skipped 1"):
+        recording = read_mapped(path, joint_map)
+    np.testing.assert_allclose(recording.positions, poses, atol=1e-5)
+    assert np.all(recording.states[:, skeleton.joint_index("Head")] == skeleton.INFERRED)
+    assert recording.metadata["format"] == "mapped" and recording.metadata["layout"] == "csv"
+
+
+def test_mapped_json_and_joint_map_files(tmp_path: Path, rng: np.random.Generator) -> None:
+    poses = kinect_poses(rng, 4)
+    frames = [
+        {
+            "timestamp": 10.0 + t / 30,
+            "joints": {f"j{j}": poses[t, j].tolist() for j in range(20)},
+            "states": {"j3": 0},
+        }
+        for t in range(4)
+    ]
+    data = tmp_path / "frames.json"
+    data.write_text(json.dumps({"frames": frames}))
+    map_json = tmp_path / "map.json"
+    map_json.write_text(
+        json.dumps({"joints": {f"j{j}": n for j, n in enumerate(skeleton.JOINT_NAMES)}})
+    )
+    map_text = tmp_path / "map.txt"
+    map_text.write_text(
+        "# source=Kinect\n" + "\n".join(f"j{j}={n}" for j, n in enumerate(skeleton.JOINT_NAMES))
+    )
+    for map_file in (map_json, map_text):
+        recording = read_recording(data, joint_map=JointMap.load(map_file))
+        np.testing.assert_allclose(recording.positions, poses, atol=1e-6)
+        np.testing.assert_allclose(recording.timestamps, np.arange(4) / 30, atol=1e-9)
+        assert np.all(recording.states[:, 3] == skeleton.NOT_TRACKED)
+
+
+def test_joint_map_errors(tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match="no source joint for Spine"):
+        JointMap.from_pairs(full_map()[:1] + full_map()[2:])
+    with pytest.raises(ValueError, match="not Kinect-20 joints"):
+        JointMap.from_pairs([*full_map(), "x=Pelvis"])
+    with pytest.raises(ValueError, match="name=KinectName"):
+        JointMap.from_pairs(["oops"])
+    with pytest.raises(ValueError, match="axes"):
+        JointMap.from_pairs(full_map(), axes="x,x,z")
+    bad = tmp_path / "map.json"
+    bad.write_text('{"joints": {"a": 1}}')
+    with pytest.raises(DataFormatError, match=r"map\.json"):
+        JointMap.load(bad)
+    csv = tmp_path / "t.csv"
+    csv.write_text("timestamp,a_x,a_y,a_z\n0,1,2,3\n")
+    with pytest.raises(DataFormatError, match="header lacks"):
+        read_mapped(csv, full_map())
+    with pytest.raises(ValueError, match="joint_map"):
+        read_recording(csv, format="mapped")
+
+
+def test_reconstruct_command_reads_azure_and_mapped_files(
+    tmp_path: Path, rng: np.random.Generator, capsys: pytest.CaptureFixture[str]
+) -> None:
+    poses = kinect_poses(rng, 3)
+    frames = [
+        {"timestamp_usec": 33_333 * i, "bodies": [azure_body(poses[i], 1, rng)]} for i in range(3)
+    ]
+    azure = azure_file(tmp_path / "k4abt.json", frames)
+    out = tmp_path / "out.npz"
+    assert main(["reconstruct", "--method", "raw", "--input", str(azure), "--out", str(out)]) == 0
+    np.testing.assert_allclose(np.load(out)["poses"], poses, atol=1e-6)
+    generic = tmp_path / "generic.json"
+    generic.write_text(
+        json.dumps(
+            [{"joints": {f"s{j}": p.tolist() for j, p in enumerate(pose)}} for pose in poses]
+        )
+    )
+    pairs = [f"s{j}={n}" for j, n in enumerate(skeleton.JOINT_NAMES)]
+    out2 = tmp_path / "out2.npz"
+    argv = ["reconstruct", "--method", "raw", "--input", str(generic), "--out", str(out2)]
+    assert main([*argv, "--joint-map", *pairs]) == 0
+    np.testing.assert_allclose(np.load(out2)["poses"], poses, atol=1e-6)
+    assert main([*argv, "--joint-map", "s0=HipCenter"]) == 2
+    assert "no source joint for Spine" in capsys.readouterr().err
