@@ -31,6 +31,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "build_graph",
     "reconstruct",
     "live",
+    "export",
     "simulate",
     "import_uiprmd",
     "fit_map",

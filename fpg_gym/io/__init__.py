@@ -19,6 +19,7 @@ from tqdm.auto import tqdm
 from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.errors import DataFormatError, FpgGymError
 from fpg_gym.io.bvh import BANDAI_NAMCO_MAP, BvhPoint, JointSource, read_bvh
+from fpg_gym.io.bvh_write import BVH_JOINT_MAP, write_bvh
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.deepmimic import DEFAULT_CLIP_NAMES, load_default_clips, read_deepmimic
 from fpg_gym.io.kinect import read_recording
@@ -27,6 +28,7 @@ from fpg_gym.io.recording import Recording, write_recording
 
 __all__ = [
     "BANDAI_NAMCO_MAP",
+    "BVH_JOINT_MAP",
     "DEFAULT_CLIP_NAMES",
     "MOCAP_FORMATS",
     "BvhPoint",
@@ -43,6 +45,7 @@ __all__ = [
     "read_positions",
     "read_recording",
     "resolve_clips",
+    "write_bvh",
     "write_positions",
     "write_recording",
 ]
