@@ -32,6 +32,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "reconstruct",
     "live",
     "export",
+    "view",
     "simulate",
     "import_uiprmd",
     "fit_map",

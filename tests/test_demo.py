@@ -11,6 +11,7 @@ import pytest
 from fpg_gym.cli import main
 from fpg_gym.experiments import TABLE_COLUMNS
 from fpg_gym.experiments.demo import DEMO_METHODS, QUICK_METHODS
+from fpg_gym.experiments.view import rerun_available
 
 
 def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
@@ -49,6 +50,9 @@ def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert gif.shape[0] == 24  # one GIF frame per episode frame (24 in the quick demo)
     assert gif.shape[2] > 2 * gif.shape[1]  # three panels side by side
     assert "time:" in printed
+    if rerun_available():  # the 3D view (fpg-gym[view]) comes with the demo when installed
+        assert "demo.rrd" in summary["files"]
+        assert "3D view" in printed
 
 
 def test_demo_methods_are_valid_names() -> None:

@@ -30,6 +30,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="simulator/optimiser seed (0)")
     parser.add_argument("--no-gif", action="store_true", help="skip the animated GIF")
+    parser.add_argument(
+        "--no-view", action="store_true", help="skip demo.rrd (the 3D view; needs fpg-gym[view])"
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 
@@ -50,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
         seed=args.seed,
         progress=not args.quiet,
         gif=not args.no_gif,
+        view=not args.no_view,
     )
     print_outcome(outcome)
     if args.json:

@@ -12,7 +12,8 @@
    quadratic energy terms (one evaluation) and local search with the latent prior.
 4. The comparison table, the compare plots and an animated GIF of one episode: the simulated
    Kinect input (joints coloured by tracking state), the reconstruction and the ground truth
-   side by side.
+   side by side; with rerun-sdk installed (``fpg-gym[view]``) also ``demo.rrd``, the same
+   episode in 3D with every reconstruction method (:mod:`fpg_gym.experiments.view`).
 
 About 30 s on two cores. ``quick=True`` runs a reduced version (two clips, one scenario, 24
 frames, four methods) in a few seconds, for tests.
@@ -31,6 +32,7 @@ from typing import Any
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.experiments import CompareConfig, CompareOutcome, format_tests, plots, run_compare
 from fpg_gym.experiments.store import frames_path, load_frames
+from fpg_gym.experiments.view import rerun_available, write_view
 from fpg_gym.io.recording import load_recording
 
 __all__ = ["DEMO_METHODS", "QUICK_METHODS", "DemoOutcome", "run_demo"]
@@ -64,6 +66,7 @@ class DemoOutcome:
     gif_episode: str
     gif_method: str
     seconds: float
+    view: Path | None = None
 
     @property
     def files(self) -> list[Path]:
@@ -114,6 +117,25 @@ def write_animation(
     return gif, png
 
 
+def write_demo_view(out: Path, episode: str, methods: Sequence[str]) -> Path:
+    """``demo.rrd``: an episode in 3D with the output of every method that is not the raw
+    input (:func:`fpg_gym.experiments.view.write_view`)."""
+    recording = load_recording(out / "episodes" / f"{episode}.npz")
+    shown = {}
+    for method in methods:
+        path = frames_path(out, episode, method)
+        if method != "raw" and path.is_file():
+            shown[method] = load_frames(path, ["poses"])["poses"]
+    return write_view(
+        out / "demo.rrd",
+        recording.positions,
+        recording.states,
+        recording.timestamps,
+        reconstructions=shown,
+        ground_truth=recording.ground_truth,
+    )
+
+
 def run_demo(
     out: str | Path = "fpg-gym-demo",
     *,
@@ -123,6 +145,7 @@ def run_demo(
     seed: int = 0,
     progress: bool = True,
     gif: bool = True,
+    view: bool = True,
 ) -> DemoOutcome:
     """Run the demo (see the module docstring) and write everything to ``out``.
 
@@ -140,6 +163,8 @@ def run_demo(
         Simulator and optimiser seed.
     gif : bool
         Write ``demo.gif`` and ``demo_frame.png``.
+    view : bool
+        Write ``demo.rrd`` (the 3D view) when rerun-sdk is installed.
     """
 
     started = time.perf_counter()
@@ -169,6 +194,12 @@ def run_demo(
             gif_path, png_path = write_animation(outcome.out, episode, method)
         except FileNotFoundError:  # interrupted before that run finished
             gif_path = png_path = None
+    view_path = None
+    if view and rerun_available() and outcome.summary["episodes"]:
+        if not episode:
+            episodes = json.loads((outcome.out / "config.json").read_text())["episodes"]
+            episode = _pick_episode(outcome.summary, episodes)
+        view_path = write_demo_view(outcome.out, episode, config.methods)
     return DemoOutcome(
         compare=outcome,
         gif=gif_path,
@@ -176,6 +207,7 @@ def run_demo(
         gif_episode=episode,
         gif_method=method,
         seconds=time.perf_counter() - started,
+        view=view_path,
     )
 
 
@@ -205,5 +237,7 @@ def print_outcome(outcome: DemoOutcome) -> None:
         print(f"  {path.name}")
     if outcome.gif is not None:
         print(f"  (GIF: episode {outcome.gif_episode}, method {outcome.gif_method})")
+    if outcome.view is not None:
+        print(f"  (3D view: episode {outcome.gif_episode}; open with: rerun {outcome.view})")
     state = " (interrupted)" if outcome.compare.interrupted else ""
     print(f"time: {outcome.seconds:.1f} s{state}")
