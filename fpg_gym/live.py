@@ -205,6 +205,7 @@ class LiveStats:
     malformed: Counter[str] = field(default_factory=Counter)
     latency_ms: list[float] = field(default_factory=list)
     ms: list[float] = field(default_factory=list)
+    interrupted: bool = False
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready counts and latency percentiles."""
@@ -222,6 +223,7 @@ class LiveStats:
             "latency_ms_p95": pct(self.latency_ms, 95),
             "latency_ms_max": max(self.latency_ms) if self.latency_ms else None,
             "reconstruct_ms_median": pct(self.ms, 50),
+            "interrupted": self.interrupted,
         }
 
 
@@ -428,6 +430,8 @@ def run_live(
     Returns
     -------
     LiveStats
+        The counts; ``interrupted`` when Ctrl-C (or SIGTERM through the command line) ended the
+        stream.
     """
     stats = LiveStats()
     lock = threading.Lock()
@@ -437,32 +441,36 @@ def run_live(
     )
     reader.start()
     last_stamp: float | None = None
-    while max_frames is None or stats.emitted < max_frames:
-        frame = queue.get(max_age_s)
-        with lock:
-            stats.dropped = queue.dropped
-        if frame is None:
-            break
-        if frame.timestamp is not None and last_stamp is not None and frame.timestamp < last_stamp:
+    try:
+        while max_frames is None or stats.emitted < max_frames:
+            frame = queue.get(max_age_s)
             with lock:
-                stats.malformed["timestamp goes back"] += 1
-            continue
-        start = time.perf_counter()
-        try:
-            pose = step(frame)
-        except (FpgGymError, ValueError) as error:  # a frame the pipeline refuses: skip it
+                stats.dropped = queue.dropped
+            if frame is None:
+                break
+            stamp = frame.timestamp
+            if stamp is not None and last_stamp is not None and stamp < last_stamp:
+                with lock:
+                    stats.malformed["timestamp goes back"] += 1
+                continue
+            start = time.perf_counter()
+            try:
+                pose = step(frame)
+            except (FpgGymError, ValueError, ArithmeticError) as error:  # refused: skip it
+                with lock:
+                    stats.malformed[f"refused ({type(error).__name__})"] += 1
+                continue
+            ms = 1000.0 * (time.perf_counter() - start)
+            if stamp is not None:
+                last_stamp = stamp
             with lock:
-                stats.malformed[f"refused ({type(error).__name__})"] += 1
-            continue
-        ms = 1000.0 * (time.perf_counter() - start)
-        if frame.timestamp is not None:
-            last_stamp = frame.timestamp
-        with lock:
-            output = emit_frame(frame, pose, ms, stats)
-            stats.emitted += 1
-            stats.latency_ms.append(output["latency_ms"])
-            stats.ms.append(ms)
-        emit(output)
+                output = emit_frame(frame, pose, ms, stats)
+                stats.emitted += 1
+                stats.latency_ms.append(output["latency_ms"])
+                stats.ms.append(ms)
+            emit(output)
+    except KeyboardInterrupt:
+        stats.interrupted = True
     with lock:
         stats.dropped = queue.dropped
     return stats

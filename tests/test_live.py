@@ -237,3 +237,17 @@ def test_live_command_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
     assert "--input: expected '-' or udp://HOST:PORT" in capsys.readouterr().err
     assert main(["live", "--graph", "default", "--method", "holt"]) == 2
     assert "--method" in capsys.readouterr().err
+
+
+def test_ctrl_c_ends_the_stream_with_its_counts() -> None:
+    lines = [live.frame_line(np.zeros((20, 3)), None, i / 30.0) for i in range(10)]
+
+    def step(frame: live.LiveFrame) -> np.ndarray:
+        if frame.index == 3:
+            raise KeyboardInterrupt
+        return frame.positions
+
+    out: list[dict] = []
+    stats = live.run_live(lines, step, out.append, queue_size=100, max_age_s=None)
+    assert stats.interrupted and stats.emitted == 3 and len(out) == 3
+    assert stats.summary()["interrupted"] is True

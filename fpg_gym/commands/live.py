@@ -132,4 +132,4 @@ def run(args: argparse.Namespace) -> int:
         if sock is not None:
             sock.close()
     print(json.dumps({"live": stats.summary()}), file=sys.stderr, flush=True)
-    return 0
+    return 130 if stats.interrupted else 0
