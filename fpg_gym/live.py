@@ -113,7 +113,7 @@ def _joint_values(value: Any, name: str, width: int) -> np.ndarray:
         value = [value[j] for j in skeleton.JOINT_NAMES]
     try:
         array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError):
+    except (TypeError, ValueError, OverflowError):
         raise FrameError(f"{name} not numbers") from None
     shape = (skeleton.NUM_JOINTS, width) if width > 1 else (skeleton.NUM_JOINTS,)
     if array.shape != shape:
@@ -154,9 +154,12 @@ def parse_frame(line: str | bytes, index: int = 0, received: float | None = None
     if stamp is not None:
         if isinstance(stamp, bool) or not isinstance(stamp, int | float):
             raise FrameError("timestamp not a number")
+        try:
+            stamp = float(stamp)
+        except OverflowError:
+            raise FrameError("timestamp not finite") from None
         if not math.isfinite(stamp):
             raise FrameError("timestamp not finite")
-        stamp = float(stamp)
     return LiveFrame(
         index=index,
         timestamp=stamp,
@@ -316,6 +319,8 @@ def udp_lines(
             if idle_timeout_s is not None and time.monotonic() - last > idle_timeout_s:
                 return
             continue
+        except OSError:  # e.g. an ICMP error reported on the socket: not a frame, go on
+            continue
         last = time.monotonic()
         yield from (line for line in data.splitlines() if line.strip())
 
@@ -392,6 +397,10 @@ def _read_into(
             except FrameError as error:
                 with lock:
                     stats.malformed[error.reason] += 1
+                continue
+            except Exception as error:  # a line no rule foresaw: counted, never fatal
+                with lock:
+                    stats.malformed[f"unreadable ({type(error).__name__})"] += 1
                 continue
             index += 1
             with lock:

@@ -90,6 +90,8 @@ def test_parse_frame_reads_lists_and_joint_objects() -> None:
         (json.dumps({"joints": {"Head": [0, 0, 1]}}), "joints lacks joints"),
         (json.dumps({"joints": [[0, 0, 1]] * 20, "timestamp": "now"}), "timestamp not a number"),
         (b"\xff\xfe", "not JSON"),
+        (json.dumps({"joints": [[0, 0, 10**400]] * 20}), "joints not numbers"),
+        (json.dumps({"joints": [[0, 0, 1]] * 20, "timestamp": 10**400}), "timestamp not finite"),
     ],
 )
 def test_malformed_frames_name_their_reason(line: str | bytes, reason: str) -> None:
@@ -251,3 +253,37 @@ def test_ctrl_c_ends_the_stream_with_its_counts() -> None:
     stats = live.run_live(lines, step, out.append, queue_size=100, max_age_s=None)
     assert stats.interrupted and stats.emitted == 3 and len(out) == 3
     assert stats.summary()["interrupted"] is True
+
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+_VALUES = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers(-(10**400), 10**400)
+    | st.sampled_from([10**400, -(10**309), 2**63])
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=4),
+    lambda inner: (
+        st.lists(inner, max_size=21)
+        | st.dictionaries(
+            st.sampled_from(["joints", "states", "timestamp", "end", "HipCenter"]), inner
+        )
+    ),
+    max_leaves=80,
+)
+
+
+@settings(max_examples=300, deadline=None, derandomize=True)
+@given(value=_VALUES, raw=st.binary(max_size=64))
+def test_any_line_parses_or_raises_frame_error(value: object, raw: bytes) -> None:
+    for line in (json.dumps(value, allow_nan=True), raw):
+        try:
+            frame = live.parse_frame(line)
+        except live.FrameError:
+            continue
+        assert frame.positions.shape == (20, 3) and np.all(np.isfinite(frame.positions))
+        assert frame.states.shape == (20,)
+        live.is_end(line)  # never raises either

@@ -4,6 +4,7 @@ CSV/JSON files with a user-given joint map, into the Kinect-20 pipeline."""
 from __future__ import annotations
 
 import json
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -244,3 +245,67 @@ def test_reconstruct_command_reads_azure_and_mapped_files(
     np.testing.assert_allclose(np.load(out2)["poses"], poses, atol=1e-6)
     assert main([*argv, "--joint-map", "s0=HipCenter"]) == 2
     assert "no source joint for Spine" in capsys.readouterr().err
+
+
+hypothesis = pytest.importorskip("hypothesis")
+from hypothesis import HealthCheck, given, settings  # noqa: E402
+from hypothesis import strategies as st  # noqa: E402
+
+from fpg_gym.errors import FpgGymError  # noqa: E402
+
+_KEYS = [
+    "frames",
+    "bodies",
+    "body_id",
+    "joint_positions",
+    "joint_confidences",
+    "timestamp_usec",
+    "joint_names",
+    "joints",
+    "states",
+    "timestamp",
+    "s0",
+]
+_JSON = st.recursive(
+    st.none()
+    | st.booleans()
+    | st.integers(-(10**400), 10**400)
+    | st.sampled_from([10**400, -(10**309), 2**63])
+    | st.floats(allow_nan=True, allow_infinity=True)
+    | st.text(max_size=4)
+    | st.sampled_from(["NONE", "LOW", "MEDIUM", "HIGH", *AZURE_KINECT_JOINT_NAMES[:3]]),
+    lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.sampled_from(_KEYS), inner),
+    max_leaves=30,
+)
+
+
+@settings(
+    max_examples=60,
+    deadline=None,
+    derandomize=True,
+    suppress_health_check=[HealthCheck.function_scoped_fixture],
+)
+@given(document=_JSON, frame=_JSON, where=st.integers(0, 5))
+def test_tracker_readers_read_or_raise_the_projects_error(
+    tmp_path: Path, document: object, frame: object, where: int
+) -> None:
+    """Arbitrary JSON, and a valid Azure file with one frame replaced by arbitrary JSON: each
+    reader returns a recording or raises FpgGymError, never another exception."""
+    rng = np.random.default_rng(where)
+    frames: list = [
+        {"timestamp_usec": 33_333 * i, "bodies": [azure_body(kinect_poses(rng, 1)[0], 1, rng)]}
+        for i in range(6)
+    ]
+    frames[where] = frame
+    valid = azure_file(tmp_path / "valid.json", frames)
+    arbitrary = tmp_path / "any.json"
+    arbitrary.write_text(json.dumps(document, allow_nan=True))
+    mapping = JointMap.from_pairs([f"s0={n}" for n in skeleton.JOINT_NAMES])
+    for read in (read_azure_kinect, lambda p: read_mapped(p, mapping)):
+        for path in (valid, arbitrary):
+            try:
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    read(path)
+            except FpgGymError:
+                pass

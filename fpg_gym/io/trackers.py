@@ -165,6 +165,17 @@ class _FrameLog:
         return {"count": count, "reasons": dict(self.reasons), "first_lines": self.first}
 
 
+def _number(value: Any) -> float | None:
+    """A JSON number as a finite float; None for anything else (text, bool, NaN, overflow)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        return None
+    try:
+        number = float(value)
+    except OverflowError:
+        return None
+    return number if math.isfinite(number) else None
+
+
 def _read_bytes(path: Path) -> bytes:
     try:
         raw = path.read_bytes()
@@ -296,12 +307,8 @@ def read_azure_kinect(path: str | Path, body: int = 0) -> Recording:
         if not isinstance(frame, dict):
             log.skip(number, "a frame is not an object")
             continue
-        stamp = frame.get("timestamp_usec")
-        if (
-            isinstance(stamp, bool)
-            or not isinstance(stamp, int | float)
-            or not math.isfinite(stamp)
-        ):
+        stamp = _number(frame.get("timestamp_usec"))
+        if stamp is None:
             log.skip(number, "no numeric 'timestamp_usec'")
             continue
         if stamp < last:
@@ -316,13 +323,13 @@ def read_azure_kinect(path: str | Path, body: int = 0) -> Recording:
                 body_ids.append(entry.get("body_id"))
         wanted = body_ids[body] if body < len(body_ids) else object()
         chosen = next((b for b in bodies if isinstance(b, dict) and b["body_id"] == wanted), None)
-        last = float(stamp)
+        last = stamp
         if chosen is None:
             rows.append((last, None, None))
             continue
         try:
             joints = np.asarray(chosen.get("joint_positions"), dtype=np.float64)
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, OverflowError):
             log.skip(number, "'joint_positions' not numbers")
             continue
         if joints.shape != (count, 3):
@@ -565,18 +572,18 @@ def _mapped_json(path: Path, joint_map: JointMap, log: _FrameLog) -> tuple[Any, 
             values = np.array([joints[n] for n in names], dtype=np.float64)
             given = frame.get("states") or {}
             states = np.array([given.get(n, TRACKED) for n in names], dtype=np.float64)
-        except (TypeError, ValueError, AttributeError):
+        except (TypeError, ValueError, AttributeError, OverflowError):
             log.skip(number, "a value is not a number")
             continue
         if values.shape != (len(names), 3):
             log.skip(number, "a joint is not [x, y, z]")
             continue
         has_states |= bool(frame.get("states"))
-        stamp = frame.get("timestamp", len(rows) / _DEFAULT_FPS)
-        if isinstance(stamp, bool) or not isinstance(stamp, int | float):
-            log.skip(number, "'timestamp' is not a number")
+        stamp = _number(frame.get("timestamp", len(rows) / _DEFAULT_FPS))
+        if stamp is None:
+            log.skip(number, "'timestamp' is not a finite number")
             continue
-        rows.append((float(stamp), values, states))
+        rows.append((stamp, values, states))
     return names, rows, has_states, "json"
 
 
