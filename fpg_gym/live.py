@@ -47,6 +47,7 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import FpgGymError
 from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.validation import check_integer, check_number
 from optimizers import make
 
 __all__ = [
@@ -240,10 +241,8 @@ class FrameQueue:
     """
 
     def __init__(self, size: int) -> None:
-        if size < 1:
-            raise ValueError(f"size: expected >= 1, got {size}")
         self._frames: deque[LiveFrame] = deque()
-        self._size = size
+        self._size = check_integer(size, "size", low=1)
         self._ready = threading.Condition()
         self._closed = False
         self.dropped = 0
@@ -442,9 +441,13 @@ def run_live(
         The counts; ``interrupted`` when Ctrl-C (or SIGTERM through the command line) ended the
         stream.
     """
+    if max_age_s is not None:
+        max_age_s = check_number(max_age_s, "max_age_s", low=0.0)
+    if max_frames is not None:
+        max_frames = check_integer(max_frames, "max_frames", low=1)
     stats = LiveStats()
     lock = threading.Lock()
-    queue = FrameQueue(queue_size)
+    queue = FrameQueue(check_integer(queue_size, "queue_size", low=1))
     reader = threading.Thread(
         target=_read_into, args=(lines, queue, stats, lock), name="fpg-gym-live-reader", daemon=True
     )

@@ -36,6 +36,7 @@ from scipy.spatial.transform import Rotation
 from fpg_gym import skeleton
 from fpg_gym.outputs import atomic_path
 from fpg_gym.rotations import shortest_arc
+from fpg_gym.validation import check_number
 
 __all__ = ["BVH_JOINT_MAP", "bvh_hierarchy", "write_bvh"]
 
@@ -177,8 +178,7 @@ def write_bvh(
         raise ValueError(f"poses: expected shape (T, 20, 3) with T >= 1, got {poses.shape}")
     if not np.all(np.isfinite(poses)):
         raise ValueError("poses: NaN or inf value")
-    if not fps > 0:
-        raise ValueError(f"fps: expected > 0, got {fps}")
+    fps = check_number(fps, "fps", low=0.0, low_open=True)
     nodes = bvh_hierarchy()
     lengths = np.median(
         np.linalg.norm(poses[:, skeleton.BONES[:, 1]] - poses[:, skeleton.BONES[:, 0]], axis=-1),

@@ -51,6 +51,7 @@ from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io._compression import maybe_gunzip
 from fpg_gym.io.recording import INFERRED, NOT_TRACKED, TRACKED, Recording
+from fpg_gym.validation import check_choice, check_integer
 
 __all__ = [
     "AZURE_KINECT_JOINT_NAMES",
@@ -281,6 +282,7 @@ def read_azure_kinect(path: str | Path, body: int = 0) -> Recording:
         no body ``body``.
     """
     path = Path(path)
+    body = check_integer(body, "body", low=0)
     data = _load_json(path)
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
         raise DataFormatError(path, "expected a JSON object with a 'frames' list (Azure Kinect)")
@@ -295,8 +297,6 @@ def read_azure_kinect(path: str | Path, body: int = 0) -> Recording:
         )
     source = np.array([index[AZURE_KINECT_TO_KINECT20[n]] for n in skeleton.JOINT_NAMES])
     count = len(names)
-    if body < 0:
-        raise ValueError(f"body: expected >= 0, got {body}")
 
     log = _FrameLog()
     body_ids: list[Any] = []
@@ -429,8 +429,7 @@ class JointMap:
         lacking = [k for k in skeleton.JOINT_NAMES if not self.joints.get(k)]
         if lacking:
             raise ValueError(f"joint map: no source joint for {', '.join(lacking)}")
-        if self.units not in UNITS:
-            raise ValueError(f"joint map units: expected one of m, cm, mm, got {self.units!r}")
+        check_choice(self.units, "joint map units", tuple(UNITS))
         columns, signs = _parse_axes(self.axes)
         object.__setattr__(self, "_columns", columns)
         object.__setattr__(self, "_signs", signs)
