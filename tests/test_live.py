@@ -24,8 +24,8 @@ from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.simulate import simulate
 
 REPO = Path(__file__).resolve().parents[1]
-#: Fast, deterministic per-frame method for the stream tests (about 3 ms a frame).
-OPTIMIZER = "closed-form"
+#: The papers' stochastic search (about 7 ms a frame here): equal output needs the same seed.
+OPTIMIZER = "local-search"
 
 
 @lru_cache(maxsize=1)
@@ -208,10 +208,11 @@ def test_udp_stream_at_30_hz_equals_offline_reconstruct(tmp_path: Path) -> None:
     assert [o["frame"] for o in out] == list(range(rec.num_frames))
     poses = np.array([o["joints"] for o in out], dtype=np.float32)
     np.testing.assert_array_equal(poses, expected)
+    assert not np.array_equal(poses, offline_poses(seed=1))  # the seed matters: same seed, same
     latency = np.array([o["latency_ms"] for o in out])
     ms = np.array([o["ms"] for o in out])
     assert np.all(latency >= ms - 1e-3)  # receipt to emission covers the reconstruction
-    # at 30 Hz a ~3 ms method keeps up: the median frame leaves well within one frame time
+    # at 30 Hz a ~7 ms method keeps up: the median frame leaves well within one frame time
     assert np.median(latency) < 1000.0 / 30.0
 
 
@@ -259,6 +260,13 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
+_KEYS = ["joints", "states", "timestamp", "end", "HipCenter"]
+
+
+def _nest(inner: st.SearchStrategy) -> st.SearchStrategy:
+    return st.lists(inner, max_size=21) | st.dictionaries(st.sampled_from(_KEYS), inner)
+
+
 _VALUES = st.recursive(
     st.none()
     | st.booleans()
@@ -266,12 +274,7 @@ _VALUES = st.recursive(
     | st.sampled_from([10**400, -(10**309), 2**63])
     | st.floats(allow_nan=True, allow_infinity=True)
     | st.text(max_size=4),
-    lambda inner: (
-        st.lists(inner, max_size=21)
-        | st.dictionaries(
-            st.sampled_from(["joints", "states", "timestamp", "end", "HipCenter"]), inner
-        )
-    ),
+    _nest,
     max_leaves=80,
 )
 

@@ -266,6 +266,12 @@ _KEYS = [
     "timestamp",
     "s0",
 ]
+
+
+def _nest(inner: st.SearchStrategy) -> st.SearchStrategy:
+    return st.lists(inner, max_size=5) | st.dictionaries(st.sampled_from(_KEYS), inner)
+
+
 _JSON = st.recursive(
     st.none()
     | st.booleans()
@@ -274,7 +280,7 @@ _JSON = st.recursive(
     | st.floats(allow_nan=True, allow_infinity=True)
     | st.text(max_size=4)
     | st.sampled_from(["NONE", "LOW", "MEDIUM", "HIGH", *AZURE_KINECT_JOINT_NAMES[:3]]),
-    lambda inner: st.lists(inner, max_size=5) | st.dictionaries(st.sampled_from(_KEYS), inner),
+    _nest,
     max_leaves=30,
 )
 
