@@ -58,6 +58,7 @@ __all__ = [
     "ReconstructorStep",
     "emit_frame",
     "frame_line",
+    "is_end",
     "parse_address",
     "parse_frame",
     "run_live",
