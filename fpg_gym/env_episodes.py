@@ -3,8 +3,11 @@
 :class:`EpisodeSource` owns the recordings or the clips and scenarios of a
 :class:`~fpg_gym.env.KinectPoseEnv`, draws an episode at ``reset`` from the env's
 ``np_random`` (every choice is drawn, whatever the options fix, so the random stream does not
-depend on them) and simulates clip episodes with one :class:`~fpg_gym.simulate.KinectSimulator`
-per scenario (cached by seed below ``simulator_seeds``).
+depend on them) and simulates clip episodes through the episode planner
+(:func:`fpg_gym.simulate.plan_episode`, :class:`~fpg_gym.simulate.EpisodeSimulator`: one
+simulator per scenario; cached by seed below ``simulator_seeds``). The drawn ``seed`` is the
+user's seed of the planner's seeding rule, so the episode ``walk/front-many/3`` is the stream
+``fpg-gym compare --clips walk --scenarios front-many --seeds 3`` simulates.
 """
 
 from __future__ import annotations
@@ -20,7 +23,7 @@ from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips, read_recording
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
-from fpg_gym.simulate import KinectSimulator, get_scenario
+from fpg_gym.simulate import EpisodeSimulator, get_scenario, plan_episode, unique_names
 
 __all__ = ["RESET_OPTIONS", "EpisodeSource"]
 
@@ -31,17 +34,6 @@ RESET_OPTIONS: tuple[str, ...] = ("recording", "clip", "scenario", "seed")
 def _recording_name(recording: Recording, fallback: object) -> str:
     """A recording's name: its metadata's ``name``, else its ``clip``, else ``fallback``."""
     return str(recording.metadata.get("name") or recording.metadata.get("clip") or fallback)
-
-
-def _unique(names: list[str]) -> list[str]:
-    """Names made unique by a ``#i`` suffix on repeats."""
-    seen: dict[str, int] = {}
-    out = []
-    for name in names:
-        count = seen.get(name, 0)
-        seen[name] = count + 1
-        out.append(name if count == 0 else f"{name}#{count}")
-    return out
 
 
 class EpisodeSource:
@@ -82,7 +74,7 @@ class EpisodeSource:
         self._clips: list[Clip] = []
         self._scenarios: list[Any] = []
         self._simulated: dict[tuple[int, int, int], Recording] = {}
-        self._simulators: dict[int, KinectSimulator] = {}
+        self._simulator = EpisodeSimulator()
         if recordings is not None:
             self._load_recordings(recordings)
         else:
@@ -101,9 +93,7 @@ class EpisodeSource:
 
     def close(self) -> None:
         """Release the simulators' pybullet clients (idempotent)."""
-        for simulator in self._simulators.values():
-            simulator.close()
-        self._simulators = {}
+        self._simulator.close()
 
     def _load_recordings(self, recordings: Sequence[str | os.PathLike[str] | Recording]) -> None:
 
@@ -124,7 +114,7 @@ class EpisodeSource:
             self._recordings.append(rec)
         if not self._recordings:
             raise ValueError("recordings: expected at least one recording, got none")
-        self._recording_names = _unique(names)
+        self._recording_names = unique_names(names)
         if self._needs_truth:
             missing = [
                 name
@@ -161,7 +151,7 @@ class EpisodeSource:
                 )
         if not self._clips:
             raise ValueError("clips: expected at least one clip, got none")
-        self._recording_names = _unique([c.name for c in self._clips])
+        self._recording_names = unique_names([c.name for c in self._clips])
 
     def _load_scenarios(self, scenarios: Sequence[Any]) -> None:
 
@@ -170,6 +160,7 @@ class EpisodeSource:
         self._scenarios = [get_scenario(s) for s in scenarios]
         if not self._scenarios:
             raise ValueError("scenarios: expected at least one scenario, got none")
+        self._simulator = EpisodeSimulator(self._scenarios)  # one per scenario, reused
 
     def draw(
         self, rng: np.random.Generator, options: dict[str, Any]
@@ -252,10 +243,10 @@ class EpisodeSource:
         key = (index, s_index, seed)
         recording = self._simulated.get(key)
         if recording is None:
-            simulator = self._simulators.get(s_index)
-            if simulator is None:  # one per scenario, reused: no new pybullet client per reset
-                simulator = self._simulators[s_index] = KinectSimulator(self._scenarios[s_index])
-            recording = simulator.simulate(self._clips[index], seed=seed)
+            episode = plan_episode(
+                self._recording_names[index], self._scenarios[s_index].name, seed
+            )
+            recording = self._simulator.simulate(self._clips[index], episode)
             if self.simulator_seeds is not None and seed < self.simulator_seeds:
                 self._simulated[key] = recording
         return recording

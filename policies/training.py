@@ -35,7 +35,7 @@ from fpg_gym.poses import mirror
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.reconstruct.energy import EnergyWeights
-from fpg_gym.simulate import KinectSimulator
+from fpg_gym.simulate import simulate_clips
 from optimizers import make, run_optimizer
 from optimizers.random_search import RandomSearch
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
@@ -133,19 +133,10 @@ def simulate_episodes(
     max_frames: int | None = None,
 ) -> list[Any]:
     """Recordings of every clip x scenario x seed (first ``max_frames`` frames), in that
-    order (seed outermost)."""
+    order (seed outermost), seeded by the episode planner's rule
+    (:func:`fpg_gym.simulate.simulate_clips`)."""
 
-    simulators = {name: KinectSimulator(name) for name in scenarios}
-    try:
-        return [
-            simulators[scenario].simulate(clip, seed=int(seed)).head(max_frames)
-            for seed in seeds
-            for clip in clips
-            for scenario in scenarios
-        ]
-    finally:
-        for simulator in simulators.values():
-            simulator.close()
+    return simulate_clips(clips, scenarios, seeds, max_frames=max_frames)
 
 
 # --------------------------------------------------------------------------- imitation data

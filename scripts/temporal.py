@@ -98,7 +98,7 @@ def load_episodes(args: argparse.Namespace) -> list[tuple[str, Any, int]]:
     """(name, recording, optimiser seed) of every episode."""
     from fpg_gym.io import load_clips
     from fpg_gym.io.recording import load_recording
-    from fpg_gym.simulate import KinectSimulator
+    from fpg_gym.simulate import EpisodeSimulator
 
     episodes: list[tuple[str, Any, int]] = []
     if args.takes:
@@ -107,18 +107,10 @@ def load_episodes(args: argparse.Namespace) -> list[tuple[str, Any, int]]:
         clips = load_clips(takes, progress=False)
         by_name = {c.name: c for c in clips}
         plan = plan_episodes(list(by_name), args.scenarios.split(","), [args.seed])
-        simulators: dict[str, Any] = {}
-        try:
+        with EpisodeSimulator() as simulator:
             for spec in plan:
-                if spec.scenario not in simulators:
-                    simulators[spec.scenario] = KinectSimulator(spec.scenario)
-                recording = simulators[spec.scenario].simulate(
-                    by_name[spec.clip], seed=spec.sim_seed
-                )
-                episodes.append((spec.id, recording.head(args.max_frames), spec.sim_seed))
-        finally:
-            for simulator in simulators.values():
-                simulator.close()
+                recording = simulator.simulate(by_name[spec.clip], spec.planned, args.max_frames)
+                episodes.append((spec.id, recording, spec.sim_seed))
     for path in args.inputs:
         recording = load_recording(path).head(args.max_frames)
         episodes.append((Path(path).stem, recording, 0))

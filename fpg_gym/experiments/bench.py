@@ -48,7 +48,7 @@ from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1, FilteredPoseG
 from fpg_gym.holdout import holdout_indices
 from fpg_gym.io import load_clips, load_default_clips
 from fpg_gym.reconstruct import STAGES, Reconstructor
-from fpg_gym.simulate import simulate
+from fpg_gym.simulate import plan_episode, simulate_plan, unique_names
 
 __all__ = ["BenchSettings", "format_bench", "run_bench"]
 
@@ -139,12 +139,14 @@ def _load_data(settings: BenchSettings, progress: bool) -> _Data:
 
 def _episodes(data: _Data, settings: BenchSettings) -> list[Any]:
 
-    recordings = []
-    for i in range(settings.episodes):
-        clip = data.episode_clips[i % len(data.episode_clips)]
-        scenario = DEFAULT_EPISODE_SCENARIOS[i % len(DEFAULT_EPISODE_SCENARIOS)]
-        recordings.append(simulate(clip, scenario, seed=i).head(settings.max_frames))
-    return recordings
+    # Episode i: clip i and scenario i (cycling), user seed i, through the episode planner.
+    names, scenarios = unique_names(c.name for c in data.episode_clips), DEFAULT_EPISODE_SCENARIOS
+    plan = [
+        plan_episode(names[i % len(names)], scenarios[i % len(scenarios)], i)
+        for i in range(settings.episodes)
+    ]
+    by_name = dict(zip(names, data.episode_clips, strict=True))
+    return simulate_plan(plan, by_name, max_frames=settings.max_frames)
 
 
 def _build(clips: list[Any], thres1: float, mirror: bool) -> tuple[Any, float]:

@@ -12,6 +12,7 @@ from typing import Any
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
 from fpg_gym.definitions import DefinitionMap
 from fpg_gym.methods import BASELINE, parse_method
+from fpg_gym.simulate import PlannedEpisode
 
 _SAFE = re.compile(r"[^A-Za-z0-9._+-]+")
 
@@ -37,7 +38,8 @@ class EpisodeSpec:
         The user's seed (``--seeds``).
     sim_seed : int
         Seed of the simulator and of the optimisers on this episode (every method gets the
-        same one: paired comparisons); derived from ``seed``, the clip and the scenario names.
+        same one: paired comparisons): :func:`fpg_gym.simulate.episode_seed` of ``seed``, the
+        clip and the scenario names (of ``seed`` and the file stem for a recording file).
     recording : str
         Recording file of an input episode (``""`` for simulated ones).
     key : str
@@ -53,6 +55,11 @@ class EpisodeSpec:
     sim_seed: int
     recording: str = ""
     key: str = ""
+
+    @property
+    def planned(self) -> PlannedEpisode:
+        """The simulated episode this is (:mod:`fpg_gym.simulate.episodes`)."""
+        return PlannedEpisode(self.clip, self.scenario, self.seed, self.sim_seed)
 
 
 @dataclass

@@ -1,11 +1,15 @@
 """Planning a comparison's episodes: clips x scenarios x seeds, keyed by content, and the
-simulated recordings written once."""
+simulated recordings written once.
+
+The clip episodes and their simulator seeds come from the one episode planner,
+:func:`fpg_gym.simulate.plan_episodes` (its seeding rule is documented there); this module adds
+episode ids, recording files and content keys.
+"""
 
 from __future__ import annotations
 
 import hashlib
 import json
-import zlib
 from collections.abc import Callable, Sequence
 from dataclasses import replace
 from pathlib import Path
@@ -17,13 +21,8 @@ from tqdm.auto import tqdm
 from fpg_gym.experiments.config import CompareConfig, EpisodeSpec, safe_name
 from fpg_gym.experiments.store import Manifest
 from fpg_gym.io import read_recording, resolve_clips, write_recording
-from fpg_gym.simulate import KinectSimulator, get_scenario
-
-
-def _derived_seed(seed: int, *names: str) -> int:
-    """A seed from the user's seed and names (stable whatever the order of the lists)."""
-    words = [int(seed)] + [zlib.crc32(n.encode()) for n in names]
-    return int(np.random.SeedSequence(words).generate_state(1)[0])
+from fpg_gym.simulate import EpisodeSimulator, episode_seed, get_scenario
+from fpg_gym.simulate import plan_episodes as plan_simulated
 
 
 def plan_episodes(
@@ -34,6 +33,9 @@ def plan_episodes(
     recording_hashes: Sequence[str] = (),
 ) -> list[EpisodeSpec]:
     """Every clip x scenario x seed, then every recording x seed (ids made unique).
+
+    The clip episodes and their ``sim_seed`` are :func:`fpg_gym.simulate.plan_episodes`'s;
+    a recording's ``sim_seed`` (the optimisers' seed) is ``episode_seed(seed, stem)``.
 
     With ``recording_hashes`` (one content hash per recording), recordings whose file names
     collide but whose contents differ are named ``stem~HASH`` (stable whatever their order),
@@ -59,17 +61,16 @@ def plan_episodes(
         return name
 
     for seed in seeds:
-        for clip in clip_names:
-            for scenario in scenarios:
-                episodes.append(
-                    EpisodeSpec(
-                        id=unique(safe_name(f"{clip}__{scenario}__s{seed}")),
-                        clip=clip,
-                        scenario=scenario,
-                        seed=int(seed),
-                        sim_seed=_derived_seed(seed, clip, scenario),
-                    )
+        for planned in plan_simulated(clip_names, scenarios, [seed]):
+            episodes.append(
+                EpisodeSpec(
+                    id=unique(safe_name(f"{planned.clip}__{planned.scenario}__s{seed}")),
+                    clip=planned.clip,
+                    scenario=planned.scenario,
+                    seed=planned.seed,
+                    sim_seed=planned.sim_seed,
                 )
+            )
         for path, stem in zip(recordings, stems, strict=True):
             episodes.append(
                 EpisodeSpec(
@@ -77,7 +78,7 @@ def plan_episodes(
                     clip=stem,
                     scenario="",
                     seed=int(seed),
-                    sim_seed=_derived_seed(seed, stem),
+                    sim_seed=episode_seed(seed, stem),
                     recording=str(path),
                 )
             )
@@ -188,7 +189,7 @@ def write_episodes(
     from."""
 
     folder.mkdir(parents=True, exist_ok=True)
-    simulators: dict[str, Any] = {}
+    simulator = EpisodeSimulator()
     bar = tqdm(episodes, desc="episodes", unit="episode", disable=not progress, leave=False)
     try:
         for episode in bar:
@@ -198,17 +199,13 @@ def write_episodes(
             if episode.recording:
                 recording = read_recording(episode.recording, format=config.input_format)
             else:
-                if episode.scenario not in simulators:
-                    simulators[episode.scenario] = KinectSimulator(episode.scenario)
-                clip = by_name[episode.clip]
-                recording = simulators[episode.scenario].simulate(clip, seed=episode.sim_seed)
+                recording = simulator.simulate(by_name[episode.clip], episode.planned)
             recording = recording.head(config.max_frames)
             manifest.add(target)
             write_recording(target, recording)  # atomic: temporary file, then rename
     finally:
         bar.close()
-        for simulator in simulators.values():
-            simulator.close()
+        simulator.close()
     # A recording simulated from an embedded clip must be held out of the default graph too.
     recorded: list[str] = []
     for episode in episodes:
