@@ -142,6 +142,9 @@ def test_compare_and_training_use_the_planner(clips: dict[str, Clip]) -> None:
     compared = plan_compare_episodes(["walk", "kick"], ["front-many", "left45-many"], [0, 3])
     planned = plan_episodes(["walk", "kick"], ["front-many", "left45-many"], [0, 3])
     assert [e.planned for e in compared] == planned
+    # A recording file: the optimisers' seed is the rule on the user's seed and the file stem.
+    files = plan_compare_episodes([], [], [2], ["in/one.npz", "in/two.npz"])
+    assert [e.sim_seed for e in files] == [episode_seed(2, "one"), episode_seed(2, "two")]
     trained = simulate_episodes([clips["kick"]], ["left45-many"], [3], max_frames=8)
     episode = plan_episode("kick", "left45-many", 3)
     expected = simulate(clips["kick"], "left45-many", seed=episode.sim_seed).head(8)
