@@ -239,8 +239,10 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     ## Starting State
 
     ``reset`` picks an episode with ``np_random``: one of ``recordings`` uniformly, or a clip and
-    a scenario uniformly and a simulator seed, and simulates the Kinect stream of the clip
-    (:func:`fpg_gym.simulate.simulate`). It starts a new stream (reliability, bone lengths and the
+    a scenario uniformly and a seed, and simulates the Kinect stream of the clip through the
+    episode planner (:mod:`fpg_gym.simulate.episodes`, whose one seeding rule turns the seed into
+    the simulator's: ``walk/front-many/3`` is the stream ``fpg-gym compare`` simulates for that
+    clip, scenario and seed). It starts a new stream (reliability, bone lengths and the
     graph walk start over, a fresh ragdoll), prepares frame 0 (full candidate search) and
     returns its observation. ``options`` may fix the episode: ``{"recording": index or name}``,
     or ``{"clip": name or index, "scenario": name, "seed": int}``, or (in any env)
@@ -272,7 +274,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     ``clip_actions``; ``observation_mode`` ``"vector"`` or ``"dict"``; ``ragdoll`` (True, False,
     or a mapping of :class:`~fpg_gym.physics.ragdoll.Ragdoll` keyword arguments);
     ``max_episode_steps``;
-    ``simulator_seeds`` (None: any seed; n: seeds 0..n-1, simulated streams cached);
+    ``simulator_seeds`` (None: any episode seed; n: seeds 0..n-1, simulated streams cached);
     ``max_evaluations`` (energy evaluations an optimiser may spend per frame, 2,000);
     ``render_mode`` ``"rgb_array"`` or ``"human"``; ``cache_dir`` for the default graph;
     ``reconstructor_options`` (other :class:`~fpg_gym.reconstruct.ReconstructorConfig` fields).

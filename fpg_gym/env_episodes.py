@@ -49,7 +49,7 @@ class EpisodeSource:
         Simulator scenarios for clip episodes (``front-many``, ``left45-many``, ``right45-many``
         by default).
     simulator_seeds : int, optional
-        Draw simulator seeds in ``[0, simulator_seeds)`` and cache their streams (None: any).
+        Draw episode seeds in ``[0, simulator_seeds)`` and cache their streams (None: any).
     needs_truth : bool
         Whether episodes must have ground truth (for the reward).
     reward_mode : str
