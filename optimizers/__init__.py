@@ -56,7 +56,7 @@ from optimizers.base import (
     Problem,
 )
 from optimizers.registry import available, make, prefixes, register, register_prefix
-from optimizers.run import SearchResult, run_optimizer
+from optimizers.run import OptimizerRun, SearchResult, run_optimizer
 
 __all__ = [
     "BaseOptimizer",
@@ -64,6 +64,7 @@ __all__ = [
     "Optimizer",
     "OptimizerError",
     "OptimizerNotFound",
+    "OptimizerRun",
     "Problem",
     "SearchResult",
     "available",

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
 from optimizers.base import Optimizer, Problem
 from optimizers.registry import make
 
-__all__ = ["SearchResult", "run_optimizer"]
+__all__ = ["OptimizerRun", "SearchResult", "run_optimizer"]
 
 
 @dataclass(frozen=True)
@@ -84,48 +85,117 @@ def run_optimizer(
     >>> bool(result.energy < 3.0), result.evaluations <= 500
     (True, True)
     """
-    if max_evaluations is not None and max_evaluations < 0:
-        raise ValueError(f"max_evaluations: expected >= 0 or None, got {max_evaluations}")
-    if time_budget_s is not None and not time_budget_s > 0:
-        raise ValueError(f"time_budget_s: expected > 0 or None, got {time_budget_s}")
-    opt = make(optimizer) if isinstance(optimizer, str) else optimizer
-    generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
-    dim = int(problem.dim)
-    best_x = np.array(problem.x0, dtype=np.float64)
-    best = float("inf")
-    evaluations = asks = 0
-    started: float | None = None
-    opt.reset(problem, generator)
-    while dim > 0:
-        left = None if max_evaluations is None else max_evaluations - evaluations
+    run = OptimizerRun(
+        problem,
+        optimizer,
+        rng,
+        max_evaluations=max_evaluations,
+        time_budget_s=time_budget_s,
+        max_asks=max_asks,
+    )
+    while (z := run.propose()) is not None:
+        run.receive(problem.evaluate(z))
+    return run.result()
+
+
+class OptimizerRun:
+    """:func:`run_optimizer` one batch at a time, for a caller that evaluates the batches.
+
+    The same budget rules as :func:`run_optimizer` (which loops over this class): ``propose``
+    returns the admitted rows of the optimiser's next batch (clipped to the evaluations left) or
+    None when the search is over; ``receive`` takes their values. A caller that runs many
+    searches side by side (many streams) evaluates their batches together between the two.
+
+    Parameters
+    ----------
+    problem, optimizer, rng, max_evaluations, time_budget_s, max_asks
+        As :func:`run_optimizer`; ``problem`` needs ``dim`` and ``x0`` only (the caller
+        evaluates).
+    """
+
+    def __init__(
+        self,
+        problem: Any,
+        optimizer: Optimizer | str,
+        rng: np.random.Generator | int | None = None,
+        *,
+        max_evaluations: int | None = None,
+        time_budget_s: float | None = None,
+        max_asks: int | None = 100_000,
+    ) -> None:
+        if max_evaluations is not None and max_evaluations < 0:
+            raise ValueError(f"max_evaluations: expected >= 0 or None, got {max_evaluations}")
+        if time_budget_s is not None and not time_budget_s > 0:
+            raise ValueError(f"time_budget_s: expected > 0 or None, got {time_budget_s}")
+        self.optimizer = make(optimizer) if isinstance(optimizer, str) else optimizer
+        generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        self.dim = int(problem.dim)
+        self.max_evaluations = max_evaluations
+        self.time_budget_s = time_budget_s
+        self.max_asks = max_asks
+        self.best_x = np.array(problem.x0, dtype=np.float64)
+        self.best = float("inf")
+        self.evaluations = self.asks = 0
+        self._started: float | None = None
+        self._asked: np.ndarray | None = None  # the optimiser's whole last batch
+        self._admitted = 0
+        self.done = self.dim <= 0
+        self.optimizer.reset(problem, generator)
+
+    def propose(self) -> np.ndarray | None:
+        """The rows ``(m, dim)`` to evaluate next, or None when the search is over."""
+        if self.done:
+            return None
+        if self._asked is not None:
+            raise RuntimeError("propose: the last batch was not received (call receive)")
+        left = None if self.max_evaluations is None else self.max_evaluations - self.evaluations
         out_of_time = (
-            started is not None
-            and time_budget_s is not None
-            and time.perf_counter() - started >= time_budget_s
+            self._started is not None
+            and self.time_budget_s is not None
+            and time.perf_counter() - self._started >= self.time_budget_s
         )
-        if left == 0 or out_of_time or (max_asks is not None and asks >= max_asks):
-            break
-        z = opt.ask()
-        asks += 1
+        if left == 0 or out_of_time or (self.max_asks is not None and self.asks >= self.max_asks):
+            self.done = True
+            return None
+        z = self.optimizer.ask()
+        self.asks += 1
         if z is None:
-            break
+            self.done = True
+            return None
         z = np.asarray(z, dtype=np.float64)
         if z.ndim == 1:
             z = z[None]
-        if z.ndim != 2 or z.shape[1] != dim:
-            raise ValueError(f"optimizer {opt!r}: asked shape {z.shape}, expected (n, {dim})")
+        if z.ndim != 2 or z.shape[1] != self.dim:
+            raise ValueError(
+                f"optimizer {self.optimizer!r}: asked shape {z.shape}, expected (n, {self.dim})"
+            )
         if len(z) == 0:
-            break
-        admitted = len(z) if left is None else min(len(z), left)
-        if started is None:
-            started = time.perf_counter()
-        values = np.asarray(problem.evaluate(z[:admitted]), dtype=np.float64).reshape(admitted)
-        evaluations += admitted
+            self.done = True
+            return None
+        self._admitted = len(z) if left is None else min(len(z), left)
+        if self._started is None:
+            self._started = time.perf_counter()
+        self._asked = z
+        return z[: self._admitted]
+
+    def receive(self, values: np.ndarray) -> None:
+        """The values ``(m,)`` of the rows :meth:`propose` returned."""
+        z, admitted = self._asked, self._admitted
+        if z is None:
+            raise RuntimeError("receive: nothing was proposed")
+        self._asked = None
+        values = np.asarray(values, dtype=np.float64).reshape(admitted)
+        self.evaluations += admitted
         i = int(np.argmin(values))
-        if values[i] < best:
-            best = float(values[i])
-            best_x = z[i].copy()
+        if values[i] < self.best:
+            self.best = float(values[i])
+            self.best_x = z[i].copy()
         if admitted < len(z):
             values = np.concatenate([values, np.full(len(z) - admitted, np.inf)])
-        opt.tell(z, values)
-    return SearchResult(x=best_x, energy=best, evaluations=evaluations, asks=asks)
+        self.optimizer.tell(z, values)
+
+    def result(self) -> SearchResult:
+        """The best point found so far and the evaluations and asks spent."""
+        return SearchResult(
+            x=self.best_x, energy=self.best, evaluations=self.evaluations, asks=self.asks
+        )

@@ -30,7 +30,9 @@ neighbour's unwhitened coordinates, ``r_n`` its residual outside the space), whi
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
+from typing import Any
 
 import numpy as np
 import numpy.typing as npt
@@ -156,6 +158,68 @@ _CHILD_COORDS = (3 * skeleton.BONES[:, 1][:, None] + np.arange(3)).reshape(-1)
 _PARENT_COORDS = (3 * skeleton.BONES[:, 0][:, None] + np.arange(3)).reshape(-1)
 
 
+@dataclass(frozen=True)
+class _Working:
+    """The arrays of the latent fast path, for one frame or stacked over frames.
+
+    One frame: ``mean``, ``sensor``, ``joint_weights``, ``target`` ``(60,)``, ``components``
+    ``(d, 60)``, ``y`` ``(K, d)``, ``y_sq``/``r_sq`` ``(K,)``, ``std`` ``(d,)``, ``lengths``
+    ``(19,)``. Stacked over S frames (:class:`StackedEnergy`): a leading axis S, and an axis of
+    length 1 where the points' axis broadcasts (``mean`` ``(S, 1, 60)``, ``joint_weights``
+    ``(S, 60, 1)``, ``y`` ``(S, K, d)``).
+    """
+
+    mean: np.ndarray
+    components: np.ndarray
+    sensor: np.ndarray
+    joint_weights: np.ndarray
+    y: np.ndarray
+    y_sq: np.ndarray
+    r_sq: np.ndarray
+    std: np.ndarray
+    lengths: np.ndarray
+    target: np.ndarray | None
+
+
+def _decode(w: _Working, z: np.ndarray) -> np.ndarray:
+    return w.mean + z @ w.components
+
+
+def _latent_terms(w: _Working, z: np.ndarray) -> dict[str, np.ndarray]:
+    """The five terms for points ``(n, d)`` of one frame or ``(S, n, d)`` of S stacked frames
+    (each ``(n,)`` or ``(S, n)``, float64): the one implementation of the latent fast path."""
+    x = _decode(w, z)
+    joints = skeleton.NUM_JOINTS
+    diff = x - w.sensor
+    if w.joint_weights.ndim == 1:
+        ec = (diff * diff) @ w.joint_weights  # Eq. 11
+    else:
+        ec = ((diff * diff) @ w.joint_weights)[..., 0]
+    u = z * w.std  # unwhitened coordinates
+    dist = (
+        np.einsum("...nd,...nd->...n", u, u)[..., None]
+        - 2.0 * (u @ np.swapaxes(w.y, -1, -2))
+        + w.y_sq
+        + w.r_sq
+    )
+    es = np.maximum(dist.min(axis=-1), 0.0) / joints  # Eq. 12
+    bones = (x[..., _CHILD_COORDS] - x[..., _PARENT_COORDS]).reshape(
+        *x.shape[:-1], skeleton.NUM_BONES, 3
+    )
+    length = np.sqrt(np.einsum("...bc,...bc->...b", bones, bones))
+    ek = ((length - w.lengths) ** 2).mean(axis=-1)  # Eq. 13
+    if w.target is None:
+        em = np.zeros(x.shape[:-1])
+    else:
+        diff = x - w.target
+        em = np.einsum("...d,...d->...", diff, diff) / joints  # Eq. 14
+    ep = np.einsum("...d,...d->...", z, z) / max(z.shape[-1], 1)  # latent prior (beyond papers)
+    out = {"Ec": ec, "Es": es, "Ek": ek, "Em": em, "Ep": ep}
+    if z.dtype != np.float64:
+        out = {k: v.astype(np.float64) for k, v in out.items()}
+    return out
+
+
 class EnergyModel:
     """The energy of one frame as a function of whitened latent points.
 
@@ -198,60 +262,51 @@ class EnergyModel:
         self.reliability = np.asarray(reliability, dtype=np.float64)
         self.lengths = np.asarray(lengths, dtype=np.float64)
         self.target = None if target is None else np.asarray(target, dtype=np.float64).reshape(-1)
-        self._joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
+        joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
         # Es: neighbours' unwhitened coordinates y_n (K, d) and squared residuals |r_n|^2 (K,).
         flat = np.asarray(neighbours, dtype=np.float64).reshape(len(neighbours), POSE_SIZE)
         centred = flat - latent.mean
-        self._y = centred @ latent.basis.T
-        self._y_sq = np.einsum("kd,kd->k", self._y, self._y)
-        residual = centred - self._y @ latent.basis
-        self._r_sq = np.einsum("kd,kd->k", residual, residual)
-        self._std = latent.std
-        # Working copies in the arithmetic precision.
+        y = centred @ latent.basis.T
+        residual = centred - y @ latent.basis
+        # Working copies in the arithmetic precision (one frame: no leading stream axis).
         t = self.dtype
-        self._w_sensor = self.sensor.astype(t)
-        self._w_target = None if self.target is None else self.target.astype(t)
-        self._w_lengths = self.lengths.astype(t)
-        self._mean = latent.mean.astype(t)
-        self._components = latent.components.astype(t)  # (d, 60)
-        self._joint_weights = self._joint_weights.astype(t)
-        self._y, self._y_sq, self._r_sq = (
-            self._y.astype(t),
-            self._y_sq.astype(t),
-            self._r_sq.astype(t),
+        self._work = _Working(
+            mean=latent.mean.astype(t),
+            components=latent.components.astype(t),  # (d, 60)
+            sensor=self.sensor.astype(t),
+            joint_weights=joint_weights.astype(t),
+            y=y.astype(t),
+            y_sq=np.einsum("kd,kd->k", y, y).astype(t),
+            r_sq=np.einsum("kd,kd->k", residual, residual).astype(t),
+            std=latent.std.astype(t),
+            lengths=self.lengths.astype(t),
+            target=None if self.target is None else self.target.astype(t),
         )
-        self._std = self._std.astype(t)
+
+    @property
+    def dim(self) -> int:
+        """Latent dimension ``d``."""
+        return int(self._work.components.shape[0])
+
+    def stack_key(self) -> tuple[Any, ...]:
+        """Models with equal keys can be stacked (:meth:`StackedEnergy.of`): same dtype,
+        weights, latent dimension, number of candidates and presence of a motion target."""
+        return (
+            self.dtype.str,
+            tuple(self._w),
+            self.dim,
+            len(self._work.y),
+            self.target is None,
+        )
 
     def decode_flat(self, z: np.ndarray) -> np.ndarray:
         """Poses as 60-vectors ``(n, 60)`` for latent points ``(n, d)`` (in ``dtype``)."""
-        return self._mean + np.asarray(z, dtype=self.dtype) @ self._components
+        return _decode(self._work, np.asarray(z, dtype=self.dtype))
 
     def terms(self, z: np.ndarray) -> dict[str, np.ndarray]:
         """``Ec``, ``Es``, ``Ek``, ``Em``, ``Ep`` for latent points ``(n, d)``, each ``(n,)``
         float64."""
-        z = np.asarray(z, dtype=self.dtype)
-        x = self.decode_flat(z)
-        joints = skeleton.NUM_JOINTS
-        diff = x - self._w_sensor
-        ec = (diff * diff) @ self._joint_weights  # Eq. 11
-        u = z * self._std  # unwhitened coordinates
-        dist = (
-            np.einsum("nd,nd->n", u, u)[:, None] - 2.0 * (u @ self._y.T) + self._y_sq + self._r_sq
-        )
-        es = np.maximum(dist.min(axis=1), 0.0) / joints  # Eq. 12
-        bones = (x[:, _CHILD_COORDS] - x[:, _PARENT_COORDS]).reshape(len(x), skeleton.NUM_BONES, 3)
-        length = np.sqrt(np.einsum("nbc,nbc->nb", bones, bones))
-        ek = ((length - self._w_lengths) ** 2).mean(axis=1)  # Eq. 13
-        if self._w_target is None:
-            em = np.zeros(len(x))
-        else:
-            diff = x - self._w_target
-            em = np.einsum("nd,nd->n", diff, diff) / joints  # Eq. 14
-        ep = np.einsum("nd,nd->n", z, z) / max(z.shape[1], 1)  # latent prior (beyond the papers)
-        out = {"Ec": ec, "Es": es, "Ek": ek, "Em": em, "Ep": ep}
-        if self.dtype != np.float64:
-            out = {k: v.astype(np.float64) for k, v in out.items()}
-        return out
+        return _latent_terms(self._work, np.asarray(z, dtype=self.dtype))
 
     def total(self, terms: dict[str, np.ndarray]) -> np.ndarray:
         """Weighted sum of terms (Eq. 10, plus the prior when its weight is not 0)."""
@@ -262,3 +317,93 @@ class EnergyModel:
     def __call__(self, z: np.ndarray) -> np.ndarray:
         """``E`` for latent points ``(n, d) -> (n,)``."""
         return self.total(self.terms(z))
+
+
+class StackedEnergy:
+    """The energies of S frames (S streams, one frame each) evaluated together.
+
+    Built from S :class:`EnergyModel` with equal :meth:`EnergyModel.stack_key`; the terms are
+    computed by the same function as one model's (the arrays get a leading stream axis), so
+    ``StackedEnergy.of(models).total(z)[s]`` equals ``models[s](z[s])`` to floating-point
+    rounding. The many-stream path (:mod:`fpg_gym.reconstruct.batched`) evaluates one search
+    iteration of every stream with one call.
+    """
+
+    def __init__(self, work: _Working, weights: np.ndarray, dtype: np.dtype[Any]) -> None:
+        self._work = work
+        self._w = weights
+        self.dtype = dtype
+
+    @classmethod
+    def of(cls, models: Sequence[EnergyModel]) -> StackedEnergy:
+        """Stack ``models`` (at least one, equal :meth:`EnergyModel.stack_key`).
+
+        Raises
+        ------
+        ValueError
+            On an empty list or models that differ in their stack key.
+        """
+        if not models:
+            raise ValueError("models: expected at least one EnergyModel, got none")
+        key = models[0].stack_key()
+        for i, model in enumerate(models):
+            if model.stack_key() != key:
+                raise ValueError(
+                    f"models[{i}]: expected the stack key {key} of models[0], got "
+                    f"{model.stack_key()} (dtype, weights, d, K, no target)"
+                )
+        works = [m._work for m in models]
+
+        def rows(name: str) -> np.ndarray:
+            return np.stack([getattr(w, name) for w in works])[:, None]
+
+        return cls(
+            _Working(
+                mean=rows("mean"),
+                components=np.stack([w.components for w in works]),
+                sensor=rows("sensor"),
+                joint_weights=np.stack([w.joint_weights for w in works])[..., None],
+                y=np.stack([w.y for w in works]),
+                y_sq=rows("y_sq"),
+                r_sq=rows("r_sq"),
+                std=rows("std"),
+                lengths=rows("lengths"),
+                target=None if works[0].target is None else rows("target"),
+            ),
+            models[0]._w,
+            models[0].dtype,
+        )
+
+    def __len__(self) -> int:
+        return int(self._work.components.shape[0])
+
+    def select(self, streams: np.ndarray) -> StackedEnergy:
+        """The stack of the given streams (indices into this stack)."""
+        w = self._work
+        return StackedEnergy(
+            _Working(
+                mean=w.mean[streams],
+                components=w.components[streams],
+                sensor=w.sensor[streams],
+                joint_weights=w.joint_weights[streams],
+                y=w.y[streams],
+                y_sq=w.y_sq[streams],
+                r_sq=w.r_sq[streams],
+                std=w.std[streams],
+                lengths=w.lengths[streams],
+                target=None if w.target is None else w.target[streams],
+            ),
+            self._w,
+            self.dtype,
+        )
+
+    def terms(self, z: np.ndarray) -> dict[str, np.ndarray]:
+        """The five terms of points ``(S, n, d)``, each ``(S, n)`` float64."""
+        return _latent_terms(self._work, np.asarray(z, dtype=self.dtype))
+
+    def total(self, z: np.ndarray) -> np.ndarray:
+        """``E`` (Eq. 10) of points ``(S, n, d)`` -> ``(S, n)``."""
+        terms = self.terms(z)
+        w = self._w
+        total = w[0] * terms["Ec"] + w[1] * terms["Es"] + w[2] * terms["Ek"] + w[3] * terms["Em"]
+        return total + w[4] * terms["Ep"] if w[4] else total

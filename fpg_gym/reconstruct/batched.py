@@ -1,0 +1,254 @@
+"""Many streams in one process: their per-frame searches evaluated together.
+
+:func:`reconstruct_many` reconstructs N recordings frame by frame in lockstep: each stream has
+its own :class:`~fpg_gym.reconstruct.Reconstructor` (its own history, bone lengths, selector
+state) and its own optimiser and generator, so every stream's output equals what
+``Reconstructor.reconstruct`` gives it alone with the same seed (to floating-point rounding; the
+tests check it). What is shared is the search's arithmetic: at every search iteration the points
+the N optimisers asked are stacked and their energies computed with one call
+(:class:`~fpg_gym.reconstruct.energy.StackedEnergy`), instead of N calls of ~20 numpy
+operations each. The budget rules are those of :func:`optimizers.run_optimizer`
+(:class:`optimizers.OptimizerRun`, one per stream).
+
+Per-frame timings
+-----------------
+In a batch, the ``search`` stage time of a frame's record (:attr:`FrameRecord.ms`) is the wall
+time of the whole batch's search and of the other streams' preparation, not the stream's own
+share: compare per-frame times only between runs of the same batch size.
+"""
+
+from __future__ import annotations
+
+import copy
+from collections.abc import Callable, Sequence
+from typing import Any
+
+import numpy as np
+from tqdm import tqdm
+
+from fpg_gym import poses as pose_utils
+from fpg_gym import skeleton
+from fpg_gym.reconstruct.energy import EnergyModel, StackedEnergy
+from fpg_gym.reconstruct.problem import SearchProblem
+from fpg_gym.reconstruct.reconstructor import (
+    FrameRecord,
+    ReconstructionResult,
+    Reconstructor,
+    ReconstructorConfig,
+)
+from optimizers import Optimizer, OptimizerRun, make
+
+__all__ = ["reconstruct_many", "run_streams", "search_together"]
+
+OptimizerSpec = str | Optimizer | Callable[[], Optimizer]
+
+
+def _optimizers(optimizer: OptimizerSpec, count: int) -> list[Optimizer]:
+    """One optimiser object per stream (a name is made, a factory called, an object copied)."""
+    if isinstance(optimizer, str):
+        return [make(optimizer) for _ in range(count)]
+    if isinstance(optimizer, Optimizer):
+        return [copy.deepcopy(optimizer) for _ in range(count)]
+    if callable(optimizer):
+        return [make(optimizer()) for _ in range(count)]
+    raise ValueError(f"optimizer: expected a name, an optimiser or a factory, got {optimizer!r}")
+
+
+def _generators(rngs: Any, count: int) -> list[np.random.Generator]:
+    """One generator per stream from a sequence of seeds/generators (or None: unseeded)."""
+    if rngs is None:
+        return [np.random.default_rng() for _ in range(count)]
+    if isinstance(rngs, (int, np.integer, np.random.Generator)):
+        raise ValueError(
+            "rngs: expected one seed or generator per stream (a sequence), got a single one"
+        )
+    items = list(rngs)
+    if len(items) != count:
+        raise ValueError(f"rngs: expected {count} seeds or generators, got {len(items)}")
+    return [r if isinstance(r, np.random.Generator) else np.random.default_rng(r) for r in items]
+
+
+def _stream_arrays(recording: Any, index: int, frame_dt: float) -> tuple[np.ndarray, ...]:
+    """``positions`` (T,20,3), ``states`` (T,20), ``timestamps`` (T,) of one recording."""
+    name = f"recordings[{index}]"
+    positions = pose_utils.as_poses(recording.positions, f"{name}.positions", ndim=3)
+    states = np.asarray(recording.states)
+    if states.shape != positions.shape[:2]:
+        raise ValueError(f"{name}.states: expected shape {positions.shape[:2]}, got {states.shape}")
+    stamps = getattr(recording, "timestamps", None)
+    timestamps = (
+        np.arange(len(positions)) * frame_dt
+        if stamps is None
+        else np.asarray(stamps, dtype=np.float64).reshape(-1)
+    )
+    if timestamps.shape != (len(positions),):
+        raise ValueError(
+            f"{name}.timestamps: expected shape ({len(positions)},), got {timestamps.shape}"
+        )
+    return positions, states, timestamps
+
+
+def search_together(problems: Sequence[Any], runs: Sequence[OptimizerRun]) -> None:
+    """Run the searches ``runs[i]`` on ``problems[i]`` side by side until all are over.
+
+    Each round, every search still running proposes a batch; the batches of problems whose
+    energies stack (:class:`SearchProblem` with equal :meth:`EnergyModel.stack_key` and batch
+    size) are evaluated with one :class:`StackedEnergy` call, the others one by one with
+    ``problem.evaluate``. Each :class:`SearchProblem` counts its rows in ``evaluations``.
+
+    Raises
+    ------
+    ValueError
+        When an optimiser proposes non-finite points (naming the stream).
+    """
+    if len(problems) != len(runs):
+        raise ValueError(f"runs: expected {len(problems)} (one per problem), got {len(runs)}")
+    stacks: dict[tuple[Any, ...], tuple[StackedEnergy, dict[int, int]]] = {}
+    members: dict[tuple[Any, ...], list[int]] = {}
+    for i, problem in enumerate(problems):
+        energy = getattr(problem, "energy", None)
+        if isinstance(problem, SearchProblem) and isinstance(energy, EnergyModel):
+            members.setdefault(energy.stack_key(), []).append(i)
+    for key, indices in members.items():
+        stack = StackedEnergy.of([problems[i].energy for i in indices])
+        stacks[key] = (stack, {stream: row for row, stream in enumerate(indices)})
+    key_of = {i: key for key, indices in members.items() for i in indices}
+
+    live = list(range(len(problems)))
+    while live:
+        groups: dict[tuple[Any, ...], list[tuple[int, np.ndarray]]] = {}
+        still: list[int] = []
+        for i in live:
+            z = runs[i].propose()
+            if z is None:
+                continue
+            still.append(i)
+            if not np.all(np.isfinite(z)):
+                raise ValueError(f"stream {i}: the optimiser proposed non-finite latent points")
+            if i in key_of:
+                groups.setdefault((*key_of[i], len(z)), []).append((i, z))
+            else:
+                runs[i].receive(problems[i].evaluate(z))
+        for group_key, batch in groups.items():
+            stack, rows = stacks[group_key[:-1]]
+            streams = [i for i, _ in batch]
+            if len(streams) != len(stack):
+                stack = stack.select(np.array([rows[i] for i in streams]))
+            values = stack.total(np.stack([z for _, z in batch]))
+            for j, (i, z) in enumerate(batch):
+                problems[i].evaluations += len(z)
+                runs[i].receive(values[j])
+        live = still
+
+
+def run_streams(
+    reconstructors: Sequence[Reconstructor],
+    recordings: Sequence[Any],
+    optimizer: OptimizerSpec = "local-search",
+    rngs: Sequence[np.random.Generator | int] | None = None,
+    *,
+    progress: bool = False,
+) -> list[ReconstructionResult]:
+    """Reconstruct ``recordings[i]`` with ``reconstructors[i]``, all streams in lockstep.
+
+    Parameters
+    ----------
+    reconstructors : sequence of Reconstructor
+        One per recording, distinct objects (each keeps its stream's state; each is reset).
+    recordings : sequence of Recording-like
+        ``positions`` (T,20,3), ``states`` (T,20), optional ``timestamps`` (T,); lengths may
+        differ (a finished stream leaves the batch).
+    optimizer : str, Optimizer or callable
+        A registered name (made once per stream), an optimiser object (copied per stream) or a
+        factory called once per stream.
+    rngs : sequence of numpy.random.Generator or int, optional
+        One seed or generator per stream; None: unseeded.
+    progress : bool
+        A tqdm bar over all frames, on stderr.
+
+    Returns
+    -------
+    list of ReconstructionResult
+        In the order of ``recordings``; stream i equals
+        ``reconstructors[i].reconstruct(recordings[i], optimizer, rngs[i])``.
+    """
+    count = len(recordings)
+    if len(reconstructors) != count:
+        raise ValueError(
+            f"reconstructors: expected {count} (one per recording), got {len(reconstructors)}"
+        )
+    if len({id(r) for r in reconstructors}) != count:
+        raise ValueError("reconstructors: expected distinct objects (one per stream)")
+    arrays = [
+        _stream_arrays(rec, i, r.config.frame_dt)
+        for i, (rec, r) in enumerate(zip(recordings, reconstructors, strict=True))
+    ]
+    optimizers = _optimizers(optimizer, count)
+    generators = _generators(rngs, count)
+    lengths = [len(a[0]) for a in arrays]
+    outputs = [np.zeros((n, skeleton.NUM_JOINTS, 3), dtype=np.float32) for n in lengths]
+    records: list[list[FrameRecord]] = [[] for _ in range(count)]
+    for r in reconstructors:
+        r.reset()
+    bar = tqdm(total=sum(lengths), unit="frame", desc="reconstruct", disable=not progress)
+    try:
+        for t in range(max(lengths, default=0)):
+            active = [i for i in range(count) if t < lengths[i]]
+            problems = []
+            for i in active:
+                positions, states, timestamps = arrays[i]
+                problems.append(reconstructors[i].prepare(positions[t], states[t], timestamps[t]))
+            runs = [
+                OptimizerRun(
+                    problem,
+                    optimizers[i],
+                    generators[i],
+                    max_evaluations=reconstructors[i].config.max_evaluations,
+                    time_budget_s=reconstructors[i].config.time_budget_s,
+                )
+                for i, problem in zip(active, problems, strict=True)
+            ]
+            search_together(problems, runs)
+            for i, run in zip(active, runs, strict=True):
+                outputs[i][t], record = reconstructors[i].finish(run.result().x)
+                records[i].append(record)
+            bar.update(len(active))
+    except BaseException:
+        for r in reconstructors:  # drop the half-done frame: the objects stay usable
+            r.reset()
+        raise
+    finally:
+        bar.close()
+    return [
+        ReconstructionResult(outputs[i], records[i], False, bones=reconstructors[i].bones.report())
+        for i in range(count)
+    ]
+
+
+def reconstruct_many(
+    graph: Any,
+    recordings: Sequence[Any],
+    optimizer: OptimizerSpec = "local-search",
+    rngs: Sequence[np.random.Generator | int] | None = None,
+    *,
+    config: ReconstructorConfig | None = None,
+    progress: bool = False,
+    **overrides: Any,
+) -> list[ReconstructionResult]:
+    """Reconstruct many recordings against one graph in one process, searches batched.
+
+    One :class:`Reconstructor` per recording (``config`` and ``overrides`` as for
+    :class:`Reconstructor`), then :func:`run_streams`.
+
+    Examples
+    --------
+    >>> seeds = range(len(recordings))                                   # doctest: +SKIP
+    >>> results = reconstruct_many(graph, recordings, rngs=seeds)        # doctest: +SKIP
+    >>> [r.num_frames for r in results]                                  # doctest: +SKIP
+    """
+    reconstructors = [Reconstructor(graph, config, **overrides) for _ in recordings]
+    try:
+        return run_streams(reconstructors, recordings, optimizer, rngs, progress=progress)
+    finally:
+        for r in reconstructors:
+            r.close()
