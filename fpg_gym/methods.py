@@ -62,7 +62,8 @@ from fpg_gym.filters import PRESETS, make_filter
 from fpg_gym.metrics import bones_tracked
 from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
 from fpg_gym.poses import bone_lengths
-from fpg_gym.reconstruct import EnergyWeights, Reconstructor
+from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
+from fpg_gym.reconstruct.batched import run_streams
 from optimizers import make
 
 __all__ = [
@@ -380,6 +381,30 @@ class RagdollStage:
             self._ragdoll = None
 
 
+def _method_result(result: ReconstructionResult) -> MethodResult:
+    """A reconstruction's poses, per-frame times and counts as a :class:`MethodResult`."""
+    arrays = result.arrays()
+    names = [str(n) for n in arrays["stage_names"]]
+    stages = np.asarray(arrays["ms_stages"], dtype=np.float64).reshape(len(result.poses), -1)
+    info: dict[str, Any] = {
+        "recoveries": int(np.sum(arrays["recovered"])),
+        "bone_settling": dict(result.bones),
+    }
+    if any(r.ragdoll for r in result.records):
+        info["ragdoll_divergences"] = sum(
+            int(r.ragdoll.get("new_divergences", 0)) for r in result.records if r.ragdoll
+        )
+    return MethodResult(
+        poses=np.asarray(result.poses, dtype=np.float32),
+        ms=np.asarray(arrays["ms_per_frame"], dtype=np.float64),
+        stage_ms={name: stages[:, i] for i, name in enumerate(names)},
+        evaluations=np.asarray(arrays["evaluations"], dtype=np.float64),
+        energy=np.asarray(arrays["energy"], dtype=np.float64),
+        interrupted=bool(result.interrupted),
+        info=info,
+    )
+
+
 class MethodRunner:
     """Runs methods on recordings against one pose graph.
 
@@ -407,6 +432,8 @@ class MethodRunner:
         self.budget = budget
         self.options = dict(reconstructor_options or {})
         self._reconstructors: dict[tuple[str, bool, bool], Any] = {}
+        # More reconstructors of each kind for run_many (one per stream of a batch).
+        self._pools: dict[tuple[str, bool, bool], list[Reconstructor]] = {}
         self._ragdoll_stage: RagdollStage | None = None
 
     def _reconstructor(self, selector: str, ragdoll: bool, prior: bool = False) -> Any:
@@ -485,32 +512,45 @@ class MethodRunner:
         result = reconstructor.reconstruct(
             recording, make(spec.optimizer), rng=rng, stop_on_interrupt=stop_on_interrupt
         )
-        arrays = result.arrays()
-        names = [str(n) for n in arrays["stage_names"]]
-        stages = np.asarray(arrays["ms_stages"], dtype=np.float64).reshape(len(result.poses), -1)
-        info: dict[str, Any] = {
-            "recoveries": int(np.sum(arrays["recovered"])),
-            "bone_settling": dict(result.bones),
-        }
-        if any(r.ragdoll for r in result.records):
-            info["ragdoll_divergences"] = sum(
-                int(r.ragdoll.get("new_divergences", 0)) for r in result.records if r.ragdoll
+        return _method_result(result)
+
+    def run_many(
+        self,
+        method: Method | str,
+        recordings: Sequence[Any],
+        seeds: Sequence[int | np.random.Generator],
+    ) -> list[MethodResult]:
+        """Run ``method`` on many recordings; ``shum``/``fpg`` reconstruct them side by side
+        with their searches batched (:func:`fpg_gym.reconstruct.batched.run_streams`).
+
+        Each result equals ``run(method, recordings[i], seeds[i])`` (timings aside: a batched
+        frame's search time is the batch's, see :mod:`fpg_gym.reconstruct.batched`).
+        """
+        spec = parse_method(method) if isinstance(method, str) else method
+        if len(seeds) != len(recordings):
+            raise ValueError(
+                f"seeds: expected {len(recordings)} (one per recording), got {len(seeds)}"
             )
-        return MethodResult(
-            poses=np.asarray(result.poses, dtype=np.float32),
-            ms=np.asarray(arrays["ms_per_frame"], dtype=np.float64),
-            stage_ms={name: stages[:, i] for i, name in enumerate(names)},
-            evaluations=np.asarray(arrays["evaluations"], dtype=np.float64),
-            energy=np.asarray(arrays["energy"], dtype=np.float64),
-            interrupted=bool(result.interrupted),
-            info=info,
-        )
+        if spec.is_filter or len(recordings) <= 1:
+            return [self.run(spec, rec, seed) for rec, seed in zip(recordings, seeds, strict=True)]
+        assert spec.selector is not None and spec.optimizer is not None
+        first = self._reconstructor(spec.selector, spec.ragdoll, spec.prior)
+        key = (spec.selector, spec.ragdoll, spec.prior)
+        pool = self._pools.setdefault(key, [first])
+        while len(pool) < len(recordings):
+            pool.append(Reconstructor(self.graph, first.config, ragdoll=spec.ragdoll))
+        results = run_streams(pool[: len(recordings)], recordings, spec.optimizer, list(seeds))
+        return [_method_result(result) for result in results]
 
     def close(self) -> None:
         """Release every ragdoll."""
         for reconstructor in self._reconstructors.values():
             reconstructor.close()
+        for pool in self._pools.values():
+            for reconstructor in pool[1:]:  # pool[0] is one of self._reconstructors
+                reconstructor.close()
         self._reconstructors.clear()
+        self._pools.clear()
         if self._ragdoll_stage is not None:
             self._ragdoll_stage.close()
             self._ragdoll_stage = None

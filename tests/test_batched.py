@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from fpg_gym.reconstruct import EnergyWeights, Reconstructor
+from fpg_gym.reconstruct import STAGES, EnergyWeights, Reconstructor
 from fpg_gym.reconstruct.batched import reconstruct_many, run_streams
 from fpg_gym.reconstruct.energy import StackedEnergy
 from optimizers import OptimizerRun, run_optimizer
@@ -44,6 +44,9 @@ def test_each_stream_equals_its_single_stream_run() -> None:
         )
         assert [r.evaluations for r in result.records] == [r.evaluations for r in alone.records]
         assert all(r.evaluations > 0 for r in result.records)
+        for r in result.records:  # the stream's own search time, and a consistent total
+            assert r.ms["search"] > 0
+            assert r.ms["total"] == pytest.approx(sum(r.ms[s] for s in STAGES))
     # Another seed gives another output: the equality above is not vacuous.
     other = reconstruct_many(graph(), recs[:1], "local-search", rngs=[99])[0]
     assert np.abs(other.poses - many[0].poses).max() > 1e-4

@@ -14,6 +14,7 @@ from fpg_gym import metrics
 from fpg_gym.experiments import CSV_FIELDS, TABLE_COLUMNS, CompareConfig, plan_episodes, run_compare
 from fpg_gym.experiments import run as compare_run
 from fpg_gym.experiments import stats as compare_stats
+from fpg_gym.experiments.store import frames_path
 from fpg_gym.io import resolve_clips
 from fpg_gym.methods import (
     BASELINE,
@@ -447,3 +448,39 @@ def test_compare_with_a_calibrated_output_runs_and_is_its_own_setting(tmp_path: 
         outcome = run_compare(config, progress=False, plots=False)
         errors[name] = outcome.summary["methods"]["fpg:none"]["mean_error_m"]
     assert np.isfinite(errors["calibrated"]) and errors["calibrated"] != errors["plain"]
+
+
+#: Columns of results.csv that are timings (they differ between runs).
+TIMING_COLUMNS = ("seconds", "ms_median", "ms_p95", "ms_mean")
+
+
+def result_rows(out: Path) -> dict[tuple[str, str], dict[str, str]]:
+    """results.csv by (episode, method), timing columns left out."""
+    with (out / "results.csv").open() as handle:
+        return {
+            (row["episode"], row["method"]): {
+                k: v for k, v in row.items() if k not in TIMING_COLUMNS
+            }
+            for row in csv.DictReader(handle)
+        }
+
+
+def test_compare_side_by_side_gives_the_rows_of_one_by_one(tmp_path: Path) -> None:
+    settings: dict[str, Any] = {"methods": ["raw", "fpg"], "seeds": [0, 1]}
+    batched = run_compare(
+        _config(tmp_path / "batched", batch=4, **settings), progress=False, plots=False
+    )
+    alone = run_compare(
+        _config(tmp_path / "alone", batch=1, **settings), progress=False, plots=False
+    )
+    assert batched.tasks_run == alone.tasks_run == 8
+    rows = result_rows(tmp_path / "batched")
+    assert len(rows) == 8 and rows == result_rows(tmp_path / "alone")
+    assert all(float(r["mean_error_m"]) > 0 for r in rows.values())
+    # Every per-frame array but the timings is the same.
+    for episode, method in rows:
+        a = np.load(frames_path(tmp_path / "batched", episode, method))
+        b = np.load(frames_path(tmp_path / "alone", episode, method))
+        for key in ("poses", "errors", "evaluations", "energy"):
+            if key in a.files:
+                np.testing.assert_array_equal(a[key], b[key])

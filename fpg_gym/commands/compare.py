@@ -147,7 +147,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--workers",
         type=int,
         default=None,
-        help="worker processes (default: CPU count; 1 runs in this process)",
+        help="worker processes (default: CPU count; 1 runs in this process); with "
+        "--backend ray and no --address, the CPUs of the local Ray instance",
+    )
+    parser.add_argument(
+        "--batch",
+        type=int,
+        default=8,
+        metavar="N",
+        help="episodes of one reconstruction method run side by side in a process, their "
+        "searches batched (default 8; 1: one by one); same rows, timings aside",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help="local worker processes, or a Ray cluster (pip install 'fpg-gym[distributed]')",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="HOST:PORT",
+        help="Ray cluster to use with --backend ray (default: RAY_ADDRESS, else a local Ray)",
     )
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument(
@@ -177,6 +198,9 @@ def run(args: argparse.Namespace) -> int:
         k=args.k,
         max_frames=args.max_frames,
         workers=args.workers if args.workers is not None else (os.cpu_count() or 1),
+        batch=args.batch,
+        backend=args.backend,
+        address=args.address,
         baseline=args.baseline,
         sensor_map=args.sensor_map,
         output_map=args.output_map,

@@ -62,6 +62,10 @@ class EpisodeSpec:
         return PlannedEpisode(self.clip, self.scenario, self.seed, self.sim_seed)
 
 
+#: Where ``compare`` runs its tasks (:attr:`CompareConfig.backend`).
+BACKENDS: tuple[str, ...] = ("local", "ray")
+
+
 @dataclass
 class CompareConfig:
     """Everything ``fpg-gym compare`` needs (the CLI fills it from its arguments).
@@ -91,7 +95,17 @@ class CompareConfig:
     max_frames : int or None
         Cap on frames per episode (the first ones).
     workers : int
-        Processes; 1 runs in this process.
+        Processes; 1 runs in this process (local backend).
+    batch : int
+        Episodes of one reconstruction method reconstructed side by side in one process, their
+        searches batched (:func:`fpg_gym.reconstruct.batched.run_streams`; same rows as one by
+        one, timings aside); 1 runs them one by one.
+    backend : {"local", "ray"}
+        Where the tasks run: this machine's processes, or a Ray cluster (``fpg-gym
+        [distributed]``; :mod:`fpg_gym.experiments.distributed`).
+    address : str or None
+        Ray cluster address (``ray.init(address=...)``; None: ``RAY_ADDRESS`` or a local Ray
+        started for the run).
     baseline : str
         Method the others are tested against (:data:`fpg_gym.methods.BASELINE`).
     units : str
@@ -121,6 +135,9 @@ class CompareConfig:
     k: int = 30
     max_frames: int | None = None
     workers: int = 1
+    batch: int = 8
+    backend: str = "local"
+    address: str | None = None
     baseline: str = BASELINE.name
     units: str = "auto"
     sensor_map: str | None = None
@@ -149,6 +166,14 @@ class CompareConfig:
             raise ValueError("calibrate_output and output_map: give one (both set the output map)")
         if self.calibration_map and not self.calibrate_output:
             raise ValueError("calibration_map: only used with calibrate_output")
+        if self.batch < 1:
+            raise ValueError(f"batch: expected >= 1 episodes side by side, got {self.batch}")
+        if self.backend not in BACKENDS:
+            raise ValueError(
+                f"backend: expected one of {', '.join(BACKENDS)}, got {self.backend!r}"
+            )
+        if self.address is not None and self.backend != "ray":
+            raise ValueError("address: only used with backend 'ray'")
         if not self.seeds:
             raise ValueError("seeds: at least one seed")
         if any(s < 0 for s in self.seeds):

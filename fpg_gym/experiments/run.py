@@ -54,6 +54,7 @@ from tqdm.auto import tqdm
 from fpg_gym import metrics
 from fpg_gym.errors import TaskError
 from fpg_gym.experiments.config import CompareConfig, EpisodeSpec, safe_name
+from fpg_gym.experiments.distributed import run_on_ray
 from fpg_gym.experiments.planning import plan_keyed_episodes, write_episodes
 from fpg_gym.experiments.report import format_table, write_report
 from fpg_gym.experiments.store import (
@@ -68,7 +69,7 @@ from fpg_gym.experiments.store import (
 from fpg_gym.graph import load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES
 from fpg_gym.io.recording import load_recording
-from fpg_gym.methods import MethodRunner, parse_method
+from fpg_gym.methods import Method, MethodResult, MethodRunner, parse_method
 from fpg_gym.outputs import write_text
 from optimizers import make
 
@@ -110,15 +111,47 @@ def _frame_interval(timestamps: np.ndarray) -> float:
     return float(np.median(steps)) if steps.size else 1.0 / 30.0
 
 
+def _side_by_side(tasks: Sequence[_Task]) -> bool:
+    """Whether a batch runs its episodes side by side (a reconstruction method, more than one
+    episode) rather than one by one."""
+    return len(tasks) > 1 and not parse_method(tasks[0].method).is_filter
+
+
 def _execute(
     runner: MethodRunner, task: _Task, recording: Any
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """Run one method on one episode; return the CSV row and the per-frame arrays."""
     method = parse_method(task.method)
-    episode = task.episode
     start = time.perf_counter()
-    result = runner.run(method, recording, seed=episode.sim_seed)
-    seconds = time.perf_counter() - start
+    result = runner.run(method, recording, seed=task.episode.sim_seed)
+    return _row(runner, method, task, recording, result, time.perf_counter() - start)
+
+
+def _execute_batch(
+    runner: MethodRunner, tasks: Sequence[_Task], recordings: Sequence[Any]
+) -> list[tuple[dict[str, Any], dict[str, np.ndarray]]]:
+    """Run one method on many episodes side by side (:meth:`MethodRunner.run_many`); the CSV
+    row and per-frame arrays of each. ``seconds`` of a row is its share of the batch."""
+    method = parse_method(tasks[0].method)
+    start = time.perf_counter()
+    results = runner.run_many(method, recordings, [t.episode.sim_seed for t in tasks])
+    seconds = (time.perf_counter() - start) / len(tasks)
+    return [
+        _row(runner, method, task, recording, result, seconds)
+        for task, recording, result in zip(tasks, recordings, results, strict=True)
+    ]
+
+
+def _row(
+    runner: MethodRunner,
+    method: Method,
+    task: _Task,
+    recording: Any,
+    result: MethodResult,
+    seconds: float,
+) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The CSV row and the per-frame arrays of one method's result on one episode."""
+    episode = task.episode
     count = result.num_frames
     poses = result.poses
     truth = recording.ground_truth
@@ -222,10 +255,10 @@ def _init_worker(
     )
 
 
-def _worker_task(task: _Task) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+def _worker_batch(tasks: list[_Task]) -> list[tuple[dict[str, Any], dict[str, np.ndarray]]]:
 
     assert _WORKER_RUNNER is not None, "worker not initialised"
-    return _run_task(_WORKER_RUNNER, task, load_recording)
+    return _run_batch(_WORKER_RUNNER, tasks, load_recording)
 
 
 @dataclass
@@ -315,20 +348,53 @@ def _stale_episodes(
     return stale
 
 
-def _run_task(
-    runner: MethodRunner, task: _Task, load: Callable[[str], Any]
-) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
-    """:func:`_execute` with its failure named: a :class:`~fpg_gym.errors.TaskError` says which
-    episode and method failed, and why."""
-    try:
-        return _execute(runner, task, load(task.recording_path))
-    except (KeyboardInterrupt, SystemExit):
-        raise
-    except Exception as error:
-        raise TaskError(
-            f"episode {task.episode.id!r} ({task.recording_path}), method {task.method!r} "
-            f"failed: {type(error).__name__}: {' '.join(str(error).split())}"
-        ) from error
+def _run_batch(
+    runner: MethodRunner, tasks: Sequence[_Task], load: Callable[[str], Any]
+) -> list[tuple[dict[str, Any], dict[str, np.ndarray]]]:
+    """Run a batch of tasks (one method): side by side (:func:`_execute_batch`) or one by one
+    (:func:`_execute`), with a failure named: a :class:`~fpg_gym.errors.TaskError` says which
+    episode(s) and method failed, and why."""
+    groups = [list(tasks)] if _side_by_side(tasks) else [[task] for task in tasks]
+    out: list[tuple[dict[str, Any], dict[str, np.ndarray]]] = []
+    for group in groups:
+        try:
+            recordings = [load(t.recording_path) for t in group]
+            if len(group) == 1:
+                out.append(_execute(runner, group[0], recordings[0]))
+            else:
+                out.extend(_execute_batch(runner, group, recordings))
+        except (KeyboardInterrupt, SystemExit):
+            raise
+        except Exception as error:
+            episodes = ", ".join(f"{t.episode.id!r} ({t.recording_path})" for t in group)
+            raise TaskError(
+                f"episode {episodes}, method {group[0].method!r} "
+                f"failed: {type(error).__name__}: {' '.join(str(error).split())}"
+            ) from error
+    return out
+
+
+def _run_loaded(
+    runner: MethodRunner, tasks: Sequence[_Task], recordings: Sequence[Any]
+) -> list[tuple[dict[str, Any], dict[str, np.ndarray]]]:
+    """:func:`_run_batch` on recordings already read (a Ray task receives them with the
+    batch: the worker may be on another machine)."""
+    by_path = {t.recording_path: r for t, r in zip(tasks, recordings, strict=True)}
+    return _run_batch(runner, tasks, by_path.__getitem__)
+
+
+def _batches(tasks: Sequence[_Task], size: int, workers: int = 1) -> list[list[_Task]]:
+    """Tasks grouped by method, in chunks of at most ``size`` episodes (one method per chunk,
+    reconstructed side by side); a method's chunks are made smaller when that gives each of
+    ``workers`` processes work."""
+    by_method: dict[str, list[_Task]] = {}
+    for task in tasks:
+        by_method.setdefault(task.method, []).append(task)
+    batches = []
+    for group in by_method.values():
+        step = max(1, min(int(size), -(-len(group) // max(1, int(workers)))))
+        batches.extend(group[i : i + step] for i in range(0, len(group), step))
+    return batches
 
 
 def run_compare(
@@ -445,14 +511,28 @@ def run_compare(
         )
         bar.update(1)
 
-    workers = max(1, min(int(config.workers), len(tasks)))
+    batches = _batches(tasks, config.batch, config.workers)
+    workers = max(1, min(int(config.workers), len(batches)))
     try:
-        if workers <= 1:
+        if config.backend == "ray":
+            interrupted = run_on_ray(
+                batches,
+                graph,
+                config.budget,
+                options,
+                _run_loaded,
+                load_recording,
+                finish,
+                address=config.address,
+                num_cpus=config.workers,
+            )
+        elif workers <= 1:
             with MethodRunner(graph, budget=config.budget, reconstructor_options=options) as runner:
-                for task in tasks:
-                    finish(*_run_task(runner, task, load_recording))
+                for batch in batches:
+                    for result in _run_batch(runner, batch, load_recording):
+                        finish(*result)
         else:
-            interrupted = _run_pool(tasks, workers, config, exclude, options, finish)
+            interrupted = _run_pool(batches, workers, config, exclude, options, finish)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -476,14 +556,15 @@ def run_compare(
 
 
 def _run_pool(
-    tasks: Sequence[_Task],
+    batches: Sequence[list[_Task]],
     workers: int,
     config: CompareConfig,
     exclude: list[str],
     options: dict[str, Any],
     finish: Callable[[dict[str, Any], dict[str, np.ndarray]], None],
 ) -> bool:
-    """Run ``tasks`` in ``workers`` spawned processes; True when interrupted by Ctrl-C."""
+    """Run ``batches`` of tasks in ``workers`` spawned processes; True when interrupted by
+    Ctrl-C."""
 
     # The per-frame matrices are tiny: one BLAS thread per worker avoids oversubscription.
     for name in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
@@ -494,26 +575,27 @@ def _run_pool(
         initializer=_init_worker,
         initargs=(config.graph, list(exclude), config.budget, options, os.getpid()),
     )
-    pending: dict[Future[Any], _Task] = {}
+    pending: dict[Future[Any], list[_Task]] = {}
     try:
-        queue = list(tasks)
-        # Keep a few tasks queued per worker so that Ctrl-C leaves little to cancel.
+        queue = list(batches)
+        # Keep a few batches queued per worker so that Ctrl-C leaves little to cancel.
         while queue or pending:
             while queue and len(pending) < 2 * workers:
-                task = queue.pop(0)
-                pending[executor.submit(_worker_task, task)] = task
+                batch = queue.pop(0)
+                pending[executor.submit(_worker_batch, batch)] = batch
             finished, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in finished:
-                task = pending.pop(future)
+                batch = pending.pop(future)
                 try:
-                    result = future.result()
+                    results = future.result()
                 except BrokenProcessPool:
                     raise TaskError(
                         f"a worker process died (killed, or out of memory) while running "
-                        f"episode {task.episode.id!r}, method {task.method!r} or a task beside "
-                        "it; finished results are kept, rerun to resume"
+                        f"episode {batch[0].episode.id!r}, method {batch[0].method!r} or a task "
+                        "beside it; finished results are kept, rerun to resume"
                     ) from None
-                finish(*result)
+                for result in results:
+                    finish(*result)
     except KeyboardInterrupt:
         _stop_pool(executor, pending)
         return True

@@ -12,15 +12,17 @@ operations each. The budget rules are those of :func:`optimizers.run_optimizer`
 
 Per-frame timings
 -----------------
-In a batch, the ``search`` stage time of a frame's record (:attr:`FrameRecord.ms`) is the wall
-time of the whole batch's search and of the other streams' preparation, not the stream's own
-share: compare per-frame times only between runs of the same batch size.
+The ``search`` stage time of a frame's record (:attr:`FrameRecord.ms`) is the stream's own
+share: the time spent in its optimiser's calls plus its share (by rows) of each stacked
+evaluation it took part in; ``total`` is corrected with it.
 """
 
 from __future__ import annotations
 
 import copy
+import time
 from collections.abc import Callable, Sequence
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -88,13 +90,27 @@ def _stream_arrays(recording: Any, index: int, frame_dt: float) -> tuple[np.ndar
     return positions, states, timestamps
 
 
-def search_together(problems: Sequence[Any], runs: Sequence[OptimizerRun]) -> None:
+def _own_search_time(record: FrameRecord, search_ms: float) -> FrameRecord:
+    """The record with the stream's own search time (not the batch's)."""
+    ms = dict(record.ms)
+    ms["total"] += search_ms - ms["search"]
+    ms["search"] = search_ms
+    return replace(record, ms=ms)
+
+
+def search_together(problems: Sequence[Any], runs: Sequence[OptimizerRun]) -> np.ndarray:
     """Run the searches ``runs[i]`` on ``problems[i]`` side by side until all are over.
 
     Each round, every search still running proposes a batch; the batches of problems whose
     energies stack (:class:`SearchProblem` with equal :meth:`EnergyModel.stack_key` and batch
     size) are evaluated with one :class:`StackedEnergy` call, the others one by one with
     ``problem.evaluate``. Each :class:`SearchProblem` counts its rows in ``evaluations``.
+
+    Returns
+    -------
+    ndarray, shape (len(problems),)
+        Seconds of each search: its optimiser's calls and its share (by rows) of the stacked
+        evaluations.
 
     Raises
     ------
@@ -114,31 +130,40 @@ def search_together(problems: Sequence[Any], runs: Sequence[OptimizerRun]) -> No
         stacks[key] = (stack, {stream: row for row, stream in enumerate(indices)})
     key_of = {i: key for key, indices in members.items() for i in indices}
 
+    seconds = np.zeros(len(problems))
+    clock = time.perf_counter
     live = list(range(len(problems)))
     while live:
         groups: dict[tuple[Any, ...], list[tuple[int, np.ndarray]]] = {}
         still: list[int] = []
         for i in live:
+            start = clock()
             z = runs[i].propose()
+            if z is not None and not np.all(np.isfinite(z)):
+                raise ValueError(f"stream {i}: the optimiser proposed non-finite latent points")
+            if z is not None and i not in key_of:
+                runs[i].receive(problems[i].evaluate(z))
+            seconds[i] += clock() - start
             if z is None:
                 continue
             still.append(i)
-            if not np.all(np.isfinite(z)):
-                raise ValueError(f"stream {i}: the optimiser proposed non-finite latent points")
             if i in key_of:
                 groups.setdefault((*key_of[i], len(z)), []).append((i, z))
-            else:
-                runs[i].receive(problems[i].evaluate(z))
         for group_key, batch in groups.items():
+            start = clock()
             stack, rows = stacks[group_key[:-1]]
             streams = [i for i, _ in batch]
             if len(streams) != len(stack):
                 stack = stack.select(np.array([rows[i] for i in streams]))
             values = stack.total(np.stack([z for _, z in batch]))
+            share = (clock() - start) / len(batch)
             for j, (i, z) in enumerate(batch):
+                start = clock()
                 problems[i].evaluations += len(z)
                 runs[i].receive(values[j])
+                seconds[i] += share + clock() - start
         live = still
+    return seconds
 
 
 def run_streams(
@@ -208,10 +233,10 @@ def run_streams(
                 )
                 for i, problem in zip(active, problems, strict=True)
             ]
-            search_together(problems, runs)
-            for i, run in zip(active, runs, strict=True):
+            searched = search_together(problems, runs)
+            for i, run, own in zip(active, runs, searched, strict=True):
                 outputs[i][t], record = reconstructors[i].finish(run.result().x)
-                records[i].append(record)
+                records[i].append(_own_search_time(record, 1e3 * own))
             bar.update(len(active))
     except BaseException:
         for r in reconstructors:  # drop the half-done frame: the objects stay usable

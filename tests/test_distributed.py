@@ -1,0 +1,74 @@
+"""compare --backend ray on a local Ray instance started by the test: the same results.csv rows
+(timings aside) as the local backend."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+
+from fpg_gym.errors import TaskError
+from fpg_gym.experiments import run_compare
+from fpg_gym.experiments.distributed import run_on_ray
+from tests.test_compare import _config, result_rows
+
+ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'fpg-gym[distributed]')")
+
+
+def same_row(row: dict[str, str], expected: dict[str, str]) -> bool:
+    """Equal rows: text fields exactly, numbers to 1e-5 relative (Ray's workers run BLAS on one
+    thread, this process may not: the last digits of a float sum can differ)."""
+    if row.keys() != expected.keys():
+        return False
+    for name, value in row.items():
+        try:
+            a, b = float(value), float(expected[name])
+        except ValueError:
+            if value != expected[name]:
+                return False
+            continue
+        if not (a == b or abs(a - b) <= 1e-5 * max(abs(a), abs(b))):
+            return False
+    return True
+
+
+@pytest.fixture(scope="module")
+def local_ray() -> Iterator[Any]:
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    yield ray
+    ray.shutdown()
+
+
+def test_ray_backend_writes_the_rows_of_the_local_backend(tmp_path: Path, local_ray: Any) -> None:
+    settings: dict[str, Any] = {"methods": ["raw", "fpg"], "seeds": [0, 1], "batch": 2}
+    on_ray = run_compare(
+        _config(tmp_path / "ray", backend="ray", **settings), progress=False, plots=False
+    )
+    local = run_compare(_config(tmp_path / "local", **settings), progress=False, plots=False)
+    assert on_ray.tasks_run == local.tasks_run == 8 and not on_ray.interrupted
+    rows, expected = result_rows(tmp_path / "ray"), result_rows(tmp_path / "local")
+    assert len(rows) == 8 and rows.keys() == expected.keys()
+    for key, row in rows.items():
+        assert same_row(row, expected[key]), key
+    # Resumable like the local backend: a rerun finds every row done.
+    again = run_compare(
+        _config(tmp_path / "ray", backend="ray", **settings), progress=False, plots=False
+    )
+    assert again.tasks_run == 0 and again.tasks_skipped == 8
+    assert len(result_rows(tmp_path / "ray")) == 8
+
+
+def test_a_failing_ray_task_raises_its_error_here(local_ray: Any) -> None:
+    def work(runner: Any, tasks: Any, recordings: Any) -> list[Any]:  # sent by value
+        if recordings[0] == "bad":
+            raise TaskError(f"episode {tasks[0].recording_path!r} failed: boom")
+        return [(recordings[0],)]
+
+    batches = [[SimpleNamespace(recording_path=p)] for p in ("good", "bad")]
+    seen: list[Any] = []
+    with pytest.raises(TaskError, match="episode 'bad' failed: boom"):
+        run_on_ray(batches, None, 10, {}, work, lambda path: path, seen.append)
+    assert seen in ([], ["good"]) and local_ray.is_initialized()  # the caller's Ray stays
