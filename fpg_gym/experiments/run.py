@@ -390,7 +390,7 @@ def _batches(tasks: Sequence[_Task], size: int, workers: int = 1) -> list[list[_
     by_method: dict[str, list[_Task]] = {}
     for task in tasks:
         by_method.setdefault(task.method, []).append(task)
-    batches = []
+    batches: list[list[_Task]] = []
     for group in by_method.values():
         step = max(1, min(int(size), -(-len(group) // max(1, int(workers)))))
         batches.extend(group[i : i + step] for i in range(0, len(group), step))
