@@ -33,6 +33,7 @@ from fpg_gym.graph import load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, resolve_clips
 from fpg_gym.poses import mirror
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
+from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.reconstruct.energy import EnergyWeights
 from fpg_gym.simulate import simulate_clips
@@ -312,9 +313,14 @@ def evaluate_agents(
     ground truth (NaN otherwise).
     """
 
-    reconstructor = Reconstructor(
-        graph, k=k, latent_dim=latent_dim, ragdoll=False, temporal=TemporalConfig.off()
-    )
+    # One reconstructor per recording: the recordings run side by side, their searches batched
+    # (fpg_gym.reconstruct.batched; each stream as alone with seed + i).
+    reconstructors = [
+        Reconstructor(
+            graph, k=k, latent_dim=latent_dim, ragdoll=False, temporal=TemporalConfig.off()
+        )
+        for _ in recordings
+    ]
     out: dict[str, dict[str, float]] = {}
     try:
         for name, agent in agents.items():
@@ -322,8 +328,9 @@ def evaluate_agents(
             errors: list[np.ndarray] = []
             evaluations: list[np.ndarray] = []
             ms: list[np.ndarray] = []
-            for i, recording in enumerate(recordings):
-                result = reconstructor.reconstruct(recording, agent, rng=seed + i)
+            seeds = [seed + i for i in range(len(recordings))]
+            results = run_streams(reconstructors, recordings, agent, seeds)
+            for recording, result in zip(recordings, results, strict=True):
                 arrays = result.arrays()
                 energies.append(arrays["energy"])
                 evaluations.append(arrays["evaluations"])
@@ -343,7 +350,8 @@ def evaluate_agents(
             if progress:
                 print(_format_row(name, out[name]), flush=True)
     finally:
-        reconstructor.close()
+        for reconstructor in reconstructors:
+            reconstructor.close()
     return out
 
 
