@@ -77,6 +77,7 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--alone", type=int, default=4, help="streams also run one by one")
     parser.add_argument("--processes", type=int, default=2)
+    parser.add_argument("--repeat", type=int, default=3, help="interleaved repeats (median)")
     args = parser.parse_args()
 
     exclude = list(CLIPS) if args.graph == "default" else []
@@ -90,32 +91,44 @@ def main() -> None:
     alone = recordings[: args.alone]
     frames_alone = sum(len(r.positions) for r in alone)
     reconstructor = Reconstructor(graph)
-    c0, w0 = time.process_time(), time.perf_counter()
-    poses_alone = [
-        reconstructor.reconstruct(r, "local-search", rng=s).poses
-        for r, s in zip(alone, seeds, strict=False)
-    ]
-    cpu, wall = time.process_time() - c0, time.perf_counter() - w0
-    rows.append(("one by one", len(alone), frames_alone, cpu, wall))
-
-    cpu, wall, poses = _side_by_side(args.graph, recordings, seeds)
-    rows.append(("side by side, 1 process", args.streams, total, cpu, wall))
-    worst = max(float(np.abs(a - b).max()) for a, b in zip(poses_alone, poses, strict=False))
-
     parts = [list(range(i, args.streams, args.processes)) for i in range(args.processes)]
     context = multiprocessing.get_context("spawn")
+    measured: dict[str, list[tuple[float, float]]] = {"alone": [], "one": [], "many": []}
+    worst = 0.0
     with ProcessPoolExecutor(args.processes, mp_context=context) as pool:
-        futures = [
-            pool.submit(
-                _side_by_side, args.graph, [recordings[i] for i in p], [seeds[i] for i in p]
+        for _ in range(args.repeat):  # interleaved, so that a busy moment hits every run
+            c0, w0 = time.process_time(), time.perf_counter()
+            poses_alone = [
+                reconstructor.reconstruct(r, "local-search", rng=s).poses
+                for r, s in zip(alone, seeds, strict=False)
+            ]
+            measured["alone"].append((time.process_time() - c0, time.perf_counter() - w0))
+            cpu, wall, poses = _side_by_side(args.graph, recordings, seeds)
+            measured["one"].append((cpu, wall))
+            worst = max(
+                [
+                    worst,
+                    *(float(np.abs(a - b).max()) for a, b in zip(poses_alone, poses, strict=False)),
+                ]
             )
-            for p in parts
-        ]
-        done = [f.result() for f in futures]
-    # CPU: both processes; wall: the slower process (set-up excluded, as above).
-    cpu, wall = sum(d[0] for d in done), max(d[1] for d in done)
-    rows.append((f"side by side, {args.processes} processes", args.streams, total, cpu, wall))
+            futures = [
+                pool.submit(
+                    _side_by_side, args.graph, [recordings[i] for i in p], [seeds[i] for i in p]
+                )
+                for p in parts
+            ]
+            done = [f.result() for f in futures]
+            # CPU: both processes; wall: the slower process (set-up excluded, as above).
+            measured["many"].append((sum(d[0] for d in done), max(d[1] for d in done)))
 
+    def median(name: str) -> tuple[float, float]:
+        values = np.array(measured[name])
+        return float(np.median(values[:, 0])), float(np.median(values[:, 1]))
+
+    rows.append(("one by one", len(alone), frames_alone, *median("alone")))
+    rows.append(("side by side, 1 process", args.streams, total, *median("one")))
+    rows.append((f"side by side, {args.processes} processes", args.streams, total, *median("many")))
+    print(f"medians of {args.repeat} interleaved repeats")
     print("| run | streams | frames | CPU s | frames / CPU-s | wall s | frames / s |")
     print("|---|---:|---:|---:|---:|---:|---:|")
     for name, count, frames, cpu, wall in rows:

@@ -344,6 +344,9 @@ def test_compare_in_worker_processes(tmp_path: Path) -> None:
         ({"seeds": [-1]}, "seeds"),
         ({"calibrate_output": True, "output_map": "map.json"}, "give one"),
         ({"calibration_map": "map.json"}, "only used with calibrate_output"),
+        ({"batch": 0}, "batch: expected >= 1"),
+        ({"backend": "dask"}, "backend: expected one of local, ray"),
+        ({"address": "head:6379"}, "address: only used with backend 'ray'"),
     ],
 )
 def test_config_errors(tmp_path: Path, changes: dict[str, Any], message: str) -> None:

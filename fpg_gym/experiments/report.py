@@ -279,7 +279,14 @@ def report_markdown(summary: dict[str, Any]) -> str:
         f"{', '.join(str(s) for s in config.get('seeds', []))}"
         + (f"; at most {config['max_frames']} frames each" if config.get("max_frames") else "")
         + f". Budget {config.get('budget', '?')} evaluations per frame, K = "
-        f"{config.get('k', '?')}; {config.get('workers', 1)} worker process(es).",
+        f"{config.get('k', '?')}; {config.get('workers', 1)} worker process(es)"
+        + (
+            f", up to {config['batch']} episodes side by side"
+            if int(config.get("batch", 1)) > 1
+            else ""
+        )
+        + (" on Ray" if config.get("backend") == "ray" else "")
+        + ".",
         "",
     ]
     if summary.get("held_out_warning"):
@@ -306,7 +313,9 @@ def report_markdown(summary: dict[str, Any]) -> str:
         "the largest range (max − min) of a bone's length after the first second of an episode "
         "(`fpg_gym.metrics.settled_bone_spread`), max over bones and episodes. ms/frame: "
         "computation time of one frame on this machine, ragdoll included, "
-        "median / 95th percentile (noisy when workers share cores). Evaluations and energy "
+        "median / 95th percentile (noisy when workers share cores; with episodes side by "
+        "side, a frame's search counts its share of the batched energy evaluations). "
+        "Evaluations and energy "
         f"(Shum Eq. 10, lower is better): reconstruction methods only. Bold: the baseline "
         f"`{summary['baseline']}`.",
         "",
