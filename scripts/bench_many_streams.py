@@ -58,12 +58,12 @@ def streams(count: int, frames: int) -> list[SimpleNamespace]:
 
 
 def _side_by_side(
-    graph_name: str, recordings: list[Any], seeds: list[int]
+    graph_name: str, recordings: list[Any], seeds: list[int], dtype: str = "float64"
 ) -> tuple[float, float, list[np.ndarray]]:
     """Reconstruct side by side; this process's CPU and wall seconds of the reconstruction
     (graph loading and set-up excluded) and the poses."""
     graph = load_graph(graph_name, exclude=list(CLIPS) if graph_name == "default" else [])
-    reconstructors = [Reconstructor(graph) for _ in recordings]
+    reconstructors = [Reconstructor(graph, energy_dtype=dtype) for _ in recordings]
     cpu, wall = time.process_time(), time.perf_counter()
     results = run_streams(reconstructors, recordings, "local-search", seeds)
     cpu, wall = time.process_time() - cpu, time.perf_counter() - wall
@@ -77,6 +77,9 @@ def main() -> None:
     parser.add_argument("--frames", type=int, default=30)
     parser.add_argument("--alone", type=int, default=4, help="streams also run one by one")
     parser.add_argument("--processes", type=int, default=2)
+    parser.add_argument(
+        "--energy-dtype", choices=("float64", "float32"), default="float64", help="energy precision"
+    )
     parser.add_argument("--repeat", type=int, default=3, help="interleaved repeats (median)")
     args = parser.parse_args()
 
@@ -85,12 +88,12 @@ def main() -> None:
     recordings = streams(args.streams, args.frames)
     seeds = list(range(args.streams))
     total = sum(len(r.positions) for r in recordings)
-    print(f"graph {graph!r}; {args.streams} streams, {total} frames")
+    print(f"graph {graph!r}; {args.streams} streams, {total} frames; energy {args.energy_dtype}")
     rows = []
 
     alone = recordings[: args.alone]
     frames_alone = sum(len(r.positions) for r in alone)
-    reconstructor = Reconstructor(graph)
+    reconstructor = Reconstructor(graph, energy_dtype=args.energy_dtype)
     parts = [list(range(i, args.streams, args.processes)) for i in range(args.processes)]
     context = multiprocessing.get_context("spawn")
     measured: dict[str, list[tuple[float, float]]] = {"alone": [], "one": [], "many": []}
@@ -103,7 +106,7 @@ def main() -> None:
                 for r, s in zip(alone, seeds, strict=False)
             ]
             measured["alone"].append((time.process_time() - c0, time.perf_counter() - w0))
-            cpu, wall, poses = _side_by_side(args.graph, recordings, seeds)
+            cpu, wall, poses = _side_by_side(args.graph, recordings, seeds, args.energy_dtype)
             measured["one"].append((cpu, wall))
             worst = max(
                 [
@@ -113,7 +116,11 @@ def main() -> None:
             )
             futures = [
                 pool.submit(
-                    _side_by_side, args.graph, [recordings[i] for i in p], [seeds[i] for i in p]
+                    _side_by_side,
+                    args.graph,
+                    [recordings[i] for i in p],
+                    [seeds[i] for i in p],
+                    args.energy_dtype,
                 )
                 for p in parts
             ]

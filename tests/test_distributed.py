@@ -12,7 +12,7 @@ import pytest
 
 from fpg_gym.errors import TaskError
 from fpg_gym.experiments import run_compare
-from fpg_gym.experiments.distributed import run_on_ray
+from fpg_gym.experiments.distributed import restore_signals, run_on_ray, signal_handlers
 from tests.test_compare import _config, result_rows
 
 ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'fpg-gym[distributed]')")
@@ -37,9 +37,11 @@ def same_row(row: dict[str, str], expected: dict[str, str]) -> bool:
 
 @pytest.fixture(scope="module")
 def local_ray() -> Iterator[Any]:
+    handlers = signal_handlers()
     ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     yield ray
     ray.shutdown()
+    restore_signals(handlers)  # Ray's driver installs its own SIGTERM handler
 
 
 def test_ray_backend_writes_the_rows_of_the_local_backend(tmp_path: Path, local_ray: Any) -> None:

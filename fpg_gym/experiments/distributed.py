@@ -17,13 +17,15 @@ an instance the caller already started (``ray.init``) is used as it is.
 from __future__ import annotations
 
 import os
+import signal
+import threading
 import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
 
 from fpg_gym.methods import MethodRunner
 
-__all__ = ["run_on_ray"]
+__all__ = ["restore_signals", "run_on_ray", "signal_handlers"]
 
 #: Worker-process cache: one MethodRunner per run token (the graph is fetched once per process).
 _RUNNERS: dict[str, Any] = {}
@@ -95,6 +97,7 @@ def run_on_ray(
     """
     ray = _ray()
     started = False
+    handlers = signal_handlers()
     if not ray.is_initialized():
         kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
         if address is None and not os.environ.get("RAY_ADDRESS"):
@@ -132,4 +135,19 @@ def run_on_ray(
     finally:
         if started:
             ray.shutdown()
+            restore_signals(handlers)  # Ray's driver installs its own SIGTERM handler
     return False
+
+
+def signal_handlers() -> dict[int, Any]:
+    """This process's SIGINT and SIGTERM handlers (empty outside the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+
+
+def restore_signals(handlers: dict[int, Any]) -> None:
+    """Put back handlers saved by :func:`signal_handlers`."""
+    for number, handler in handlers.items():
+        if handler is not None:
+            signal.signal(number, handler)
