@@ -18,23 +18,6 @@ from tests.test_compare import _config, result_rows
 ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'fpg-gym[distributed]')")
 
 
-def same_row(row: dict[str, str], expected: dict[str, str]) -> bool:
-    """Equal rows: text fields exactly, numbers to 1e-5 relative (Ray's workers run BLAS on one
-    thread, this process may not: the last digits of a float sum can differ)."""
-    if row.keys() != expected.keys():
-        return False
-    for name, value in row.items():
-        try:
-            a, b = float(value), float(expected[name])
-        except ValueError:
-            if value != expected[name]:
-                return False
-            continue
-        if not (a == b or abs(a - b) <= 1e-5 * max(abs(a), abs(b))):
-            return False
-    return True
-
-
 @pytest.fixture(scope="module")
 def local_ray() -> Iterator[Any]:
     handlers = signal_handlers()
@@ -49,12 +32,15 @@ def test_ray_backend_writes_the_rows_of_the_local_backend(tmp_path: Path, local_
     on_ray = run_compare(
         _config(tmp_path / "ray", backend="ray", **settings), progress=False, plots=False
     )
-    local = run_compare(_config(tmp_path / "local", **settings), progress=False, plots=False)
+    # Local worker processes, which run BLAS on one thread as Ray's workers do (a sum over
+    # threads may round its last digit otherwise).
+    local = run_compare(
+        _config(tmp_path / "local", workers=2, **settings), progress=False, plots=False
+    )
     assert on_ray.tasks_run == local.tasks_run == 8 and not on_ray.interrupted
-    rows, expected = result_rows(tmp_path / "ray"), result_rows(tmp_path / "local")
-    assert len(rows) == 8 and rows.keys() == expected.keys()
-    for key, row in rows.items():
-        assert same_row(row, expected[key]), key
+    rows = result_rows(tmp_path / "ray")
+    assert len(rows) == 8 and rows == result_rows(tmp_path / "local")
+    assert all(float(r["mean_error_m"]) > 0 for r in rows.values())
     # Resumable like the local backend: a rerun finds every row done.
     again = run_compare(
         _config(tmp_path / "ray", backend="ray", **settings), progress=False, plots=False
