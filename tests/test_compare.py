@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import csv
 import json
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -14,6 +15,7 @@ from fpg_gym import metrics
 from fpg_gym.experiments import CSV_FIELDS, TABLE_COLUMNS, CompareConfig, plan_episodes, run_compare
 from fpg_gym.experiments import run as compare_run
 from fpg_gym.experiments import stats as compare_stats
+from fpg_gym.experiments.distributed import RayUnavailable
 from fpg_gym.experiments.store import frames_path
 from fpg_gym.io import resolve_clips
 from fpg_gym.methods import (
@@ -487,3 +489,12 @@ def test_compare_side_by_side_gives_the_rows_of_one_by_one(tmp_path: Path) -> No
         for key in ("poses", "errors", "evaluations", "energy"):
             if key in a.files:
                 np.testing.assert_array_equal(a[key], b[key])
+
+
+def test_ray_backend_without_ray_says_what_to_install(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setitem(sys.modules, "ray", None)  # `import ray` fails
+    with pytest.raises(RayUnavailable, match=r"pip install 'fpg-gym\[distributed\]'"):
+        run_compare(_config(tmp_path / "run", backend="ray"), progress=False, plots=False)
+    assert not (tmp_path / "run" / "episodes").exists()  # failed before simulating

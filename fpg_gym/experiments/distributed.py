@@ -23,9 +23,10 @@ import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
 
+from fpg_gym.errors import FpgGymError
 from fpg_gym.methods import MethodRunner
 
-__all__ = ["restore_signals", "run_on_ray", "signal_handlers"]
+__all__ = ["RayUnavailable", "require_ray", "restore_signals", "run_on_ray", "signal_handlers"]
 
 #: Worker-process cache: one MethodRunner per run token (the graph is fetched once per process).
 _RUNNERS: dict[str, Any] = {}
@@ -33,12 +34,18 @@ _RUNNERS: dict[str, Any] = {}
 Work = Callable[[Any, Sequence[Any], Sequence[Any]], list[Any]]
 
 
-def _ray() -> Any:
-    """The ``ray`` module, or a clear error naming the extra to install."""
+class RayUnavailable(FpgGymError, ImportError):
+    """``--backend ray`` without Ray installed (the message says what to install)."""
+
+
+def require_ray() -> Any:
+    """The ``ray`` module, or :class:`RayUnavailable` naming the extra to install."""
     try:
         import ray  # optional extra fpg-gym[distributed]
     except ImportError:
-        raise ImportError("backend 'ray' needs Ray: pip install 'fpg-gym[distributed]'") from None
+        raise RayUnavailable(
+            "backend 'ray' needs Ray: pip install 'fpg-gym[distributed]'"
+        ) from None
     return ray
 
 
@@ -95,7 +102,7 @@ def run_on_ray(
     num_cpus : int, optional
         CPUs of a local instance started here (None: all).
     """
-    ray = _ray()
+    ray = require_ray()
     started = False
     handlers = signal_handlers()
     if not ray.is_initialized():

@@ -54,7 +54,7 @@ from tqdm.auto import tqdm
 from fpg_gym import metrics
 from fpg_gym.errors import TaskError
 from fpg_gym.experiments.config import CompareConfig, EpisodeSpec, safe_name
-from fpg_gym.experiments.distributed import run_on_ray
+from fpg_gym.experiments.distributed import require_ray, run_on_ray
 from fpg_gym.experiments.planning import plan_keyed_episodes, write_episodes
 from fpg_gym.experiments.report import format_table, write_report
 from fpg_gym.experiments.store import (
@@ -430,6 +430,8 @@ def run_compare(
     started = time.perf_counter()
     out = Path(config.out)
     _check_optimizers(config.methods)
+    if config.backend == "ray":
+        require_ray()  # before any episode is simulated
     manifest = claim_folder(out, fresh, say)
     config_path = out / "config.json"
     results_path = out / "results.csv"
