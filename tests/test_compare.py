@@ -209,7 +209,9 @@ def test_paired_test() -> None:
     assert result["paired_episodes"] == 8
     assert result["mean_difference_m"] == pytest.approx(0.0235)
     assert result["lower_error_episodes"] == 0
-    assert result["wilcoxon_p"] is not None and result["wilcoxon_p"] < 0.01
+    # Eight differences, all positive: W- = 0, and the exact two-sided p-value is
+    # 2 * P(W- = 0) = 2 / 2**8 = 0.0078125 (a one-sided test would give 1/256 or 1).
+    assert result["wilcoxon_p"] == pytest.approx(2 / 2**8, rel=1e-9)
     tie = compare_stats._paired_test(rows, "same", "fpg:local-search")
     assert tie["wilcoxon_p"] is None and "differ" in tie["note"]
     few = {"fpg:local-search": dict(list(base.items())[:3]), "raw": worse}
@@ -217,6 +219,39 @@ def test_paired_test() -> None:
     assert small["paired_episodes"] == 3 and "cannot fall below 0.05" in small["note"]
     none = compare_stats._paired_test({"raw": worse}, "raw", "fpg:local-search")
     assert none["paired_episodes"] == 0
+
+
+def test_paired_test_by_hand_with_wins_losses_and_ties() -> None:
+    """Signed-rank test worked by hand: two-sided, differences method - baseline, ties dropped.
+
+    Differences (method - baseline), episode by episode: -0.03, -0.01, +0.02, 0, -0.04, +0.05,
+    -0.06, 0. Lower error (a win for the method) means a negative difference: 4 wins; the two
+    ties are neither wins nor part of the test (``zero_method="wilcox"``). The six non-zero
+    differences ranked by size: 0.01 -> 1 (-), 0.02 -> 2 (+), 0.03 -> 3 (-), 0.04 -> 4 (-),
+    0.05 -> 5 (+), 0.06 -> 6 (-), so W+ = 2 + 5 = 7 and W- = 14. Of the 2**6 = 64 sign patterns,
+    18 have W+ <= 7 (sums 0..7 reached by 1, 1, 1, 2, 2, 3, 4, 4 subsets of {1..6}), so the exact
+    two-sided p = 2 * 18 / 64 = 0.5625. One-sided it would be 18/64 or 50/64; keeping the ties
+    ("pratt", "zsplit") gives 0.5.
+    """
+    episodes = [f"e{i}" for i in range(8)]
+    differences = [-0.03, -0.01, 0.02, 0.0, -0.04, 0.05, -0.06, 0.0]
+    base = {e: 0.25 + 0.01 * i for i, e in enumerate(episodes)}
+    method = {e: base[e] + d if d else base[e] for e, d in zip(episodes, differences, strict=True)}
+    result = compare_stats._paired_test(
+        {"fpg:local-search": base, "mine": method}, "mine", "fpg:local-search"
+    )
+    assert result["paired_episodes"] == 8
+    assert result["mean_difference_m"] == pytest.approx(-0.07 / 8)  # sum of differences / 8
+    assert result["lower_error_episodes"] == 4  # ties are not wins
+    assert result["wilcoxon_p"] == pytest.approx(36 / 64, rel=1e-9)
+    assert result["note"] == ""  # six differing episodes: p can fall below 0.05
+    # The same episodes the other way round: the sign flips, wins are the other 2, same p.
+    swapped = compare_stats._paired_test(
+        {"fpg:local-search": method, "mine": base}, "mine", "fpg:local-search"
+    )
+    assert swapped["mean_difference_m"] == pytest.approx(0.07 / 8)
+    assert swapped["lower_error_episodes"] == 2
+    assert swapped["wilcoxon_p"] == pytest.approx(36 / 64, rel=1e-9)
 
 
 # --------------------------------------------------------------------------- the run

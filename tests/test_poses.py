@@ -32,6 +32,44 @@ def test_eq1_pairwise_matches_naive_loop_across_blocks(clip_poses: np.ndarray) -
     np.testing.assert_allclose(result, expected, rtol=1e-12)
 
 
+def _hand_made_poses() -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A query at the origin, three database poses and their Eq. 1 distances worked by hand."""
+    query = np.zeros((1, skeleton.NUM_JOINTS, 3))
+    database = np.zeros((3, skeleton.NUM_JOINTS, 3))
+    database[0, 4] = [0.3, 0.4, 0.0]  # ||.|| = sqrt(0.09 + 0.16) = 0.5, the largest joint
+    database[0, 7] = [0.1, 0.0, 0.0]  # 0.1 < 0.5: not the max
+    database[1, :] = [0.0, 0.2, 0.0]  # every joint 0.2 away ...
+    database[1, 19] = [0.6, 0.0, 0.8]  # ... but one sqrt(0.36 + 0.64) = 1.0 away
+    # database[2] is the query itself: distance 0.
+    return query, database, np.array([[0.5, 1.0, 0.0]])
+
+
+@pytest.mark.parametrize("max_block_bytes", [1, 256 * 2**20])
+def test_eq1_one_row_query_by_hand(max_block_bytes: int) -> None:
+    """A one-row query gets its distances, with one row per block and with the default block."""
+    query, database, expected = _hand_made_poses()
+    result = poses.pairwise_pose_distance(query, database, max_block_bytes=max_block_bytes)
+    assert result.shape == (1, 3)
+    np.testing.assert_allclose(result, expected, rtol=1e-12, atol=1e-15)
+    np.testing.assert_allclose(poses.pose_distance(query[0], database), expected[0], rtol=1e-12)
+
+
+def test_eq1_last_short_block_is_filled_by_hand() -> None:
+    """Five query rows in blocks of two: the last block holds one row and must be computed."""
+    _, database, _ = _hand_made_poses()
+    queries = np.zeros((5, skeleton.NUM_JOINTS, 3))
+    queries[:, 4] = [0.3, 0.4, 0.0]  # each query equals database[0] ...
+    queries[4, 4] = [0.0, 0.0, 0.0]  # ... but the last, which is the origin again
+    per_row = len(database) * skeleton.NUM_JOINTS * 3 * 8
+    result = poses.pairwise_pose_distance(queries, database, max_block_bytes=2 * per_row)
+    # Rows 0-3 (joint 4 at (0.3, 0.4, 0)) against database[0]: joint 4 agrees, joint 7 is 0.1
+    # away -> 0.1; database[1]: joint 4 is ||(0.3, 0.2, 0)|| = 0.36 away, joint 19 1.0 -> 1.0;
+    # database[2] (the origin): joint 4 is 0.5 away -> 0.5. Row 4 is the origin: 0.5, 1.0, 0.
+    row = [0.1, 1.0, 0.5]
+    expected = np.array([row] * 4 + [[0.5, 1.0, 0.0]])
+    np.testing.assert_allclose(result, expected, rtol=1e-12, atol=1e-15)
+
+
 def test_normalise_is_invariant_to_yaw_and_translation(
     clip_poses: np.ndarray, rng: np.random.Generator
 ) -> None:
