@@ -41,11 +41,58 @@ def t_pose() -> np.ndarray:
     return pose.astype(np.float32)
 
 
+# Gaussian weights over the last 6 frames, sigma = 2 frames, worked by hand:
+# exp(-f^2 / 8) for f = 0..5 = 1, 0.8824969, 0.6065307, 0.3246525, 0.1353353, 0.0439369, which
+# sum to 2.9929522; divided by the sum:
+HAND_WEIGHTS = (0.3341183, 0.2948583, 0.2026530, 0.1084723, 0.0452180, 0.0146801)
+
+
 def test_weights_are_gaussian_newest_heaviest() -> None:
     w = ReliabilityConfig().weights()
     assert w.shape == (6,)
-    assert np.isclose(w.sum(), 1.0)
-    assert np.all(np.diff(w) < 0)
+    np.testing.assert_allclose(w, HAND_WEIGHTS, atol=1e-7)
+    # sigma = 1: exp(-f^2 / 2) = 1, 0.6065307, 0.1353353, 0.0111090 over 4 frames, sum 1.7529750.
+    w1 = ReliabilityConfig(smoothing_frames=4, smoothing_sigma=1.0).weights()
+    np.testing.assert_allclose(w1, [0.5704588, 0.3460008, 0.0772032, 0.0063372], atol=1e-7)
+
+
+def test_behaviour_window_is_the_last_three_angles_by_hand() -> None:
+    """``Rb`` over f_b = 3 direction-change angles, the hand's path chosen to make them
+    180, 180, 180, 90, 90, 0 degrees at frames 2..7 (frames 0 and 1 have no angle yet).
+
+    Rb = 1 - clamp(mean - 90, 0, 45) / 45 with the mean over the last three angles:
+    frame 2: [180] -> 0; 3: [180, 180] -> 0; 4: [180, 180, 180] -> 0;
+    frame 5: [180, 180, 90] = 150 -> 0; frame 6: [180, 90, 90] = 120 -> 1 - 30/45 = 1/3;
+    frame 7: [90, 90, 0] = 60 -> 1. (A window of 4 gives 135 -> 0 at frame 6; of 2, 90 -> 1.)
+    """
+    steps = 0.1 * np.array(  # the hand's displacement d(t) = p(t) - p(t-1), t = 1..7
+        [[1, 0, 0], [-1, 0, 0], [1, 0, 0], [-1, 0, 0], [0, 1, 0], [1, 0, 0], [1, 0, 0]]
+    )
+    clip = standing(8)  # the rest of the body stands still
+    clip[1:, HAND] += np.cumsum(steps, axis=0).astype(np.float32)
+    behaviour = reliability_of_sequence(clip, tracked(8))["behaviour"]
+    expected = [1.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0 / 3.0, 1.0]
+    np.testing.assert_allclose(behaviour[:, HAND], expected, atol=1e-5)
+    assert np.all(np.delete(behaviour, HAND, axis=1) == 1.0)
+
+
+def test_gaussian_filter_of_the_minimum_by_hand() -> None:
+    """R = sum_f w(f) min(Rb, Rk, Rt)(t - f): the knee inferred (Rt = 0) from frame 2 on.
+
+    With three frames seen (minima 0, 1, 1, newest first) the weights are the first three,
+    renormalised: R = (0.8824969 + 0.6065307) / 2.4890276 = 0.5982367. Frame 5 (minima 0, 0, 0,
+    0, 1, 1): R = w(4) + w(5) = 0.0452180 + 0.0146801 = 0.0598981. Frame 6: R = w(5) = 0.0146801;
+    frame 7 and later: 0.
+    """
+    clip = standing(9)
+    states = tracked(9)
+    states[2:, KNEE] = 1
+    r = reliability_of_sequence(clip, states)["reliability"][:, KNEE]
+    np.testing.assert_allclose(r[:2], 1.0)
+    assert r[2] == pytest.approx(0.5982367, abs=1e-6)
+    assert r[5] == pytest.approx(0.0598981, abs=1e-6)
+    assert r[6] == pytest.approx(0.0146801, abs=1e-6)
+    assert np.all(r[7:] == 0.0)
 
 
 def test_behaviour_angle_definition() -> None:
@@ -105,7 +152,7 @@ def test_inferred_joint_fades_out_with_the_gaussian_filter() -> None:
     assert np.all(terms["tracking"][6:, KNEE] == 0.0)
     assert np.all(terms["tracking"][:6, KNEE] == 1.0)
     r = terms["reliability"][:, KNEE]
-    w = ReliabilityConfig().weights()
+    w = np.array(HAND_WEIGHTS)  # worked by hand above, not computed by the code under test
     assert r[5] == pytest.approx(1.0)
     assert r[6] == pytest.approx(1.0 - w[0])  # the newest frame has weight w(0)
     assert r[7] == pytest.approx(1.0 - w[0] - w[1])
