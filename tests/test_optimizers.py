@@ -147,6 +147,84 @@ def test_local_search_improves_on_x0_within_the_paper_budget() -> None:
     assert problem.evaluate_terms(found.x, count=False)["E"][0] == pytest.approx(found.energy)
 
 
+class _Scripted:
+    """A two-dimensional problem for driving an optimiser by hand (energies given by the test)."""
+
+    dim = 2
+    x0 = np.array([1.0, -2.0])
+
+    def evaluate(self, z: np.ndarray) -> np.ndarray:  # pragma: no cover - never called
+        raise AssertionError("the test tells the energies itself")
+
+
+def test_local_search_scores_x0_moves_on_strict_improvement_and_halves_its_step() -> None:
+    """Shum §VI-E with the step rule of ``local-search`` (halving, ``shrink=0.5``), by hand.
+
+    Each batch is ``center + step * N(0, I)`` (a twin generator gives the same normals); the
+    first batch has x0 itself in row 0. A batch whose best only ties the current best is no
+    improvement: the step halves, 0.25 -> 0.125 -> ... -> 0.015625 -> 0.0078125 < min_step =
+    0.01, and the search stops.
+    """
+    search = optimizers.make("local-search", samples=4, iterations=20, step=0.25, min_step=0.01)
+    search.reset(_Scripted(), np.random.default_rng(7))
+    twin = np.random.default_rng(7)
+    x0 = _Scripted.x0
+    # (energies told, step of the batch, center of the batch); energies index 0 is the batch's
+    # row 0. Batch 1: x0 (row 0) is the best, energy 0 -> center x0, best 0.
+    # Batch 2: a tie at 0 is no improvement -> step 0.125. Batch 3: row 1 improves to -1 ->
+    # center moves there, step stays. Batch 4: a tie at -1 -> 0.0625; then three batches with
+    # nothing better -> 0.03125, 0.015625, 0.0078125 (< 0.01: stop).
+    script = [
+        ([0.0, 5.0, 5.0, 5.0], 0.25),
+        ([0.0, 1.0, 1.0, 1.0], 0.25),
+        ([1.0, -1.0, 1.0, 1.0], 0.125),
+        ([-1.0, 0.0, 0.0, 0.0], 0.125),
+        ([0.0, 0.0, 0.0, 0.0], 0.0625),
+        ([0.0, 0.0, 0.0, 0.0], 0.03125),
+        ([0.0, 0.0, 0.0, 0.0], 0.015625),
+    ]
+    center = x0
+    for batch, (energies, step) in enumerate(script):
+        z = search.ask()
+        assert z is not None, f"batch {batch} should be asked"
+        expected = center + step * twin.standard_normal((4, 2))
+        if batch == 0:
+            expected[0] = x0  # the start is scored
+        np.testing.assert_allclose(z, expected, rtol=0, atol=1e-12, err_msg=f"batch {batch}")
+        search.tell(z, np.array(energies))
+        if batch == 2:
+            center = z[1]
+    assert search.ask() is None  # the step fell below min_step
+
+
+def test_local_search_literal_rule_stops_at_the_first_batch_without_improvement() -> None:
+    search = optimizers.make("local-search", samples=3, shrink=None)
+    search.reset(_Scripted(), np.random.default_rng(0))
+    z = search.ask()
+    assert z is not None
+    search.tell(z, np.array([2.0, 1.0, 3.0]))
+    z = search.ask()
+    assert z is not None
+    search.tell(z, np.array([1.0, 1.0, 1.0]))  # ties the best: a local optimum
+    assert search.ask() is None
+
+
+def test_run_optimizer_returns_x0_when_x0_is_the_minimum() -> None:
+    """x0 is scored: on a bowl centred at x0, no sample can beat it, so x0 and E = 0 come back."""
+
+    class Bowl:
+        dim = 3
+        x0 = np.array([0.5, -0.25, 2.0])
+
+        def evaluate(self, z: np.ndarray) -> np.ndarray:
+            return ((z - self.x0) ** 2).sum(axis=1)  # 0 at x0 only
+
+    found = optimizers.run_optimizer(Bowl(), "local-search", rng=0, max_evaluations=300)
+    np.testing.assert_array_equal(found.x, Bowl.x0)
+    assert found.energy == 0.0
+    assert found.evaluations == 300  # three batches of 100: the step halves twice, no stop yet
+
+
 def test_local_search_beats_random_search_and_none_keeps_x0() -> None:
     energies = {}
     for name in ("local-search", "random-search", "none"):
