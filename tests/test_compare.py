@@ -5,6 +5,7 @@ from __future__ import annotations
 import csv
 import json
 import sys
+import time
 from pathlib import Path
 from typing import Any
 
@@ -124,13 +125,18 @@ def test_filter_methods_match_the_filters(recording: Any) -> None:
 
     with MethodRunner() as runner:
         raw = runner.run("raw", recording)
+        started = time.perf_counter()
         holt = runner.run("holt:smoothed", recording)
+        elapsed_ms = 1e3 * (time.perf_counter() - started)
     assert np.array_equal(raw.poses, recording.positions)
     expected = make_filter("holt:smoothed").filter_sequence(
         recording.positions, recording.states, recording.timestamps
     )
     assert np.allclose(holt.poses, expected)
-    assert holt.ms.shape == (recording.num_frames,) and np.all(holt.ms >= 0)
+    assert holt.ms.shape == (recording.num_frames,)
+    # Per-frame milliseconds of this run: finite, not negative, together within its wall time.
+    assert np.all(np.isfinite(holt.ms)) and np.all(holt.ms >= 0)
+    assert 0 < holt.ms.sum() <= elapsed_ms
     assert holt.evaluations is None and list(holt.stage_ms) == ["filter"]
 
 

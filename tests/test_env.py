@@ -284,7 +284,9 @@ def test_ragdoll_counts_in_info(cache_dir: Path) -> None:
         _, _, terminated, _, info = env.step(np.zeros(20, np.float32))
         resets += info["ragdoll_resets"]
         builds += info["ragdoll_builds"]
-        assert info["ragdoll_divergences"] >= 0
+        # A step's count, not the stream's running total: at most one divergence per frame
+        # (each one resets the body to the target, see Ragdoll.track).
+        assert info["ragdoll_divergences"] in (0, 1)
     assert resets == builds  # every (re)build places the body on the target, nothing else does
     env.close()
 

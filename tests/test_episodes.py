@@ -84,7 +84,10 @@ def test_search_lowers_the_energy_and_policies_and_callables_act(cache_dir: Path
     summary = searched.summary()
     assert summary["mean_error"] == pytest.approx(float(np.mean(searched.frame_errors)))  # type: ignore[arg-type]
     assert summary["steps"] == searched.steps and summary["frames_per_second"] > 0
-    assert summary["raw_err02"] is not None
+    raw = searched.raw_frame_errors
+    assert raw is not None and raw.shape == (searched.steps,)
+    assert summary["raw_mean_error"] == pytest.approx(float(np.mean(raw)))
+    assert summary["raw_err02"] == pytest.approx(float(np.mean(raw >= 0.2)))  # Err0.2
     env.close()
 
 

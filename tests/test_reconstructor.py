@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import time
 from functools import lru_cache
 from types import SimpleNamespace
 from typing import ClassVar
@@ -11,7 +12,8 @@ import numpy as np
 import pytest
 
 from fpg_gym import metrics, poses, skeleton
-from fpg_gym.io import load_default_clips
+from fpg_gym.cli import main
+from fpg_gym.io import Recording, load_default_clips, write_recording
 from fpg_gym.reconstruct import (
     STAGES,
     TERM_NAMES,
@@ -200,10 +202,12 @@ def test_ragdoll_stage_with_a_fake() -> None:
 
         def reset(self, pose: np.ndarray) -> np.ndarray:
             calls.append(("reset", pose))
+            time.sleep(0.005)  # the ragdoll stage's time must be counted as the ragdoll's
             return pose + 0.01
 
         def track(self, target: np.ndarray) -> np.ndarray:
             calls.append(("track", target))
+            time.sleep(0.005)
             return target + 0.01
 
         def close(self) -> None:
@@ -225,7 +229,9 @@ def test_ragdoll_stage_with_a_fake() -> None:
     # The ragdoll works above a floor at y = 0: targets are shifted by the lowest joint seen.
     assert calls[1][1][:, 1].min() == pytest.approx(0.0, abs=1e-6)
     assert out.records[0].ragdoll is not None and "floor_y" in out.records[0].ragdoll
-    assert out.records[0].ms["ragdoll"] >= 0.0
+    # Every frame slept 5 ms inside the ragdoll: its stage time holds them, and the total too.
+    assert all(rec.ms["ragdoll"] >= 5.0 for rec in out.records)
+    assert all(rec.ms["total"] >= rec.ms["ragdoll"] for rec in out.records)
     r.close()
     assert calls[-1][0] == "close"
 
@@ -280,15 +286,12 @@ def test_config_validation() -> None:
 
 
 def test_cli_reconstruct_writes_poses_and_errors(tmp_path, capsys) -> None:
-    recording_module = pytest.importorskip("fpg_gym.io.recording")
-    pytest.importorskip("fpg_gym.graph")
-    from fpg_gym.cli import main
 
     rec = recording(occlude=True)
     frames = 30
-    path = recording_module.write_recording(
+    path = write_recording(
         tmp_path / "rec.npz",
-        recording_module.Recording(
+        Recording(
             positions=rec.positions[:frames],
             states=rec.states[:frames],
             timestamps=rec.timestamps[:frames],
