@@ -100,6 +100,14 @@ def test_behaviour_angle_definition() -> None:
     b = np.array([[0.1, 0, 0], [-0.1, 0, 0], [-0.1, 0, 0]])
     angles = behaviour_angles(a, b, 0.03)
     assert np.allclose(angles, [0.0, np.pi, 0.0])  # the last is below d_min
+    # Exactly d_min is not shorter than d_min: the angle counts (90 deg, then 180 deg).
+    at_d_min = behaviour_angles(
+        np.array([[0.03, 0.0, 0.0], [0.0, 0.0, 0.03]]), np.array([[0.0, 0.03, 0.0]] * 2), 0.03
+    )
+    assert np.allclose(at_d_min, [np.pi / 2, np.pi / 2])
+    assert behaviour_angles(np.array([0.0, 0.0, -0.03]), np.array([0.0, 0.0, 0.03]), 0.03) == (
+        pytest.approx(np.pi)
+    )
 
 
 def test_vibrating_joint_loses_behaviour_reliability_while_walking() -> None:
@@ -117,6 +125,19 @@ def test_vibrating_joint_loses_behaviour_reliability_while_walking() -> None:
     assert np.all(terms["reliability"][late][:, far] > 0.99)
 
 
+def test_root_vibration_is_measured_in_camera_space() -> None:
+    """The whole body shaking +/- 5 cm along X every frame: in camera space the root reverses
+    its direction each frame (180 deg, Rb = 0 from frame 2 on); every other joint is still
+    relative to the root (Rb = 1)."""
+    frames = 8
+    clip = standing(frames)
+    clip[:, :, 0] += (0.05 * (-1.0) ** np.arange(frames, dtype=np.float32))[:, None]
+    behaviour = reliability_of_sequence(clip, tracked(frames))["behaviour"]
+    root = skeleton.ROOT
+    np.testing.assert_allclose(behaviour[:, root], [1, 1, 0, 0, 0, 0, 0, 0], atol=1e-6)
+    assert np.all(np.delete(behaviour, root, axis=1) == 1.0)
+
+
 def test_stretching_bone_lowers_kinematic_reliability_of_its_joints() -> None:
     frames = 30
     clip = standing(frames)
@@ -131,6 +152,11 @@ def test_stretching_bone_lowers_kinematic_reliability_of_its_joints() -> None:
     assert kin[-1, WRIST] == pytest.approx(0.5)
     assert np.all(np.diff(kin[:, HAND]) <= 1e-12)
     assert np.allclose(np.delete(kin[-1], [HAND, WRIST]), 1.0)
+    # The hand moves in a straight line (Rb = 1) and is tracked (Rt = 1): min(Rb, Rk, Rt) = Rk.
+    # The 8 cm bone is 100 % too long once the stretch passes 8 cm (frame 8 of 0.3 / 29 per
+    # frame), so Rk = 0 on the last six frames and the smoothed R is 0 there too.
+    np.testing.assert_array_equal(terms["minimum"][:, HAND], kin[:, HAND])
+    assert np.all(kin[-6:, HAND] == 0.0) and np.all(terms["reliability"][-1, HAND] == 0.0)
 
 
 def test_kinematic_reliability_matches_naive_loop(rng: np.random.Generator) -> None:
