@@ -13,7 +13,14 @@ import numpy as np
 import pytest
 
 from fpg_gym import metrics
-from fpg_gym.experiments import CSV_FIELDS, TABLE_COLUMNS, CompareConfig, plan_episodes, run_compare
+from fpg_gym.experiments import (
+    CSV_FIELDS,
+    TABLE_COLUMNS,
+    CompareConfig,
+    format_tests,
+    plan_episodes,
+    run_compare,
+)
 from fpg_gym.experiments import run as compare_run
 from fpg_gym.experiments import stats as compare_stats
 from fpg_gym.experiments.distributed import RayUnavailable
@@ -258,6 +265,14 @@ def test_paired_test_by_hand_with_wins_losses_and_ties() -> None:
     assert swapped["mean_difference_m"] == pytest.approx(0.07 / 8)
     assert swapped["lower_error_episodes"] == 2
     assert swapped["wilcoxon_p"] == pytest.approx(36 / 64, rel=1e-9)
+    # The README's paired-test table shows those figures: the signed mean difference (-0.07 / 8
+    # = -0.00875 m), the wins out of the paired episodes and p to three digits.
+    summary = {
+        "method_order": ["fpg:local-search", "mine"],
+        "baseline": "fpg:local-search",
+        "methods": {"fpg:local-search": {"vs_baseline": {}}, "mine": {"vs_baseline": result}},
+    }
+    assert format_tests(summary).splitlines()[-1] == "| mine | 8 | -0.0088 | 4 of 8 | 0.562 |"
 
 
 # --------------------------------------------------------------------------- the run
