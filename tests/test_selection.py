@@ -12,6 +12,7 @@ from fpg_gym.reconstruct.selection import (
     GraphSelector,
     NodeDatabase,
     SelectionQuery,
+    _best_k,
     fpg_score,
     make_selector,
     shum_score,
@@ -66,6 +67,15 @@ def test_scores_match_naive_per_candidate_loops(rng: np.random.Generator) -> Non
     assert np.allclose(shum_score(pose, r, cands), naive_shum(pose, r, cands))
     assert np.allclose(fpg_score(pose, r, cands), naive_fpg(pose, r, cands, None))
     assert np.allclose(fpg_score(pose, r, cands, pred), naive_fpg(pose, r, cands, pred))
+
+
+def test_k_best_are_ordered_by_score_then_node_index() -> None:
+    """Ties are ordered by node index, so that equal scores give one deterministic order."""
+    scores = np.array([0.2, 0.5, 0.2, 0.9, 0.2, 0.1, 0.2, 0.3, 0.2, 0.05, 0.2, 0.7])
+    # By hand: 0.05 (node 9), 0.1 (node 5), then the six ties at 0.2 in node order.
+    assert _best_k(scores, 8).tolist() == [9, 5, 0, 2, 4, 6, 8, 10]
+    # Then 0.3 (7), 0.5 (1), 0.7 (11), 0.9 (3); k beyond the count keeps them all.
+    assert _best_k(scores, 20).tolist() == [9, 5, 0, 2, 4, 6, 8, 10, 7, 1, 11, 3]
 
 
 def test_brute_force_keeps_the_k_best_by_eq9(rng: np.random.Generator) -> None:
