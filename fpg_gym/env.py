@@ -47,6 +47,7 @@ __all__ = [
     "OBSERVATION_MODES",
     "RESET_OPTIONS",
     "REWARD_MODES",
+    "ExactAction",
     "KinectPoseEnv",
     "StageTimes",
 ]
@@ -59,6 +60,21 @@ REWARD_MODES: tuple[str, ...] = ("energy", "error", "combined")
 ACTION_MODES: tuple[str, ...] = ("delta", "absolute")
 #: Values of ``observation_mode``.
 OBSERVATION_MODES: tuple[str, ...] = ("vector", "dict")
+
+
+class ExactAction(np.ndarray):
+    """An action that :meth:`KinectPoseEnv.step` uses as given, never clipped.
+
+    :meth:`KinectPoseEnv.action_for` with ``exact=True`` returns one: it selects exactly the
+    latent point an optimiser found, even when that point lies outside the action box, whatever
+    the env's ``clip_actions`` (which it does not change). It is a float64 ``ndarray`` view with the
+    same values as the plain action, so wrappers that pass actions through (``gym.make``'s
+    checkers) keep it; a wrapper that transforms the action returns a plain array, which the env
+    clips as usual.
+    """
+
+    def __new__(cls, values: Any) -> ExactAction:
+        return np.asarray(values, dtype=np.float64).view(cls)
 
 
 class StageTimes(Mapping[str, float]):
@@ -199,8 +215,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     best point found by the paper's search is within ±4 of ``x0`` on 90 % of frames.
     A frame's space has ``d = min(latent_dim, K - 1)`` axes (fewer when fewer than K candidates
     are found); the action's entries beyond ``d`` are ignored. Out-of-bound entries are clipped
-    to [-1, 1] (``info["action_clipped"]`` says so); ``clip_actions=False`` uses them as given
-    (the optimiser driver does, to reconstruct exactly from the point it found). Non-finite
+    to [-1, 1] (``info["action_clipped"]`` says so); ``clip_actions=False`` uses them as given,
+    and so does an :class:`ExactAction` (``action_for(z, exact=True)``: the optimiser driver steps
+    one, to reconstruct exactly from the point it found). Non-finite
     actions raise ``ValueError``.
 
     ## Observation Space
@@ -509,11 +526,15 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             }
         return self.layout.split(observation)
 
-    def action_for(self, z: np.ndarray, problem: SearchProblem | None = None) -> np.ndarray:
+    def action_for(
+        self, z: np.ndarray, problem: SearchProblem | None = None, *, exact: bool = False
+    ) -> np.ndarray:
         """The action that selects latent point ``z`` ``(d,)`` of ``problem`` (the current one).
 
         Returns a float64 ``(latent_dim,)`` array, zero-padded, *not* clipped: entries beyond
-        ±1 are clipped by :meth:`step` unless ``clip_actions`` is False.
+        ±1 are clipped by :meth:`step` unless ``clip_actions`` is False. With ``exact=True`` it
+        is an :class:`ExactAction`, which :meth:`step` never clips, so that it reconstructs from
+        exactly ``z`` (the optimiser driver :func:`fpg_gym.episodes.run_episode` does this).
         """
         problem = problem or self._require_problem("action_for")
         z = np.asarray(z, dtype=np.float64).reshape(-1)
@@ -523,7 +544,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         d = min(problem.dim, self.latent_dim)
         origin = problem.x0[:d] if self.action_mode == "delta" else 0.0
         action[:d] = (z[:d] - origin) / self.action_scale
-        return action
+        return ExactAction(action) if exact else action
 
     def latent_point(self, action: np.ndarray, problem: SearchProblem | None = None) -> np.ndarray:
         """The latent point ``(d,)`` that ``action`` selects in ``problem`` (the current one),
@@ -537,6 +558,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         return self._problem
 
     def _latent_point(self, action: Any, problem: SearchProblem) -> tuple[np.ndarray, bool]:
+        exact = isinstance(action, ExactAction)
         a = np.asarray(action, dtype=np.float64)
         if a.size != self.latent_dim:
             raise ValueError(f"action: expected shape ({self.latent_dim},), got {np.shape(action)}")
@@ -544,7 +566,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         if not np.all(np.isfinite(a)):
             raise ValueError("action: NaN or inf value")
         clipped = bool(np.any(np.abs(a) > 1.0))
-        if clipped and self.clip_actions:
+        if clipped and self.clip_actions and not exact:
             a = np.clip(a, -1.0, 1.0)
         d = min(problem.dim, self.latent_dim)
         z = problem.x0.copy() if self.action_mode == "delta" else np.zeros(problem.dim)

@@ -6,7 +6,8 @@
   ``"random-search"``, ``"cma-es"``, ``"none"``, ...) or an object with ``reset/ask/tell``: on
   every frame it searches ``env.unwrapped.problem`` within the problem's evaluation budget
   (:func:`optimizers.run_optimizer`) and the env steps with the action of the best point found
-  (exactly that point: the action is not clipped);
+  (exactly that point: an :class:`~fpg_gym.env.ExactAction`, which the env does not clip; the
+  env's ``clip_actions`` is left as it is);
 * a **policy** — anything with ``predict(obs, deterministic=True) -> (action, state)``, as
   stable-baselines3 models have;
 * a **callable** ``obs -> action`` (e.g. ``lambda obs: env.action_space.sample()``);
@@ -249,16 +250,14 @@ def run_episode(
     step_ms: list[float] = []
     infos: list[dict[str, Any]] = []
     terminated = truncated = False
-    saved_clip = getattr(base, "clip_actions", True)
     try:
-        if kind == "optimizer":
-            base.clip_actions = False  # step with exactly the point the optimiser found
         while max_steps is None or len(rewards) < max_steps:
             t0 = time.perf_counter()
             if kind == "optimizer":
                 problem = base.problem
                 z = base.reconstructor.search(actor, generator).x
-                action: Any = base.action_for(z, problem)
+                # An ExactAction: the env steps exactly z, even outside the action box.
+                action: Any = base.action_for(z, problem, exact=True)
             elif kind == "policy":
                 action, _ = actor.predict(obs, deterministic=deterministic)
             else:
@@ -282,7 +281,6 @@ def run_episode(
             if terminated or truncated:
                 break
     finally:
-        base.clip_actions = saved_clip
         if bar is not None:
             bar.close()
     count = len(rewards)

@@ -16,7 +16,7 @@ import pytest
 from gymnasium.utils.env_checker import data_equivalence
 
 import fpg_gym  # registers the env
-from fpg_gym.env import ENV_ID, KinectPoseEnv, StageTimes
+from fpg_gym.env import ENV_ID, ExactAction, KinectPoseEnv, StageTimes
 from fpg_gym.env_observation import LATENT_LIMIT, ObservationLayout
 from fpg_gym.io import Recording, load_default_clips, write_recording
 from fpg_gym.metrics import frame_error
@@ -197,6 +197,11 @@ def test_out_of_bound_actions_are_clipped_unless_disabled(cache_dir: Path) -> No
     loose.reset(seed=6)
     assert loose.problem is not None
     np.testing.assert_allclose(loose.latent_point(big), loose.problem.x0 + 12.0)
+    # An ExactAction is never clipped, whatever clip_actions says (and it stays set).
+    exact = ExactAction(big)
+    assert env.problem is not None and env.clip_actions is True
+    np.testing.assert_allclose(env.latent_point(exact), env.problem.x0 + 12.0)
+    np.testing.assert_allclose(env.latent_point(np.asarray(exact)), env.problem.x0 + 3.0)
     with pytest.raises(ValueError, match="NaN"):
         env.step(np.full(20, np.nan, np.float32))
     with pytest.raises(ValueError, match="expected shape"):
@@ -215,7 +220,10 @@ def test_problem_is_public_and_an_optimiser_point_is_reconstructed_exactly(
     assert isinstance(problem, SearchProblem) and env.reconstructor.config.max_evaluations == 2000
     found = env.reconstructor.search("local-search", np.random.default_rng(0))
     assert 0 < problem.evaluations == found.evaluations <= 2000
-    _, reward, _, _, info = env.step(env.action_for(found.x))
+    action = env.action_for(found.x, exact=True)
+    assert isinstance(action, ExactAction)
+    np.testing.assert_array_equal(action, env.action_for(found.x))
+    _, reward, _, _, info = env.step(action)
     assert info["evaluations"] == problem.evaluations
     assert info["energy"] == pytest.approx(found.energy, rel=1e-9)
     assert reward == pytest.approx(-found.energy, rel=1e-9)

@@ -63,7 +63,27 @@ def test_optimiser_episode_equals_the_reconstructor(cache_dir: Path, optimizer: 
         result.energies, [r.energy for r in reference.records], rtol=1e-9, atol=1e-12
     )
     assert np.all(result.evaluations == [r.evaluations for r in reference.records])
-    assert env.clip_actions is True  # restored after the episode
+    env.close()
+
+
+class ClipWatch(gym.Wrapper[Any, Any, Any, Any]):
+    """Records, at every step, the env's ``clip_actions`` and the kind of action it is given."""
+
+    def __init__(self, env: gym.Env[Any, Any]) -> None:
+        super().__init__(env)
+        self.seen: list[tuple[bool, str]] = []
+
+    def step(self, action: Any) -> Any:
+        self.seen.append((self.env.unwrapped.clip_actions, type(action).__name__))  # type: ignore[attr-defined]
+        return self.env.step(action)
+
+
+def test_optimiser_steps_exact_actions_without_touching_clip_actions(cache_dir: Path) -> None:
+    env = ClipWatch(make(cache_dir))
+    result = run_episode(env, "local-search", seed=4, options=EPISODE, max_steps=6)
+    assert result.steps == 6
+    # clip_actions stays True all along; the exact point travels in the action itself.
+    assert env.seen == [(True, "ExactAction")] * 6
     env.close()
 
 
