@@ -61,7 +61,7 @@ from fpg_gym import skeleton
 from fpg_gym.filters import PRESETS, make_filter
 from fpg_gym.metrics import bones_tracked
 from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
-from fpg_gym.poses import bone_lengths
+from fpg_gym.poses import RecordingLike, bone_lengths
 from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
 from fpg_gym.reconstruct.batched import run_streams
 from optimizers import make
@@ -457,7 +457,7 @@ class MethodRunner:
     def run(
         self,
         method: Method | str,
-        recording: Any,
+        recording: RecordingLike,
         seed: int | np.random.Generator = 0,
         *,
         stop_on_interrupt: bool = False,
@@ -471,7 +471,7 @@ class MethodRunner:
             return self._run_filter(spec, recording)
         return self._run_reconstruction(spec, recording, seed, stop_on_interrupt)
 
-    def _run_filter(self, spec: Method, recording: Any) -> MethodResult:
+    def _run_filter(self, spec: Method, recording: RecordingLike) -> MethodResult:
 
         assert spec.filter_name is not None
         flt = make_filter(spec.filter_name)
@@ -501,7 +501,7 @@ class MethodRunner:
     def _run_reconstruction(
         self,
         spec: Method,
-        recording: Any,
+        recording: RecordingLike,
         seed: int | np.random.Generator,
         stop_on_interrupt: bool,
     ) -> MethodResult:
@@ -517,7 +517,7 @@ class MethodRunner:
     def run_many(
         self,
         method: Method | str,
-        recordings: Sequence[Any],
+        recordings: Sequence[RecordingLike],
         seeds: Sequence[int | np.random.Generator],
     ) -> list[MethodResult]:
         """Run ``method`` on many recordings; ``shum``/``fpg`` reconstruct them side by side

@@ -13,6 +13,7 @@ shoulder line is used instead, and the yaw is 0 when both are degenerate.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -20,6 +21,27 @@ import numpy.typing as npt
 from fpg_gym import skeleton
 
 FloatArray = npt.NDArray[np.floating]
+
+
+@runtime_checkable
+class RecordingLike(Protocol):
+    """What the reconstruction drivers read from a stream: a
+    :class:`~fpg_gym.io.recording.Recording`, or any object with these arrays.
+
+    ``timestamps`` (T,) seconds is read when the object has it (else frames are ``frame_dt``
+    apart).
+    """
+
+    @property
+    def positions(self) -> np.ndarray:
+        """Joint positions ``(T, 20, 3)`` in metres, camera space."""
+        ...
+
+    @property
+    def states(self) -> np.ndarray:
+        """Tracking states ``(T, 20)``: 2 tracked, 1 inferred, 0 not tracked."""
+        ...
+
 
 _HIP_LEFT = skeleton.joint_index("HipLeft")
 _HIP_RIGHT = skeleton.joint_index("HipRight")

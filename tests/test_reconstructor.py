@@ -380,3 +380,36 @@ def test_reset_makes_a_stream_independent_of_earlier_ones() -> None:
         second, "local-search", rng=0, progress=False
     )
     np.testing.assert_array_equal(again.poses, fresh.poses)
+
+
+class BareStream:
+    """The least a stream needs (:class:`fpg_gym.poses.RecordingLike`): no timestamps."""
+
+    def __init__(self, positions: np.ndarray, states: np.ndarray) -> None:
+        self._positions, self._states = positions, states
+
+    @property
+    def positions(self) -> np.ndarray:
+        return self._positions
+
+    @property
+    def states(self) -> np.ndarray:
+        return self._states
+
+
+def test_a_bare_recording_like_stream_runs_at_frame_dt() -> None:
+    rec = recording(occlude=False)
+    bare = BareStream(rec.positions[:12], rec.states[:12])
+    assert isinstance(bare, poses.RecordingLike) and isinstance(rec, poses.RecordingLike)
+    assert not isinstance(object(), poses.RecordingLike)
+    r = Reconstructor(graph())
+    stamped = SimpleNamespace(
+        positions=bare.positions, states=bare.states, timestamps=np.arange(12) * r.config.frame_dt
+    )
+    a = r.reconstruct(bare, "local-search", rng=2)
+    b = r.reconstruct(stamped, "local-search", rng=2)
+    assert a.poses.shape == (12, skeleton.NUM_JOINTS, 3)
+    assert np.array_equal(a.poses, b.poses)
+    # Other timestamps change the continuity terms, so the stamps are really read.
+    slow = SimpleNamespace(positions=bare.positions, states=bare.states, timestamps=np.arange(12))
+    assert not np.array_equal(a.poses, r.reconstruct(slow, "local-search", rng=2).poses)

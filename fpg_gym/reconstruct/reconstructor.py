@@ -72,6 +72,7 @@ from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
 from fpg_gym.definitions import OnlineDefinitionFit, PoseMap
 from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
+from fpg_gym.poses import RecordingLike
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights, motion_target
 from fpg_gym.reconstruct.latent import LatentSpace
@@ -95,7 +96,7 @@ from fpg_gym.reconstruct.temporal import (
     align_basis,
 )
 from fpg_gym.validation import check_choice, check_integer, check_number
-from optimizers import SearchResult, make, run_optimizer
+from optimizers import Optimizer, SearchResult, make, run_optimizer
 
 STAGES: tuple[str, ...] = (
     "normalise",
@@ -987,7 +988,7 @@ class Reconstructor:
         positions: np.ndarray,
         states: np.ndarray,
         timestamp: float | None = None,
-        optimizer: Any = "local-search",
+        optimizer: Optimizer | str = "local-search",
         rng: np.random.Generator | int | None = None,
     ) -> tuple[np.ndarray, FrameRecord]:
         """``prepare``, :meth:`search` with ``optimizer`` (a registered name or an object),
@@ -1009,7 +1010,9 @@ class Reconstructor:
         return self._pending
 
     def search(
-        self, optimizer: Any = "local-search", rng: np.random.Generator | int | None = None
+        self,
+        optimizer: Optimizer | str = "local-search",
+        rng: np.random.Generator | int | None = None,
     ) -> SearchResult:
         """Run ``optimizer`` on the prepared frame's problem within the configured budget.
 
@@ -1035,8 +1038,8 @@ class Reconstructor:
 
     def iter_frames(
         self,
-        recording: Any,
-        optimizer: Any = "local-search",
+        recording: RecordingLike,
+        optimizer: Optimizer | str = "local-search",
         rng: np.random.Generator | int | None = None,
     ) -> Iterator[tuple[np.ndarray, FrameRecord]]:
         """Reconstruct a recording frame by frame (a generator; starts with :meth:`reset`).
@@ -1064,8 +1067,8 @@ class Reconstructor:
 
     def reconstruct(
         self,
-        recording: Any,
-        optimizer: Any = "local-search",
+        recording: RecordingLike,
+        optimizer: Optimizer | str = "local-search",
         rng: np.random.Generator | int | None = None,
         *,
         progress: bool = False,
