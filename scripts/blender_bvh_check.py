@@ -15,8 +15,16 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import bpy
 import numpy as np
+
+try:
+    import bpy
+except ModuleNotFoundError:  # run outside Blender's Python: say how to run it
+    sys.exit(
+        "blender_bvh_check.py needs Blender's Python (the bpy module): run it as "
+        "`blender --background --python scripts/blender_bvh_check.py -- FILE.bvh` or install "
+        "bpy in a separate environment (see this script's docstring)"
+    )
 
 #: Kinect-20 joint names (fpg_gym.skeleton.JOINT_NAMES), repeated so that only bpy is needed.
 JOINTS = (

@@ -12,7 +12,7 @@ Output folder::
     manifest.txt      every file compare wrote here (``--fresh`` deletes these and nothing else)
     config.json       the run's settings (a rerun must match them to resume)
     results.csv       one row per episode and method (see :data:`CSV_FIELDS`)
-    episodes/*.npz    the simulated recordings (``fpg_gym.io.load_recording``)
+    episodes/*.npz    the simulated recordings (``fpg_gym.io.recording.load_recording``)
     frames/E/M.npz    per-frame error, ms, stage ms, evaluations, energy and output poses
     summary.json      per-method aggregates, the paired tests, the settings
     report.md         the tables (FPG §8 style) and the plots
