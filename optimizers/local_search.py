@@ -89,7 +89,9 @@ class LocalSearch(BaseOptimizer):
         """``samples`` Gaussian points around the current best (x0 first on iteration 0)."""
         if self.done or self.iteration >= self.iterations:
             return None
-        z = self.center + self.current_step * self.rng.standard_normal((self.samples, self.dim))
+        z = self.rng.standard_normal((self.samples, self.dim))
+        z *= self.current_step  # in place: the same draws as center + step * N(0, I)
+        z += self.center
         if self.iteration == 0:
             z[0] = self.center
         self.iteration += 1

@@ -30,7 +30,8 @@ neighbour's unwhitened coordinates, ``r_n`` its residual outside the space), whi
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+import functools
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -39,11 +40,15 @@ import numpy.typing as npt
 
 from fpg_gym import skeleton
 from fpg_gym.poses import bone_lengths
+from fpg_gym.reconstruct.kernels import KERNELS, EnergyTables, fused_energy, resolve_kernel
 from fpg_gym.reconstruct.latent import POSE_SIZE, LatentSpace
 
 #: The papers' terms (computable from a pose alone) and all terms, in weight order.
 POSE_TERM_NAMES: tuple[str, ...] = ("Ec", "Es", "Ek", "Em")
 TERM_NAMES: tuple[str, ...] = (*POSE_TERM_NAMES, "Ep")
+#: Kernels of :class:`EnergyModel`'s total: the fused ones of :mod:`fpg_gym.reconstruct.kernels`
+#: and ``"direct"``, the terms' definitions on decoded poses (:func:`pose_energy_terms`, slow).
+ENERGY_KERNELS: tuple[str, ...] = (*KERNELS, "direct")
 #: Prior weight chosen on a validation split of Bandai Namco takes (README, "Beyond the papers").
 TUNED_PRIOR_WEIGHT = 0.1
 
@@ -239,6 +244,13 @@ class EnergyModel:
     dtype : numpy dtype
         Arithmetic precision (float64). ``float32`` is about 4x faster for batches of a few
         thousand points and ~20 % faster at 100; the terms are returned as float64 either way.
+    kernel : {"auto", "numba", "numpy", "direct"}
+        The kernel of the total (calling the model; what the search runs): the frame's
+        :class:`~fpg_gym.reconstruct.kernels.EnergyTables` (Eq. 10 as one matrix) evaluated by
+        :func:`~fpg_gym.reconstruct.kernels.fused_energy`, compiled when ``fpg-gym[fast]``
+        (numba) is installed with ``"auto"``; ``"direct"`` sums :func:`pose_energy_terms` of the
+        decoded poses (the definition; slow, for benchmarks). :meth:`terms` is computed as
+        before (one function with :class:`StackedEnergy`).
     """
 
     def __init__(
@@ -251,10 +263,12 @@ class EnergyModel:
         target: np.ndarray | None,
         weights: EnergyWeights | None = None,
         dtype: npt.DTypeLike = np.float64,
+        kernel: str = "auto",
     ) -> None:
         self.dtype = np.dtype(dtype)
         if self.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
             raise ValueError(f"dtype: expected float32 or float64, got {self.dtype}")
+        self.kernel = "direct" if kernel == "direct" else resolve_kernel(kernel)
         self.latent = latent
         self.weights = weights or EnergyWeights()
         self._w = self.weights.as_array()
@@ -264,7 +278,8 @@ class EnergyModel:
         self.target = None if target is None else np.asarray(target, dtype=np.float64).reshape(-1)
         joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
         # Es: neighbours' unwhitened coordinates y_n (K, d) and squared residuals |r_n|^2 (K,).
-        flat = np.asarray(neighbours, dtype=np.float64).reshape(len(neighbours), POSE_SIZE)
+        self._neighbours = np.asarray(neighbours, dtype=np.float64)
+        flat = self._neighbours.reshape(len(neighbours), POSE_SIZE)
         centred = flat - latent.mean
         y = centred @ latent.basis.T
         residual = centred - y @ latent.basis
@@ -281,6 +296,47 @@ class EnergyModel:
             std=latent.std.astype(t),
             lengths=self.lengths.astype(t),
             target=None if self.target is None else self.target.astype(t),
+        )
+        self.tables = self._tables(latent, y, np.einsum("kd,kd->k", centred, centred))
+        if self.dtype != np.float64:
+            self.tables = self.tables.astype(self.dtype)
+        self._energy: Callable[[np.ndarray, EnergyTables], np.ndarray] = functools.partial(
+            fused_energy, kernel=self.kernel if self.kernel != "direct" else "numpy"
+        )
+
+    def _tables(self, latent: LatentSpace, y: np.ndarray, centred_sq: np.ndarray) -> EnergyTables:
+        """Eq. 10 as one matrix (:mod:`fpg_gym.reconstruct.kernels`): ``Ec`` (Eq. 11, ``W =
+        diag(R)``) and ``Em`` (Eq. 14, ``W = I / 20``, where ``C C^T = diag(std^2)``) expanded
+        as ``z^T A z + g.z + c``, the prior ``|z|^2 / d``, ``|u|^2`` and the ``K`` inner
+        products of ``Es`` (Eq. 12; ``|y_n|^2 + |r_n|^2 = |x_n - mean|^2``), the bone vectors
+        of ``Ek`` (Eq. 13)."""
+        joints = skeleton.NUM_JOINTS
+        components, mean, std, d = latent.components, latent.mean, latent.std, latent.dim
+        joint_weights = np.repeat(self.reliability, 3)
+        wc, ws, wk, wm, wp = self._w
+        delta = mean - self.sensor
+        weighted = wc * joint_weights * delta
+        const = float(weighted @ delta)
+        diagonal = ws / joints * std * std + wp / max(d, 1)
+        if self.target is not None:
+            motion = mean - self.target
+            weighted = weighted + (wm / joints) * motion
+            const += wm / joints * float(motion @ motion)
+            diagonal = diagonal + wm / joints * std * std
+        k = len(y)
+        matrix = np.empty((d, d + 1 + k + 3 * skeleton.NUM_BONES))
+        np.matmul(components * (wc * joint_weights), components.T, out=matrix[:, :d])
+        matrix[:, :d].flat[:: d + 1] += diagonal
+        matrix[:, d] = 2.0 * (components @ weighted)
+        matrix[:, d + 1 : d + 1 + k] = (-2.0 * ws / joints) * (std[:, None] * y.T)
+        matrix[:, d + 1 + k :] = components[:, _CHILD_COORDS] - components[:, _PARENT_COORDS]
+        return EnergyTables(
+            matrix=matrix,
+            c0=const,
+            ycst=(ws / joints) * centred_sq,
+            b0=mean[_CHILD_COORDS] - mean[_PARENT_COORDS],
+            lengths=self.lengths,
+            wk=wk / skeleton.NUM_BONES,
         )
 
     @property
@@ -315,8 +371,26 @@ class EnergyModel:
         return total + w[4] * terms["Ep"] if w[4] else total
 
     def __call__(self, z: np.ndarray) -> np.ndarray:
-        """``E`` for latent points ``(n, d) -> (n,)``."""
-        return self.total(self.terms(z))
+        """``E`` for latent points ``(n, d) -> (n,)`` float64, by the fused kernel."""
+        if self.kernel == "direct":
+            return self._direct(z)
+        z = np.asarray(z, dtype=self.dtype)
+        energy = self._energy(z, self.tables)
+        return energy if energy.dtype == np.float64 else energy.astype(np.float64)
+
+    def _direct(self, z: np.ndarray) -> np.ndarray:
+        """``E`` from the terms' definitions on the decoded poses (:func:`pose_energy_terms`)."""
+        z = np.asarray(z, dtype=np.float64)
+        terms = pose_energy_terms(
+            self.latent.decode(z),
+            sensor=self.sensor.reshape(skeleton.NUM_JOINTS, 3),
+            reliability=self.reliability,
+            neighbours=self._neighbours,
+            lengths=self.lengths,
+            target=None if self.target is None else self.target.reshape(skeleton.NUM_JOINTS, 3),
+        )
+        terms["Ep"] = np.einsum("nd,nd->n", z, z) / max(z.shape[1], 1)
+        return self.total(terms)
 
 
 class StackedEnergy:

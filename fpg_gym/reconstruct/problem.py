@@ -172,7 +172,7 @@ class SearchProblem:
             z = z[None]
         if z.ndim != 2 or z.shape[1] != self.dim:
             raise ValueError(f"Z: expected shape (n, {self.dim}), got {z.shape}")
-        if not np.all(np.isfinite(z)):
+        if not np.isfinite(z).all():
             raise ValueError("Z: non-finite latent coordinates")
         return z
 
@@ -189,8 +189,14 @@ class SearchProblem:
         return terms
 
     def evaluate(self, z: np.ndarray) -> np.ndarray:
-        """Energy ``E`` (Shum Eq. 10, lower is better) of latent points ``(n, d) -> (n,)``."""
-        return self.evaluate_terms(z)["E"]
+        """Energy ``E`` (Shum Eq. 10, lower is better) of latent points ``(n, d) -> (n,)``.
+
+        The search's inner loop: the total only, by the fused kernel
+        (:mod:`fpg_gym.reconstruct.kernels`); :meth:`evaluate_terms` gives each term.
+        """
+        z = self._check(z)
+        self.evaluations += len(z)
+        return self.energy(z)
 
     def __repr__(self) -> str:
         return (

@@ -1,0 +1,93 @@
+"""The fused energy kernels against the previous implementation (tests/reference_energy.py)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from reference_energy import ReferenceEnergyModel
+
+from fpg_gym import poses, skeleton
+from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights
+from fpg_gym.reconstruct.kernels import (
+    available_kernels,
+    fused_energy,
+    numpy_energy,
+    resolve_kernel,
+)
+from fpg_gym.reconstruct.latent import LatentSpace
+
+KERNELS = available_kernels()
+
+
+def random_frame(rng: np.random.Generator, k: int, max_dim: int, motion: bool, spread: float):
+    """A random frame: K noisy candidates around a random pose, a noisy sensor and target."""
+    base = poses.rest_pose().astype(np.float64) + rng.normal(0.0, 0.1, (skeleton.NUM_JOINTS, 3))
+    neighbours = base[None] + rng.normal(0.0, spread, (k, skeleton.NUM_JOINTS, 3))
+    sensor = base + rng.normal(0.0, 0.08, (skeleton.NUM_JOINTS, 3))
+    reliability = rng.uniform(0, 1, skeleton.NUM_JOINTS)
+    reliability[rng.uniform(size=skeleton.NUM_JOINTS) < 0.2] = 0.0
+    lengths = poses.DEFAULT_BONE_LENGTHS * rng.uniform(0.9, 1.1)
+    target = base + rng.normal(0.0, 0.02, (skeleton.NUM_JOINTS, 3)) if motion else None
+    latent = LatentSpace.fit(neighbours, max_dim=max_dim)
+    return latent, sensor, reliability, neighbours, lengths, target
+
+
+CASES = [
+    # (K, max_dim, motion, spread, weights)
+    (30, 20, True, 0.05, EnergyWeights()),
+    (30, 20, False, 0.05, EnergyWeights()),
+    (30, 8, True, 0.05, EnergyWeights()),  # candidates have residuals outside the space
+    (5, 20, True, 0.2, EnergyWeights.with_prior(0.3)),  # d = K - 1, prior on
+    (30, 20, True, 0.05, EnergyWeights(style=0.0, kinematic=3.0)),
+]
+
+
+@pytest.mark.parametrize("kernel", KERNELS)
+@pytest.mark.parametrize("case", range(len(CASES)))
+def test_fused_energy_equals_the_reference_on_random_problems(kernel: str, case: int) -> None:
+    k, max_dim, motion, spread, weights = CASES[case]
+    for seed in range(4):
+        rng = np.random.default_rng(1000 * case + seed)
+        frame = random_frame(rng, k, max_dim, motion, spread)
+        reference = ReferenceEnergyModel(*frame, weights)
+        model = EnergyModel(*frame, weights, kernel=kernel)
+        z = rng.normal(0.0, rng.uniform(0.2, 2.0), (100, frame[0].dim))
+        z[0] = frame[0].encode(frame[3][1])  # exactly a candidate: Es = its residual only
+        expected = reference(z)
+        got = model(z)
+        assert got.dtype == np.float64 and got.shape == (100,)
+        np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
+        assert int(np.argmin(got)) == int(np.argmin(expected))
+        old, new = reference.terms(z), model.terms(z)
+        for name in TERM_NAMES:
+            np.testing.assert_allclose(new[name], old[name], rtol=1e-9, atol=1e-12, err_msg=name)
+        np.testing.assert_allclose(model.total(new), got, rtol=1e-10, atol=1e-12)
+
+
+def test_kernels_agree_and_float32_is_close(rng: np.random.Generator) -> None:
+    frame = random_frame(rng, 30, 20, True, 0.05)
+    model = EnergyModel(*frame)
+    z = rng.normal(0.0, 1.0, (257, frame[0].dim))
+    results = [fused_energy(z, model.tables, kernel) for kernel in KERNELS]
+    for other in results[1:]:
+        np.testing.assert_allclose(other, results[0], rtol=1e-12, atol=1e-14)
+    np.testing.assert_allclose(numpy_energy(z, model.tables), results[0], rtol=1e-12)
+    low = EnergyModel(*frame, dtype=np.float32)
+    assert low.tables.matrix.dtype == np.float32
+    np.testing.assert_allclose(low(z), model(z), rtol=2e-3, atol=1e-5)
+
+
+def test_kernel_names_are_checked() -> None:
+    assert resolve_kernel("numpy") == "numpy"
+    assert resolve_kernel("auto") == KERNELS[0]
+    with pytest.raises(ValueError, match="kernel: expected one of auto, numba, numpy"):
+        resolve_kernel("fortran")
+
+
+def test_tables_are_c_contiguous_and_sized(rng: np.random.Generator) -> None:
+    latent, *rest = random_frame(rng, 12, 20, True, 0.05)
+    tables = EnergyModel(latent, *rest).tables
+    d = latent.dim
+    assert tables.matrix.flags.c_contiguous
+    assert tables.matrix.shape == (d, d + 1 + 12 + 3 * skeleton.NUM_BONES)
+    assert tables.dim == d and tables.k == 12
