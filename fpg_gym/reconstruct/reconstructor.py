@@ -192,8 +192,10 @@ class ReconstructorConfig:
         Candidates per frame (30, both papers).
     latent_dim : int
         Most latent dimensions; ``d = min(latent_dim, K - 1)`` (20).
-    selector : {"graph", "brute-force"}
-        FPG's graph search or Shum's brute force (Eq. 9).
+    selector : {"graph", "auto", "brute-force"}
+        FPG's graph search, Shum's brute force (Eq. 9), or "auto": the graph walk or a full
+        search with FPG's score, whichever is estimated cheaper each frame
+        (:class:`~fpg_gym.reconstruct.selection.GraphSelector`).
     brute_force_score : {"shum", "fpg"}
         Score of the brute-force selector (Eq. 9, or FPG's S over all nodes).
     weights : EnergyWeights
@@ -295,7 +297,7 @@ class ReconstructorConfig:
         check_number(self.sensor_blend, "sensor_blend", low=0.0, high=1.0)
         check_number(self.max_gap_s, "max_gap_s", low=0.0, low_open=True)
         check_number(self.frame_dt, "frame_dt", low=0.0, low_open=True)
-        check_choice(self.selector, "selector", ("graph", "brute-force"))
+        check_choice(self.selector, "selector", ("graph", "auto", "brute-force"))
         check_choice(self.length_prior, "length_prior", ("database", "default"))
         check_choice(self.energy_dtype, "energy_dtype", ("float64", "float32"))
         if self.calibrate_output and self.output_map is not None:
@@ -529,7 +531,7 @@ class Reconstructor:
                 "recovery_factor": config.recovery_factor,
                 "recovery_min_score": config.recovery_min_score,
             }
-            if config.selector == "graph"
+            if config.selector in ("graph", "auto")
             else {"score": config.brute_force_score}
         )
         self.selector: CandidateSelector = make_selector(

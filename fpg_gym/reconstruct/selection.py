@@ -31,7 +31,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from fpg_gym import skeleton
-from fpg_gym.poses import as_poses, bone_directions
+from fpg_gym.reconstruct.node_database import NodeDatabase
 
 # --------------------------------------------------------------------------- scores
 
@@ -96,71 +96,6 @@ def _best_k(scores: np.ndarray, k: int) -> np.ndarray:
     else:
         part = np.arange(len(scores))
     return part[np.lexsort((part, scores[part]))]
-
-
-# --------------------------------------------------------------------------- database
-
-
-class NodeDatabase:
-    """The graph's node poses, retargetable to the user's bone lengths.
-
-    Stores each node's root and unit bone directions so that a subset of nodes can be given any
-    bone lengths with one matrix product (:data:`fpg_gym.skeleton.PATH_MATRIX`).
-
-    Parameters
-    ----------
-    poses : array_like, shape (N, 20, 3)
-        Normalised node poses.
-    refresh_tolerance_m : float
-        :meth:`all_poses` recomputes its cached retargeted copy of the whole database when a
-        bone length moved by more than this since the cache was made.
-    """
-
-    def __init__(self, poses: np.ndarray, refresh_tolerance_m: float = 0.005) -> None:
-        self.poses = as_poses(poses, "poses", ndim=3)
-        if len(self.poses) == 0:
-            raise ValueError("poses: the database is empty (0 nodes)")
-        self._directions = bone_directions(self.poses).astype(np.float32)
-        self._roots = self.poses[:, skeleton.ROOT].copy()
-        self._path = skeleton.PATH_MATRIX.astype(np.float32)
-        self.refresh_tolerance_m = refresh_tolerance_m
-        self._cache_lengths: np.ndarray | None = None
-        self._cache: np.ndarray | None = None
-        self.refreshes = 0
-
-    def __len__(self) -> int:
-        return len(self.poses)
-
-    def poses_for(self, nodes: np.ndarray, lengths: np.ndarray | None) -> np.ndarray:
-        """Poses of ``nodes`` ``(M, 20, 3)`` float32, retargeted to ``lengths`` when given."""
-        nodes = np.asarray(nodes, dtype=np.intp)
-        if lengths is None:
-            return self.poses[nodes]
-        vectors = self._directions[nodes] * np.asarray(lengths, dtype=np.float32)[:, None]
-        # joint = root + PATH_MATRIX @ bone vectors, as one GEMM ((M*3, 19) x (19, 20)).
-        joints = np.tensordot(vectors, self._path, axes=([1], [1])).transpose(0, 2, 1)
-        out: np.ndarray = joints + self._roots[nodes, None, :]
-        return out
-
-    def clear_cache(self) -> None:
-        """Forget the cached retargeted database (a new stream starts from scratch)."""
-        self._cache = None
-        self._cache_lengths = None
-
-    def all_poses(self, lengths: np.ndarray | None) -> np.ndarray:
-        """Every node's pose, retargeted to ``lengths`` (cached; see ``refresh_tolerance_m``)."""
-        if lengths is None:
-            return self.poses
-        lengths = np.asarray(lengths, dtype=np.float64)
-        if (
-            self._cache is None
-            or self._cache_lengths is None
-            or np.max(np.abs(self._cache_lengths - lengths)) > self.refresh_tolerance_m
-        ):
-            self._cache = self.poses_for(np.arange(len(self)), lengths)
-            self._cache_lengths = lengths.copy()
-            self.refreshes += 1
-        return self._cache
 
 
 # --------------------------------------------------------------------------- interface
@@ -257,20 +192,83 @@ class BruteForceSelector:
         """Nothing to forget: every frame is a full search."""
 
     def select(self, query: SelectionQuery) -> Selection:
-        """Score all nodes and return the K best."""
-        candidates = self.database.all_poses(query.lengths)
+        """Score all nodes and return the K best (exact; see :func:`shum_best_k`,
+        :func:`fpg_best_k`)."""
         if self.score == "shum":
-            scores = shum_score(query.pose, query.reliability, candidates)
+            best, scores = shum_best_k(self.database, query, self.k)
         else:
-            scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
-        best = _best_k(scores, self.k)
+            best, scores = fpg_best_k(self.database, query, self.k)
         return Selection(
             nodes=best.astype(np.int64),
-            poses=candidates[best],
-            scores=scores[best].astype(np.float64),
-            num_scored=len(candidates),
+            poses=self.database.all_poses(query.lengths)[best],
+            scores=scores,
+            num_scored=len(self.database),
             full_search=True,
         )
+
+
+def shum_best_k(
+    database: NodeDatabase, query: SelectionQuery, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` nodes of least Shum Eq. 9 score over the whole database, best first.
+
+    One float32 product of the augmented node table with ``[R, -2 R * p_k]`` (see
+    :mod:`fpg_gym.reconstruct.node_database`) scores every node to within a known rounding
+    bound ``e``; the nodes within ``2 e`` of the ``k``-th approximate score (a few more than
+    ``k``) are re-scored exactly with :func:`shum_score`. The result equals scoring every node
+    with :func:`shum_score`: same nodes, same order, same ties.
+
+    Returns
+    -------
+    nodes : ndarray, shape (k,)
+    scores : ndarray, shape (k,) float64
+    """
+    reliability = np.asarray(query.reliability, dtype=np.float64)
+    if not reliability.any():  # every score is 0: a tie of all nodes, keep the first k
+        first = np.arange(min(k, len(database)))
+        return first, np.zeros(len(first))
+    point = np.asarray(query.pose, dtype=np.float64).reshape(1, -1)
+    values, error = database.weighted_squared_distances(reliability[None], point, query.lengths)
+    approx = values[:, 0]
+    if k < len(approx):
+        kth = np.partition(approx, k - 1)[k - 1]
+        # Any node of the exact best k is within 2 e of the k-th approximate score.
+        shortlist = np.flatnonzero(approx <= kth + 2.0 * error[0])
+    else:
+        shortlist = np.arange(len(approx))
+    candidates = database.all_poses(query.lengths)[shortlist]
+    scores = shum_score(query.pose, reliability, candidates)
+    best = _best_k(scores, k)
+    return shortlist[best], scores[best].astype(np.float64)
+
+
+def fpg_best_k(
+    database: NodeDatabase, query: SelectionQuery, k: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """The ``k`` nodes of least FPG score ``S = Ss + Sc`` over the whole database, best first.
+
+    Scores every node with :func:`fpg_score`. (``S`` sums joint distances, not squares, so it
+    is no inner product; a shortlist from bounds by weighted squared distances,
+    ``sqrt(sum a^2 d^2) <= sum a d <= sqrt(sum a) sqrt(sum a d^2)``, was measured: the bounds
+    differ by up to ``sqrt(20)`` and kept nearly every node, 0.5-0.9x the direct score.)
+
+    Returns
+    -------
+    nodes : ndarray, shape (k,)
+    scores : ndarray, shape (k,) float64
+    """
+    scores = fpg_score(
+        query.pose, query.reliability, database.all_poses(query.lengths), query.prediction
+    )
+    best = _best_k(scores, k)
+    return best, scores[best].astype(np.float64)
+
+
+#: Cost of walking (retargeting and scoring) one neighbourhood node, in units of scoring one
+#: node of the full search (cached poses): measured 1.6-3x on this project's 2-core machine.
+WALK_NODE_COST = 2.5
+#: Fixed cost of a walk (the neighbourhood union), in the same units.
+WALK_FIXED_COST = 200.0
 
 
 class GraphSelector:
@@ -292,6 +290,12 @@ class GraphSelector:
         Weight of the newest frame in the running average (0.1).
     database : NodeDatabase, optional
         Share one database between selectors.
+    strategy : {"walk", "auto"}
+        ``"walk"`` (FPG): score the neighbourhood. ``"auto"``: score the neighbourhood unless
+        a full search costs less by the estimate ``WALK_NODE_COST * |neighbourhood| +
+        WALK_FIXED_COST`` against ``|nodes|`` (deterministic, from sizes only); the full
+        search then gives the best K of all nodes by the same score (``full_search=True``).
+        Dense graphs (a large mean degree) and small ones favour the full search.
     """
 
     def __init__(
@@ -303,9 +307,13 @@ class GraphSelector:
         recovery_min_score: float = 0.05,
         recovery_smoothing: float = 0.1,
         database: NodeDatabase | None = None,
+        strategy: str = "walk",
     ) -> None:
         if k < 1:
             raise ValueError(f"k: expected >= 1, got {k}")
+        if strategy not in ("walk", "auto"):
+            raise ValueError(f"strategy: expected 'walk' or 'auto', got {strategy!r}")
+        self.strategy = strategy
         if recovery_factor is not None and recovery_factor <= 1.0:
             raise ValueError(f"recovery_factor: expected > 1 or None, got {recovery_factor}")
         if not 0.0 < recovery_smoothing <= 1.0:
@@ -346,6 +354,9 @@ class GraphSelector:
             selection = self.full_search.select(query)
         else:
             pool = self.neighbourhood(self._previous)
+            walk_cost = WALK_NODE_COST * len(pool) + WALK_FIXED_COST
+            if self.strategy == "auto" and walk_cost >= len(self.database):
+                return self._finish(self.full_search.select(query))
             candidates = self.database.poses_for(pool, query.lengths)
             scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
             best = _best_k(scores, self.k)
@@ -365,6 +376,10 @@ class GraphSelector:
                 full = self.full_search.select(query)
                 selection = replace(full, num_scored=len(pool) + full.num_scored, recovered=True)
                 self.recoveries += 1
+        return self._finish(selection)
+
+    def _finish(self, selection: Selection) -> Selection:
+        """Remember the frame's nodes and best score; float32 poses."""
         self._previous = selection.nodes
         a = self.recovery_smoothing
         best_score = float(selection.scores[0])
@@ -382,13 +397,17 @@ def _database(graph: object, database: NodeDatabase | None) -> NodeDatabase:
 def make_selector(
     name: str, graph: object, k: int = 30, database: NodeDatabase | None = None, **kwargs: object
 ) -> CandidateSelector:
-    """Build a selector by name: ``"graph"`` or ``"brute-force"``.
+    """Build a selector by name: ``"graph"``, ``"auto"`` (the graph walk or a full search,
+    whichever is estimated cheaper each frame) or ``"brute-force"``.
 
     Extra keyword arguments go to the selector's constructor.
     """
     database = _database(graph, database)
     if name == "graph":
         return GraphSelector(graph, k, database=database, **kwargs)  # type: ignore[arg-type]
+    if name == "auto":
+        kwargs.setdefault("strategy", "auto")
+        return GraphSelector(graph, k, database=database, **kwargs)  # type: ignore[arg-type]
     if name == "brute-force":
         return BruteForceSelector(database, k, **kwargs)  # type: ignore[arg-type]
-    raise ValueError(f"selector: expected 'graph' or 'brute-force', got {name!r}")
+    raise ValueError(f"selector: expected 'graph', 'auto' or 'brute-force', got {name!r}")
