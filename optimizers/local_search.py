@@ -8,6 +8,9 @@ import numpy as np
 
 from optimizers import BaseOptimizer
 
+#: Rows of the pre-drawn N(0, I) table of ``proposals="table"``.
+TABLE_ROWS = 1 << 15
+
 
 class LocalSearch(BaseOptimizer):
     """Shum's local stochastic search in the whitened latent space.
@@ -39,6 +42,14 @@ class LocalSearch(BaseOptimizer):
         (the paper's literal rule).
     min_step : float
         With ``shrink``: stop once the step is below this (0.01).
+    proposals : {"normal", "table"}
+        Where the N(0, I) samples come from. ``"normal"``: drawn from the generator each
+        iteration (about a third of the search's time at 100 x 20 samples). ``"table"``: a
+        block of :data:`TABLE_ROWS` consecutive rows of a table of N(0, I) rows drawn once
+        from the generator (on the first frame, or when the dimension changes), at a uniform
+        random offset per iteration, with a random sign per axis; each batch is still 100
+        independent standard normal rows, but rows recur across batches (a different random
+        stream from ``"normal"``).
     """
 
     name = "local-search"
@@ -50,6 +61,7 @@ class LocalSearch(BaseOptimizer):
         step: float = 0.25,
         shrink: float | None = 0.5,
         min_step: float = 0.01,
+        proposals: str = "normal",
     ) -> None:
         super().__init__()
         if samples < 1:
@@ -60,6 +72,10 @@ class LocalSearch(BaseOptimizer):
             raise ValueError(f"step: expected > 0, got {step}")
         if shrink is not None and not 0.0 < shrink < 1.0:
             raise ValueError(f"shrink: expected None or a value in (0, 1), got {shrink}")
+        if proposals not in ("normal", "table"):
+            raise ValueError(f"proposals: expected 'normal' or 'table', got {proposals!r}")
+        self.proposals = proposals
+        self._table: np.ndarray | None = None
         self.samples = samples
         self.iterations = iterations
         self.step = step
@@ -74,6 +90,7 @@ class LocalSearch(BaseOptimizer):
             "step": self.step,
             "shrink": self.shrink,
             "min_step": self.min_step,
+            "proposals": self.proposals,
         }
 
     def reset(self, problem: Any, rng: np.random.Generator) -> None:
@@ -89,8 +106,11 @@ class LocalSearch(BaseOptimizer):
         """``samples`` Gaussian points around the current best (x0 first on iteration 0)."""
         if self.done or self.iteration >= self.iterations:
             return None
-        z = self.rng.standard_normal((self.samples, self.dim))
-        z *= self.current_step  # in place: the same draws as center + step * N(0, I)
+        if self.proposals == "table":
+            z = self._from_table()
+        else:
+            z = self.rng.standard_normal((self.samples, self.dim))
+            z *= self.current_step  # in place: the same draws as center + step * N(0, I)
         z += self.center
         if self.iteration == 0:
             z[0] = self.center
@@ -108,3 +128,15 @@ class LocalSearch(BaseOptimizer):
         else:
             self.current_step *= self.shrink
             self.done = self.current_step < self.min_step
+
+    def _from_table(self) -> np.ndarray:
+        """``step * N(0, I)`` rows ``(samples, dim)`` from the pre-drawn table."""
+        rows = max(TABLE_ROWS, 4 * self.samples)
+        table = self._table
+        if table is None or table.shape[1] != self.dim or len(table) < rows:
+            table = self._table = self.rng.standard_normal((rows, self.dim))
+        uniform = self.rng.random(self.dim + 1)  # the offset and a sign per axis
+        start = int(uniform[0] * (len(table) - self.samples + 1))
+        return table[start : start + self.samples] * np.copysign(
+            self.current_step, uniform[1:] - 0.5
+        )
