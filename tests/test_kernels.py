@@ -77,6 +77,14 @@ def test_kernels_agree_and_float32_is_close(rng: np.random.Generator) -> None:
     np.testing.assert_allclose(low(z), model(z), rtol=2e-3, atol=1e-5)
 
 
+def test_direct_kernel_is_the_definition_on_decoded_poses(rng: np.random.Generator) -> None:
+    frame = random_frame(rng, 30, 20, True, 0.05)
+    weights = EnergyWeights.with_prior(0.2)
+    z = rng.normal(0.0, 1.0, (40, frame[0].dim))
+    direct = EnergyModel(*frame, weights, kernel="direct")(z)
+    np.testing.assert_allclose(direct, EnergyModel(*frame, weights)(z), rtol=1e-9, atol=1e-12)
+
+
 def test_kernel_names_are_checked() -> None:
     assert resolve_kernel("numpy") == "numpy"
     assert resolve_kernel("auto") == KERNELS[0]

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import (
+    ENERGY_KERNELS,
     POSE_TERM_NAMES,
     TERM_NAMES,
     EnergyModel,
@@ -57,6 +58,7 @@ from fpg_gym.reconstruct.temporal import (
 )
 
 __all__ = [
+    "ENERGY_KERNELS",
     "LABELLINGS",
     "POSE_TERM_NAMES",
     "STAGES",

@@ -74,7 +74,13 @@ from fpg_gym.definitions import OnlineDefinitionFit, PoseMap
 from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
 from fpg_gym.poses import RecordingLike
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
-from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights, motion_target
+from fpg_gym.reconstruct.energy import (
+    ENERGY_KERNELS,
+    TERM_NAMES,
+    EnergyModel,
+    EnergyWeights,
+    motion_target,
+)
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
 from fpg_gym.reconstruct.reliability import (
@@ -219,6 +225,10 @@ class ReconstructorConfig:
         Rebuild the ragdoll when a reference bone length moved by more than this (0.02 m).
     energy_dtype : {"float64", "float32"}
         Arithmetic precision of the energy (see :class:`EnergyModel`).
+    energy_kernel : {"auto", "numba", "numpy", "direct"}
+        The search's energy kernel (:mod:`fpg_gym.reconstruct.kernels`; ``"auto"``: compiled
+        when ``fpg-gym[fast]`` is installed); ``"direct"`` evaluates the terms' definitions on
+        decoded poses (the slow reference, for benchmarks).
     length_prior : {"database", "default"}
         Proportions of the bone-length fallback before calibration: the database's median
         bone lengths or :data:`fpg_gym.poses.DEFAULT_BONE_LENGTHS` (see
@@ -280,6 +290,7 @@ class ReconstructorConfig:
     frame_dt: float = 1.0 / 30.0
     ragdoll_rebuild_m: float = 0.02
     energy_dtype: str = "float64"
+    energy_kernel: str = "auto"
     left_right_fix: bool = True
     length_prior: str = "database"
     left_right_margin: float = 0.6
@@ -300,6 +311,7 @@ class ReconstructorConfig:
         check_choice(self.selector, "selector", ("graph", "auto", "brute-force"))
         check_choice(self.length_prior, "length_prior", ("database", "default"))
         check_choice(self.energy_dtype, "energy_dtype", ("float64", "float32"))
+        check_choice(self.energy_kernel, "energy_kernel", ENERGY_KERNELS)
         if self.calibrate_output and self.output_map is not None:
             raise ValueError(
                 "calibrate_output and output_map: give one (the calibration fits the output map)"
@@ -788,6 +800,7 @@ class Reconstructor:
             prediction,
             weights,
             dtype=cfg.energy_dtype,
+            kernel=cfg.energy_kernel,
         )
         x0 = latent.encode(previous if previous is not None else selection.poses[0])
         problem = SearchProblem(
