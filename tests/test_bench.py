@@ -29,6 +29,19 @@ def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:
     for row in selection:  # brute force scores every node; graph selection a neighbourhood
         assert row["brute-force_scored"] == row["nodes"]
         assert row["graph_scored"] < row["nodes"]
+        assert row["brute_gemv_ms"] > 0 and row["brute_direct_ms"] > 0
+        assert row["gemv_speedup"] == row["brute_direct_ms"] / row["brute_gemv_ms"]
+        assert 1 <= row["graph_full_searches"] <= row["auto_full_searches"] <= row["queries"]
+    assert report["blas_threads"] == 1 and "numpy" in report["energy_kernels"]
+    kernels = report["kernels"]
+    energy = {row["kernel"]: row for row in kernels["energy"]}
+    assert "fused (numpy)" in energy and energy["fused (numpy)"]["us_per_100_points"] > 0
+    frame = {row["configuration"]: row for row in kernels["frame"]}
+    assert frame["direct (definitions)"]["speedup_vs_direct"] == 1.0
+    assert all(row["cpu_ms_per_frame"] > 0 for row in frame.values())
+    assert 5.0 < kernels["floor"]["mflop"] < 20.0 and kernels["floor"]["floor_ms"] > 0
+    assert any(line.startswith("| fused (numpy) |") for line in lines)
+    assert any(line.startswith("CPU time per frame") for line in lines)
     build = report["build"]
     assert all(row["seconds"] > 0 for row in build)
     plain = [row["poses"] for row in build if not row["mirror"]]

@@ -1,4 +1,4 @@
-"""``fpg-gym bench``: stage timings, selection vs graph size, graph build, env and read speed."""
+"""``fpg-gym bench``: stage timings, kernels, selection vs graph size, graph build, env, read."""
 
 from __future__ import annotations
 
@@ -6,8 +6,8 @@ import argparse
 
 NAME = "bench"
 HELP = (
-    "time the pipeline: per-stage frame time, selection vs graph size (both selectors), graph "
-    "build vs input size, env steps/s, mocap read speed"
+    "time the pipeline: per-stage frame time, the search kernels side by side (CPU time), "
+    "selection vs graph size, graph build vs input size, env steps/s, mocap read speed"
 )
 
 
@@ -25,7 +25,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sections",
         default=None,
         metavar="A,B",
-        help="subset of stages,selection,build,env,read (default all)",
+        help="subset of stages,kernels,selection,build,env,read (default all)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
     parser.add_argument("--json", action="store_true", help="last stdout line is the JSON report")

@@ -7,9 +7,14 @@ Sections (each a list of rows, see :func:`run_bench`):
     (normalise, reliability, selection, latent = PCA, search, finish, ragdoll), median and
     95th percentile, for graph and brute-force selection with the papers' local search and the
     ragdoll, on simulated episodes of held-out clips.
+``kernels``
+    The search's kernels side by side in CPU time (:mod:`fpg_gym.experiments.bench_kernels`):
+    the energy of 100 points (fused compiled / fused numpy / the definitions), a frame without
+    ragdoll with each, and the arithmetic floor of a frame's 2,000 evaluations.
 ``selection``
-    Median selection time per frame against graph size (graphs built with several ``thres1``)
-    for both selectors (FPG §8: graph selection scores a neighbourhood, brute force every node).
+    Median CPU time of selection per frame against graph size (graphs built with several
+    ``thres1``): the graph walk (FPG §8: scores a neighbourhood), the ``auto`` selector, the
+    exact brute force (one GEMV on augmented vectors) and the direct Eq. 9 score of every node.
 ``build``
     Graph build time (FPG Alg. 1–4) against the number of input poses.
 ``env``
@@ -23,8 +28,10 @@ By default everything uses the embedded DeepMimic clips (no files needed); ``moc
 held out for the episodes with the split of ``scripts/holdout_split.py``
 (:func:`fpg_gym.holdout.holdout_indices`, seed 2016), the others build the graphs.
 
-Timings are wall-clock on the machine that runs the bench, one process, BLAS as configured;
-they are noisy on a shared machine (each figure is a median over frames or repeats).
+BLAS runs on one thread (``threadpoolctl``; the per-frame matrices are tiny and more threads only
+add contention). Stage timings are wall-clock medians with the CPU time per frame beside them;
+the ``kernels`` and ``selection`` figures are CPU time (``time.process_time``), alternatives
+interleaved in one run, so that their ratios hold on a busy machine.
 """
 
 from __future__ import annotations
@@ -38,16 +45,24 @@ from datetime import datetime, timezone
 from typing import Any
 
 import numpy as np
+from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
 from fpg_gym import metrics
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.episodes import measure_env_throughput
 from fpg_gym.experiments import markdown_table
+from fpg_gym.experiments.bench_kernels import (
+    energy_rows,
+    floor_row,
+    frame_rows,
+    selection_rows,
+)
 from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1, FilteredPoseGraph
 from fpg_gym.holdout import holdout_indices
 from fpg_gym.io import load_clips, load_default_clips
 from fpg_gym.reconstruct import STAGES, Reconstructor
+from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.simulate import plan_episode, simulate_plan, unique_names
 
 __all__ = ["BenchSettings", "format_bench", "run_bench"]
@@ -72,6 +87,8 @@ class BenchSettings:
         Env steps timed.
     sections : tuple of str
         Which sections to run.
+    blas_threads : int
+        BLAS threads while the bench runs (1).
     """
 
     quick: bool = False
@@ -80,7 +97,8 @@ class BenchSettings:
     max_frames: int = 90
     thresholds: tuple[float, ...] = (0.2, 0.1, 0.06, 0.04)
     env_steps: int = 200
-    sections: tuple[str, ...] = ("stages", "selection", "build", "env", "read")
+    sections: tuple[str, ...] = ("stages", "kernels", "selection", "build", "env", "read")
+    blas_threads: int = 1
 
     @classmethod
     def make(cls, quick: bool = False, mocap: Sequence[str] = ()) -> BenchSettings:
@@ -189,13 +207,17 @@ def _stages(
     rows = []
     per: dict[str, dict[str, np.ndarray]] = {}
     quality: dict[str, dict[str, float | None]] = {}
+    cpu_ms: dict[str, float] = {}
     for selector in ("graph", "brute-force"):
         ms: list[np.ndarray] = []
         totals: list[np.ndarray] = []
         outputs: list[np.ndarray] = []
+        cpu = 0.0
         with Reconstructor(graph, selector=selector, ragdoll=True) as reconstructor:
             for i, recording in enumerate(recordings):
+                start = time.process_time()
                 result = reconstructor.reconstruct(recording, "local-search", rng=i)
+                cpu += time.process_time() - start
                 arrays = result.arrays()
                 names = [str(n) for n in arrays["stage_names"]]
                 ms.append(arrays["ms_stages"][:, [names.index(s) for s in STAGES]])
@@ -205,12 +227,15 @@ def _stages(
         stages = np.concatenate(ms)
         per[selector] = {s: stages[:, i] for i, s in enumerate(STAGES)}
         per[selector]["total"] = np.concatenate(totals)
+        frames = max(1, sum(r.num_frames for r in recordings))
+        cpu_ms[selector] = 1e3 * cpu / frames
     for stage in (*STAGES, "total"):
         row: dict[str, Any] = {"stage": stage}
         for selector, values in per.items():
             row[f"{selector}_median_ms"] = float(np.median(values[stage]))
             row[f"{selector}_p95_ms"] = float(np.percentile(values[stage], 95))
         rows.append(row)
+    rows.append({"stage": "total CPU (mean)", **{f"{s}_cpu_ms": ms for s, ms in cpu_ms.items()}})
     return rows, quality
 
 
@@ -227,19 +252,18 @@ def _selection(
             "mean_degree": 2 * graph.num_edges / max(1, graph.num_nodes),
             "build_s": seconds,
         }
-        for selector in ("graph", "brute-force"):
-            ms: list[np.ndarray] = []
-            scored: list[np.ndarray] = []
-            reconstructor = Reconstructor(graph, selector=selector)
-            for i, recording in enumerate(recordings):
-                arrays = reconstructor.reconstruct(recording, "none", rng=i).arrays()
-                names = [str(n) for n in arrays["stage_names"]]
-                ms.append(arrays["ms_stages"][:, names.index("selection")])
-                scored.append(arrays["num_scored"])
-            row[f"{selector}_selection_ms"] = float(np.median(np.concatenate(ms)))
-            row[f"{selector}_scored"] = float(np.median(np.concatenate(scored)))
+        row.update(selection_rows(graph, recordings, quick=settings.quick))
+        row["brute-force_scored"] = graph.num_nodes
         rows.append(row)
     return rows
+
+
+def _kernels(graph: Any, recordings: list[Any], settings: BenchSettings) -> dict[str, Any]:
+    return {
+        "energy": energy_rows(graph, recordings[0], quick=settings.quick),
+        "frame": frame_rows(graph, recordings, quick=settings.quick),
+        "floor": floor_row(),
+    }
 
 
 def _build_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
@@ -326,6 +350,9 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
         "interrupted": False,
     }
     bar = tqdm(total=len(settings.sections) + 1, desc="bench", unit="part", disable=not progress)
+    limits = threadpool_limits(limits=settings.blas_threads, user_api="blas")
+    report["blas_threads"] = settings.blas_threads
+    report["energy_kernels"] = list(compile_kernels())  # compiled before any timing
     try:
         bar.set_postfix_str("reading")
         data = _load_data(settings, progress)
@@ -333,12 +360,16 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
         recordings = _episodes(data, settings)
         bar.update()
         report["data"] = data.source
+        graph = None
         for section in settings.sections:
             bar.set_postfix_str(section)
-            if section == "stages":
+            if section in ("stages", "kernels") and graph is None:
                 graph, _ = _build(data.graph_clips, settings.graph_thres1, mirror)
                 report["stages_graph"] = repr(graph)
+            if section == "stages":
                 report["stages"], report["stages_quality"] = _stages(graph, recordings)
+            elif section == "kernels":
+                report["kernels"] = _kernels(graph, recordings, settings)
             elif section == "selection":
                 report["selection"] = _selection(data, recordings, settings, mirror)
             elif section == "build":
@@ -353,6 +384,7 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
     except KeyboardInterrupt:
         report["interrupted"] = True
     finally:
+        limits.restore_original_limits()
         bar.close()
     report["seconds"] = time.perf_counter() - started
     return report
@@ -364,10 +396,14 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
 def format_bench(report: dict[str, Any]) -> str:
     """The bench report as markdown tables (what ``fpg-gym bench`` prints)."""
     out = [
-        f"fpg-gym bench, {report['date']}, {report['machine']}; data: {report.get('data', '?')}",
+        f"fpg-gym bench, {report['date']}, {report['machine']}; data: {report.get('data', '?')}; "
+        f"BLAS threads: {report.get('blas_threads', '?')}; energy kernels: "
+        f"{', '.join(report.get('energy_kernels', []))}",
         "",
     ]
     if "stages" in report:
+        stage_rows = [r for r in report["stages"] if "graph_median_ms" in r]
+        cpu_rows = [r for r in report["stages"] if "graph_median_ms" not in r]
         out += [
             f"Frame time per stage (ms; local search, ragdoll; {report['settings']['episodes']} "
             f"episode(s) of <= {report['settings']['max_frames']} frames; "
@@ -383,11 +419,19 @@ def format_bench(report: dict[str, Any]) -> str:
                         f"{r['brute-force_median_ms']:.3f}",
                         f"{r['brute-force_p95_ms']:.3f}",
                     ]
-                    for r in report["stages"]
+                    for r in stage_rows
                 ],
             ),
             "",
         ]
+        if cpu_rows:
+            cpu = cpu_rows[0]
+            out += [
+                "CPU time per frame (mean, time.process_time): "
+                f"graph {cpu.get('graph_cpu_ms', float('nan')):.3f} ms, "
+                f"brute-force {cpu.get('brute-force_cpu_ms', float('nan')):.3f} ms",
+                "",
+            ]
     if report.get("stages_quality"):
 
         def cell(value: float | None, digits: int) -> str:
@@ -420,29 +464,73 @@ def format_bench(report: dict[str, Any]) -> str:
             ),
             "",
         ]
+    if "kernels" in report:
+        kernels = report["kernels"]
+        floor = kernels["floor"]
+        out += [
+            "Energy of 100 latent points of a real frame (CPU µs, median; interleaved)",
+            "",
+            markdown_table(
+                ["kernel", "µs / 100 points", "speed-up vs direct"],
+                [
+                    [r["kernel"], f"{r['us_per_100_points']:.1f}", f"{r['speedup_vs_direct']:.1f}x"]
+                    for r in kernels["energy"]
+                ],
+            ),
+            "",
+            "Frame without ragdoll: graph selection + local search, 2,000 evaluations (CPU ms "
+            "per frame, mean; search stage wall median)",
+            "",
+            markdown_table(
+                ["configuration", "CPU ms / frame", "search wall median ms", "speed-up vs direct"],
+                [
+                    [
+                        r["configuration"],
+                        f"{r['cpu_ms_per_frame']:.3f}",
+                        f"{r['search_wall_median_ms']:.3f}",
+                        f"{r['speedup_vs_direct']:.2f}x",
+                    ]
+                    for r in kernels["frame"]
+                ],
+            ),
+            "",
+            f"Arithmetic floor of a frame's search: {floor['mflop']:.2f} MFLOP for "
+            f"{floor['evaluations']} evaluations at {floor['gemm_gflops']:.1f} GFLOP/s (this "
+            f"machine's (100 x d) x (d x cols) product) = {floor['floor_ms']:.3f} ms",
+            "",
+        ]
     if "selection" in report:
         out += [
-            "Selection time per frame against graph size (median ms; nodes scored per frame)",
+            "Selection per frame against graph size (CPU ms, median; p95 of the walk; nodes "
+            "scored by the walk; auto: frames it searched all nodes)",
             "",
             markdown_table(
                 [
                     "thres1 (m)",
                     "nodes",
                     "mean degree",
-                    "graph ms",
-                    "graph scored",
-                    "brute-force ms",
-                    "brute-force scored",
+                    "graph walk",
+                    "walk p95",
+                    "walk scored",
+                    "auto",
+                    "auto full",
+                    "brute force (GEMV)",
+                    "brute force (direct)",
+                    "GEMV speed-up",
                 ],
                 [
                     [
                         f"{r['thres1']:g}",
                         str(r["nodes"]),
                         f"{r['mean_degree']:.1f}",
-                        f"{r['graph_selection_ms']:.3f}",
+                        f"{r['graph_ms']:.3f}",
+                        f"{r['graph_p95_ms']:.3f}",
                         f"{r['graph_scored']:.0f}",
-                        f"{r['brute-force_selection_ms']:.3f}",
-                        f"{r['brute-force_scored']:.0f}",
+                        f"{r['auto_ms']:.3f}",
+                        f"{r['auto_full_searches']}/{r['queries']}",
+                        f"{r['brute_gemv_ms']:.3f}",
+                        f"{r['brute_direct_ms']:.3f}",
+                        f"{r['gemv_speedup']:.1f}x",
                     ]
                     for r in report["selection"]
                 ],

@@ -37,6 +37,7 @@ __all__ = [
     "KERNELS",
     "EnergyTables",
     "available_kernels",
+    "compile_kernels",
     "fused_energy",
     "numpy_energy",
     "resolve_kernel",
@@ -167,6 +168,22 @@ def _numba_kernel() -> Callable[..., np.ndarray] | None:
 def available_kernels() -> tuple[str, ...]:
     """The kernels this installation can run (``"numpy"`` always)."""
     return ("numba", "numpy") if _numba_kernel() is not None else ("numpy",)
+
+
+def compile_kernels() -> tuple[str, ...]:
+    """Compile (or load from the disk cache) the available kernels now rather than on the first
+    frame; returns their names."""
+    tables = EnergyTables(
+        np.zeros((1, 2 + 1 + _BONE_COORDS)),
+        0.0,
+        np.zeros(1),
+        np.zeros(_BONE_COORDS),
+        np.zeros(skeleton.NUM_BONES),
+        0.0,
+    )
+    for name in available_kernels():
+        fused_energy(np.zeros((1, 1)), tables, name)
+    return available_kernels()
 
 
 def resolve_kernel(name: str) -> str:
