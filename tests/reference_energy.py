@@ -51,7 +51,9 @@ class ReferenceEnergyModel:
         target: np.ndarray | None,
         weights: EnergyWeights | None = None,
         dtype: npt.DTypeLike = np.float64,
+        kernel: str = "auto",  # accepted as the Reconstructor passes it; one path here
     ) -> None:
+        del kernel
         self.dtype = np.dtype(dtype)
         if self.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
             raise ValueError(f"dtype: expected float32 or float64, got {self.dtype}")

@@ -1,0 +1,240 @@
+"""Issue 18's acceptance figures: the new search kernels against the previous implementation.
+
+The previous implementation is kept in the tests (``tests/reference_energy.py``,
+``tests/reference_selection.py``); this script imports it from there and times both in one
+process, interleaved, in CPU time (``time.process_time``), with BLAS on one thread:
+
+1. **Energy** of 100 latent points of real frames: ``EnergyModel`` (fused kernel) against the
+   previous ``EnergyModel``.
+2. **Frame without ragdoll** (graph selection + local search, 2,000 evaluations) on held-out
+   Bandai Namco takes (``dataset-1``, split of ``scripts/holdout_split.py``, graph ``thres1 =
+   0.2`` from the other takes, simulated ``front-many``): the pipeline with the previous energy
+   model against the new one, with and without local search's proposal table; mean error and
+   median energy of each, so that equal results can be seen.
+3. **Exact brute force** (Shum Eq. 9, K = 30) against the previous direct score on databases of
+   1k to 100k nodes: the Bandai graph's nodes (``thres1`` 0.2 and 0.04), and for larger sizes
+   copies of the 0.04 graph's nodes with 1 cm of noise; the same K nodes are checked for every
+   query.
+
+Usage::
+
+    python scripts/bench_kernels.py                 # ~5 min on the shared 2-core machine
+    python scripts/bench_kernels.py --clips 2 --frames 90 --sizes 1000,24000
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO / "tests"))  # the previous implementation, kept as test reference
+
+from reference_energy import ReferenceEnergyModel  # noqa: E402
+from reference_selection import reference_best_k  # noqa: E402
+
+import optimizers  # noqa: E402
+from fpg_gym import metrics  # noqa: E402
+from fpg_gym.experiments.bench_kernels import interleaved_cpu_us  # noqa: E402
+from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
+from fpg_gym.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes  # noqa: E402
+from fpg_gym.io import load_clips  # noqa: E402
+from fpg_gym.reconstruct import Reconstructor  # noqa: E402
+from fpg_gym.reconstruct import reconstructor as reconstructor_module  # noqa: E402
+from fpg_gym.reconstruct.kernels import compile_kernels  # noqa: E402
+from fpg_gym.reconstruct.selection import NodeDatabase, SelectionQuery, shum_best_k  # noqa: E402
+from fpg_gym.simulate import simulate  # noqa: E402
+
+DEFAULT_DATA = REPO.parent / "shared" / "data"
+NEW_ENERGY = reconstructor_module.EnergyModel
+
+
+def frame_table(graph: Any, recordings: list[Any], repeats: int) -> list[dict[str, Any]]:
+    """CPU ms per frame and output quality of the previous and the new pipeline, interleaved."""
+    configs: dict[str, tuple[Any, dict[str, Any]]] = {
+        "previous EnergyModel (reference)": (ReferenceEnergyModel, {}),
+        "fused kernel": (NEW_ENERGY, {}),
+        "fused kernel + proposal table": (NEW_ENERGY, {"proposals": "table"}),
+    }
+    stats: dict[str, dict[str, Any]] = {
+        name: {"cpu": 0.0, "frames": 0, "errors": [], "energies": []} for name in configs
+    }
+    for model, kwargs in configs.values():  # warm-up
+        reconstructor_module.EnergyModel = model
+        Reconstructor(graph).reconstruct(
+            recordings[0].head(5), optimizers.make("local-search", **kwargs), rng=0
+        )
+    try:
+        for repeat in range(repeats):
+            for i, recording in enumerate(recordings):
+                for name, (model, kwargs) in configs.items():
+                    reconstructor_module.EnergyModel = model
+                    reconstructor = Reconstructor(graph)
+                    start = time.process_time()
+                    result = reconstructor.reconstruct(
+                        recording, optimizers.make("local-search", **kwargs), rng=i + 100 * repeat
+                    )
+                    stats[name]["cpu"] += time.process_time() - start
+                    stats[name]["frames"] += recording.num_frames
+                    stats[name]["errors"].append(
+                        metrics.frame_error(recording.ground_truth, result.poses)
+                    )
+                    stats[name]["energies"].append(result.arrays()["energy"])
+    finally:
+        reconstructor_module.EnergyModel = NEW_ENERGY
+    reference = None
+    rows = []
+    for name, s in stats.items():
+        ms = 1e3 * s["cpu"] / s["frames"]
+        reference = reference or ms
+        errors = np.concatenate(s["errors"])
+        rows.append(
+            {
+                "configuration": name,
+                "cpu_ms_per_frame": ms,
+                "speedup": reference / ms,
+                "mean_error_m": float(errors.mean()),
+                "err02_pct": 100.0 * metrics.err_ratio(errors),
+                "median_energy": float(np.median(np.concatenate(s["energies"]))),
+            }
+        )
+    return rows
+
+
+def energy_table(graph: Any, recording: Any, frame: int = 60) -> dict[str, float]:
+    """CPU µs of the energy of 100 points of a real frame, previous vs new (interleaved)."""
+    reconstructor = Reconstructor(graph)
+    frame = min(frame, recording.num_frames - 1)
+    reconstructor.reconstruct(recording.head(frame), "local-search", rng=0)
+    problem = reconstructor.prepare(
+        recording.positions[frame], recording.states[frame], recording.timestamps[frame]
+    )
+    e = problem.energy
+    previous = ReferenceEnergyModel(
+        e.latent,
+        e.sensor.reshape(20, 3),
+        e.reliability,
+        problem.node_poses,
+        e.lengths,
+        None if e.target is None else e.target.reshape(20, 3),
+        e.weights,
+    )
+    z = np.random.default_rng(0).standard_normal((100, problem.dim))
+    if not np.allclose(previous(z), e(z), rtol=1e-9, atol=1e-12):
+        raise AssertionError("the fused energy differs from the previous one")
+    timing = interleaved_cpu_us({"old": lambda: previous(z), "new": lambda: e(z)}, repeats=50)
+    return {"previous_us": timing["old"], "fused_us": timing["new"]}
+
+
+def brute_force_table(
+    databases: dict[str, np.ndarray], queries: list[SelectionQuery], k: int = 30
+) -> list[dict[str, Any]]:
+    """CPU ms per query of the exact GEMV brute force and the previous direct score."""
+    rows = []
+    for label, poses in databases.items():
+        database = NodeDatabase(poses)
+        old, new = [], []
+        for query in queries[:2]:
+            shum_best_k(database, query, k)  # cached tables outside the timing
+        for query in queries:
+            start = time.process_time()
+            expected, _ = reference_best_k(database, query, k, "shum")
+            old.append(time.process_time() - start)
+            start = time.process_time()
+            nodes, _ = shum_best_k(database, query, k)
+            new.append(time.process_time() - start)
+            if not np.array_equal(nodes, expected):
+                raise AssertionError(f"{label}: the brute force selected other nodes")
+        old_ms, new_ms = 1e3 * float(np.median(old)), 1e3 * float(np.median(new))
+        rows.append(
+            {
+                "database": label,
+                "nodes": len(poses),
+                "previous_ms": old_ms,
+                "gemv_ms": new_ms,
+                "speedup": old_ms / new_ms,
+            }
+        )
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--clips", type=int, default=3, help="held-out takes reconstructed")
+    parser.add_argument("--frames", type=int, default=240, help="frames per take")
+    parser.add_argument("--repeats", type=int, default=2, help="rounds of the frame timing")
+    parser.add_argument("--sizes", default="24000,72000,100000", help="synthetic database sizes")
+    args = parser.parse_args(argv)
+    folder = args.data / "bandai_namco" / "dataset-1"
+    if not folder.is_dir():
+        print(f"bench_kernels: {folder} is absent (see ../shared/data/README.md)", file=sys.stderr)
+        return 2
+    limits = threadpool_limits(limits=1, user_api="blas")
+    print(f"energy kernels: {', '.join(compile_kernels())}; BLAS threads: 1")
+    files = sorted(folder.glob("*.bvh"))
+    train, held = split_takes(files, HOLDOUT_SHARE, HOLDOUT_SEED)
+    clips = load_clips(train, progress=False)
+    graph = FilteredPoseGraph.build(clips, thres1=0.2, progress=False)
+    dense = FilteredPoseGraph.build(clips, thres1=0.04, progress=False)
+    print(f"graph {graph}; dense graph {dense}")
+    recordings = [
+        simulate(c.positions[: args.frames], "front-many", seed=i)
+        for i, c in enumerate(load_clips(held[: args.clips], progress=False))
+    ]
+
+    energy = energy_table(graph, recordings[0])
+    print(
+        f"\nenergy of 100 points: previous {energy['previous_us']:.1f} µs, fused "
+        f"{energy['fused_us']:.1f} µs ({energy['previous_us'] / energy['fused_us']:.1f}x)"
+    )
+
+    header = "| configuration | CPU ms / frame | speed-up | mean error (m) | Err0.2 (%) | "
+    header += "median E |"
+    print("\n" + header)
+    print("| --- | --- | --- | --- | --- | --- |")
+    for r in frame_table(graph, recordings, args.repeats):
+        print(
+            f"| {r['configuration']} | {r['cpu_ms_per_frame']:.3f} | {r['speedup']:.2f}x | "
+            f"{r['mean_error_m']:.4f} | {r['err02_pct']:.1f} | {r['median_energy']:.5f} |"
+        )
+
+    queries: list[SelectionQuery] = []
+    reconstructor = Reconstructor(graph)
+    select = reconstructor.selector.select
+
+    def spy(query: SelectionQuery) -> Any:
+        queries.append(query)
+        return select(query)
+
+    setattr(reconstructor.selector, "select", spy)  # noqa: B010 - record real queries
+    reconstructor.reconstruct(recordings[0], "none", rng=0)
+    queries = [q for q in queries if np.any(q.reliability)][::4][:40]
+    base = np.asarray(dense.poses)
+    rng = np.random.default_rng(0)
+    databases = {"graph thres1 0.2": np.asarray(graph.poses), "graph thres1 0.04": base}
+    for size in (int(s) for s in args.sizes.split(",") if s):
+        copies = [base] + [
+            base + rng.normal(0.0, 0.01, base.shape).astype(np.float32)
+            for _ in range(size // len(base))
+        ]
+        databases[f"0.04 graph + noisy copies ({size})"] = np.concatenate(copies)[:size]
+    print("\n| database | nodes | previous ms | GEMV ms | speed-up |")
+    print("| --- | --- | --- | --- | --- |")
+    for r in brute_force_table(databases, queries):
+        print(
+            f"| {r['database']} | {r['nodes']} | {r['previous_ms']:.3f} | {r['gemv_ms']:.3f} | "
+            f"{r['speedup']:.1f}x |"
+        )
+    limits.restore_original_limits()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
