@@ -10,6 +10,7 @@ import pytest
 from reference_selection import reference_best_k
 
 from fpg_gym import poses, skeleton
+from fpg_gym.reconstruct import selection as selection_module
 from fpg_gym.reconstruct.node_database import NodeDatabase
 from fpg_gym.reconstruct.selection import (
     BruteForceSelector,
@@ -40,8 +41,9 @@ def random_query(rng: np.random.Generator, database: np.ndarray, lengths: bool) 
 @pytest.mark.parametrize("n", [7, 30, 500, 5000])
 @pytest.mark.parametrize("lengths", [False, True])
 def test_gemv_brute_force_selects_the_same_nodes_as_direct_scores(
-    rng: np.random.Generator, n: int, lengths: bool
+    rng: np.random.Generator, n: int, lengths: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
+    monkeypatch.setattr(selection_module, "GEMV_MIN_NODES", 0)  # the GEMV at every size
     data = random_database(rng, n)
     database = NodeDatabase(data)
     for _ in range(6):
@@ -50,14 +52,19 @@ def test_gemv_brute_force_selects_the_same_nodes_as_direct_scores(
         nodes, scores = shum_best_k(database, query, 30)
         np.testing.assert_array_equal(nodes, expected)
         np.testing.assert_allclose(scores, expected_scores, rtol=1e-12, atol=1e-15)
+        monkeypatch.undo()  # the selector as configured (direct below GEMV_MIN_NODES)
         selection = BruteForceSelector(database, 30).select(query)
+        monkeypatch.setattr(selection_module, "GEMV_MIN_NODES", 0)
         np.testing.assert_array_equal(selection.nodes, expected)
         np.testing.assert_array_equal(selection.poses, database.all_poses(query.lengths)[expected])
 
 
-def test_duplicate_nodes_tie_as_the_direct_scores(rng: np.random.Generator) -> None:
+def test_duplicate_nodes_tie_as_the_direct_scores(
+    rng: np.random.Generator, monkeypatch: pytest.MonkeyPatch
+) -> None:
     """Exact duplicates: the same scores; the same nodes but where a tie straddles the cut
     (which of the tied nodes make the k is arbitrary in both)."""
+    monkeypatch.setattr(selection_module, "GEMV_MIN_NODES", 0)
     data = np.repeat(random_database(rng, 40), 3, axis=0)
     database = NodeDatabase(data)
     query = random_query(rng, data, lengths=False)

@@ -207,6 +207,10 @@ class BruteForceSelector:
         )
 
 
+#: Below this many nodes :func:`shum_best_k` scores every node directly (measured faster).
+GEMV_MIN_NODES = 512
+
+
 def shum_best_k(
     database: NodeDatabase, query: SelectionQuery, k: int
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -216,7 +220,8 @@ def shum_best_k(
     :mod:`fpg_gym.reconstruct.node_database`) scores every node to within a known rounding
     bound ``e``; the nodes within ``2 e`` of the ``k``-th approximate score (a few more than
     ``k``) are re-scored exactly with :func:`shum_score`. The result equals scoring every node
-    with :func:`shum_score`: same nodes, same order, same ties.
+    with :func:`shum_score`: same nodes, same order, same ties. Databases of fewer than
+    :data:`GEMV_MIN_NODES` nodes are scored directly.
 
     Returns
     -------
@@ -227,6 +232,10 @@ def shum_best_k(
     if not reliability.any():  # every score is 0: a tie of all nodes, keep the first k
         first = np.arange(min(k, len(database)))
         return first, np.zeros(len(first))
+    if len(database) < GEMV_MIN_NODES:  # fewer numpy calls: score every node directly
+        scores = shum_score(query.pose, reliability, database.all_poses(query.lengths))
+        best = _best_k(scores, k)
+        return best, scores[best].astype(np.float64)
     point = np.asarray(query.pose, dtype=np.float64).reshape(1, -1)
     values, error = database.weighted_squared_distances(reliability[None], point, query.lengths)
     approx = values[:, 0]
