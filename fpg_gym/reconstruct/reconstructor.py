@@ -198,7 +198,7 @@ class ReconstructorConfig:
         Candidates per frame (30, both papers).
     latent_dim : int
         Most latent dimensions; ``d = min(latent_dim, K - 1)`` (20).
-    selector : {"graph", "auto", "brute-force"}
+    selector : {"graph", "brute-force", "auto"}
         FPG's graph search, Shum's brute force (Eq. 9), or "auto": the graph walk or a full
         search with FPG's score, whichever is estimated cheaper each frame
         (:class:`~fpg_gym.reconstruct.selection.GraphSelector`).
@@ -308,7 +308,7 @@ class ReconstructorConfig:
         check_number(self.sensor_blend, "sensor_blend", low=0.0, high=1.0)
         check_number(self.max_gap_s, "max_gap_s", low=0.0, low_open=True)
         check_number(self.frame_dt, "frame_dt", low=0.0, low_open=True)
-        check_choice(self.selector, "selector", ("graph", "auto", "brute-force"))
+        check_choice(self.selector, "selector", ("graph", "brute-force", "auto"))
         check_choice(self.length_prior, "length_prior", ("database", "default"))
         check_choice(self.energy_dtype, "energy_dtype", ("float64", "float32"))
         check_choice(self.energy_kernel, "energy_kernel", ENERGY_KERNELS)
