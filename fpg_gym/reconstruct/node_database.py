@@ -76,11 +76,9 @@ class NodeDatabase:
         self.poses = np.ascontiguousarray(as_poses(poses, "poses", ndim=3))
         if len(self.poses) == 0:
             raise ValueError("poses: the database is empty (0 nodes)")
-        directions = bone_directions(self.poses).astype(np.float32)
-        self._directions = directions.reshape(len(directions), 3 * skeleton.NUM_BONES)
+        self._directions = bone_directions(self.poses).astype(np.float32)
         self._roots = self.poses[:, skeleton.ROOT].copy()
-        # Flat joints from flat bone vectors: kron(PATH_MATRIX, I3)^T, (57, 60).
-        self._path = np.kron(skeleton.PATH_MATRIX, np.eye(3)).T.astype(np.float32)
+        self._path = skeleton.PATH_MATRIX.astype(np.float32)
         self.refresh_tolerance_m = refresh_tolerance_m
         self._cache_lengths: np.ndarray | None = None
         self._cache: np.ndarray | None = None
@@ -97,11 +95,12 @@ class NodeDatabase:
         nodes = np.asarray(nodes, dtype=np.intp)
         if lengths is None:
             return self.poses[nodes]
-        vectors = self._directions[nodes] * np.repeat(np.asarray(lengths, dtype=np.float32), 3)
-        # joint = root + PATH_MATRIX @ bone vectors: one GEMM ((M, 57) x (57, 60)) whose output
-        # is already the C-contiguous (M, 20, 3) layout the scores read.
-        out = (vectors @ self._path).reshape(len(nodes), skeleton.NUM_JOINTS, 3)
-        out += self._roots[nodes, None, :]
+        vectors = self._directions[nodes] * np.asarray(lengths, dtype=np.float32)[:, None]
+        # joint = root + PATH_MATRIX @ bone vectors, as one GEMM ((M*3, 19) x (19, 20)); the
+        # sum is copied into the C-contiguous (M, 20, 3) layout the scores read.
+        joints = np.tensordot(vectors, self._path, axes=([1], [1])).transpose(0, 2, 1)
+        out = np.empty(joints.shape, dtype=np.float32)
+        np.add(joints, self._roots[nodes, None, :], out=out)
         return out
 
     def clear_cache(self) -> None:
