@@ -37,6 +37,7 @@ from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.reconstruct.energy import EnergyWeights
 from fpg_gym.simulate import simulate_clips
+from fpg_gym.skeleton import ROOT
 from optimizers import make, run_optimizer
 from optimizers.random_search import RandomSearch
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
@@ -53,6 +54,7 @@ from policies.sampler import (
 from policies.supervised import SupervisedSampler, fit_supervised
 
 __all__ = [
+    "FOLLOW",
     "TARGETS",
     "ImitationData",
     "TrainConfig",
@@ -65,10 +67,38 @@ __all__ = [
     "split_clips",
     "train_sampler",
     "training_clips",
+    "truth_latent",
 ]
 
 #: Targets of the supervised sampler (:func:`collect_imitation_data`).
 TARGETS: tuple[str, ...] = ("best", "search", "truth")
+#: What the imitation stream continues from (:func:`collect_imitation_data`).
+FOLLOW: tuple[str, ...] = ("search", "anchor", "truth")
+
+
+def truth_latent(problem: Any, placement: Any, truth: np.ndarray) -> np.ndarray:
+    """Whitened coordinates ``(d,)`` of a ground-truth pose in ``problem``'s latent space.
+
+    The truth is seen in the problem's frame: its own root at the origin (Eq. 13 scores bone
+    vectors, so the root's offset carries no error, and the database poses are root-centred)
+    and turned by ``placement.yaw``, the heading the reconstructor normalised the frame with
+    (:attr:`fpg_gym.reconstruct.Reconstructor.placement`). That heading is not always the raw
+    sensor pose's: after a left/right relabelling it differs by about 180 degrees, a frame
+    without a body keeps the last one, and a sensor map or the temporal stage move it;
+    recomputing it from the raw sensor frame (what collect_imitation_data did before) put the
+    target in a wrong heading on exactly those frames.
+
+    Parameters
+    ----------
+    problem : SearchProblem
+    placement : Placement
+        The prepared frame's placement.
+    truth : ndarray, shape (20, 3)
+        Ground truth, camera space.
+    """
+    pose = np.asarray(truth, dtype=np.float64)
+    frame = pose_utils.Placement(root=pose[ROOT], yaw=np.asarray(placement.yaw))
+    return np.asarray(problem.encode(pose_utils.into_placement(pose, frame)), dtype=np.float64)
 
 
 def default_training_clip_names() -> list[str]:
@@ -180,6 +210,8 @@ def collect_imitation_data(
     frames: int | None = None,
     seed: int = 0,
     progress: bool = False,
+    follow: str = "search",
+    reconstructor_options: dict[str, Any] | None = None,
 ) -> ImitationData:
     """Roll ``recordings`` through the reconstructor and record (observation, target) pairs.
 
@@ -192,9 +224,14 @@ def collect_imitation_data(
     * ``"search"``: the best point of the papers' local search alone;
     * ``"best"``: the best point of both searches (the lowest energy found; the same as
       ``"search"`` without an anchor);
-    * ``"truth"``: the ground-truth pose, moved into the frame's space with the sensor pose's
-      root and heading (as the reconstructor normalises it) and projected (needs recordings
-      with ground truth).
+    * ``"truth"``: the ground-truth pose seen in the problem's frame (:func:`truth_latent`:
+      root-relative, turned by the heading the reconstructor normalised the frame with) and
+      projected (needs recordings with ground truth).
+
+    With ``follow="anchor"`` or ``"truth"`` (``target="truth"`` only) no search runs: the
+    stream continues from the spec's anchor (the closed-form point: previous frames of the
+    quality a sampler will give) or from the projected truth (teacher forcing), one
+    evaluation per frame; data collection is then a small fraction of the search's cost.
 
     Parameters
     ----------
@@ -209,10 +246,20 @@ def collect_imitation_data(
         The searches' generator.
     progress : bool
         A tqdm bar over the frames.
+    follow : {"search", "anchor", "truth"}
+        The point each frame is finished with (the next frames' history).
+    reconstructor_options : dict, optional
+        Overrides of the :class:`~fpg_gym.reconstruct.Reconstructor` settings (default: the
+        env's per-frame problem: temporal stage off, no ragdoll). Pass the settings the
+        sampler will be used with (``sensor_map``, ``temporal``, ``sensor_blend``...).
     """
 
     if target not in TARGETS:
         raise ValueError(f"target: expected one of {TARGETS}, got {target!r}")
+    if follow not in FOLLOW:
+        raise ValueError(f"follow: expected one of {FOLLOW}, got {follow!r}")
+    if follow != "search" and target != "truth":
+        raise ValueError(f"follow={follow!r} needs target='truth' (got target={target!r})")
     if target == "truth":
         missing = [i for i, r in enumerate(recordings) if r.ground_truth is None]
         if missing:
@@ -223,16 +270,18 @@ def collect_imitation_data(
     weights = dict(
         zip(("control", "style", "kinematic", "motion"), spec.energy_weights, strict=True)
     )
-    reconstructor = Reconstructor(
-        graph,
-        k=spec.candidates,
-        latent_dim=latent_dim,
-        ragdoll=False,
-        max_evaluations=None,
-        weights=EnergyWeights(**weights),
-        temporal=TemporalConfig.off(),  # the env's per-frame problem
-    )
+    options: dict[str, Any] = {
+        "k": spec.candidates,
+        "latent_dim": latent_dim,
+        "ragdoll": False,
+        "weights": EnergyWeights(**weights),
+        "temporal": TemporalConfig.off(),  # the env's per-frame problem
+        **(reconstructor_options or {}),
+        "max_evaluations": None,
+    }
+    reconstructor = Reconstructor(graph, **options)
     search = make("local-search")
+    anchor_only = LearnedSampler(AnchorSampler(spec), samples=1)
     anchored = None
     if target == "best" and spec.anchor != "none":
         anchored = LearnedSearch(AnchorSampler(spec), samples=1, iterations=20, search_samples=100)
@@ -260,18 +309,20 @@ def collect_imitation_data(
                 problem = reconstructor.prepare(
                     recording.positions[t], recording.states[t], float(recording.timestamps[t])
                 )
-                found = run_optimizer(problem, search, rng)
-                if anchored is not None:
-                    other = run_optimizer(problem, anchored, rng)
-                    found = other if other.energy < found.energy else found  # best of both
+                if follow == "search":
+                    found = run_optimizer(problem, search, rng)
+                    if anchored is not None:
+                        other = run_optimizer(problem, anchored, rng)
+                        found = other if other.energy < found.energy else found  # best of both
+                else:
+                    found = run_optimizer(problem, anchor_only, rng)
                 z = found.x
                 d = min(problem.dim, latent_dim)
                 if target == "truth":
-                    assert truth is not None
-                    # The truth in the frame's space: the sensor pose's root and heading, as
-                    # the reconstructor normalises it (not the truth's own heading).
-                    _, placement = pose_utils.normalise(recording.positions[t])
-                    z_target = problem.encode(pose_utils.into_placement(truth[t], placement))
+                    assert truth is not None and reconstructor.placement is not None
+                    z_target = truth_latent(problem, reconstructor.placement, truth[t])
+                    if follow == "truth":
+                        z = z_target
                 else:
                     z_target = z
                 origin = problem.x0 if delta else 0.0

@@ -603,6 +603,19 @@ class Reconstructor:
         """The prepared problem waiting for :meth:`finish` (None otherwise)."""
         return None if self._pending is None else self._pending.problem
 
+    @property
+    def placement(self) -> pose_utils.Placement | None:
+        """Where the prepared frame's problem lives (None when no frame is prepared).
+
+        The problem's poses are normalised by this placement's heading, and :meth:`finish`
+        puts the chosen pose back with it. It is *not* always the raw input's own placement:
+        the sensor map moves the hip line, a left/right relabelling turns it by about 180
+        degrees, a frame without a body keeps the last placement, and the temporal stage may
+        smooth the heading. A reference pose (the ground truth) seen in the problem's frame is
+        ``into_placement(truth, Placement(truth[ROOT], placement.yaw))``.
+        """
+        return None if self._pending is None else self._pending.placement
+
     def reset(self) -> None:
         """Start a new stream: forget the history, bone lengths and previous nodes."""
         self.reliability.reset()
