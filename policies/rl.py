@@ -219,10 +219,14 @@ def make_training_env(
     action_scale: float = 3.0,
     action_mode: str = "delta",
     max_frames: int | None = None,
+    reward_mode: str = "energy",
+    error_weight: float = 1.0,
 ) -> Any:
-    """The training env: ``KinectPoseEnv`` with the energy reward, no ragdoll (the compared
-    methods run without one), episodes from ``clips`` x ``scenarios``, unclipped actions (the
-    policy's action is added to the sampler's anchor, :meth:`FeatureMap.wrap`)."""
+    """The training env: ``KinectPoseEnv`` with the ``reward_mode`` reward (the energy by
+    default; ``"error"``, or ``"combined"`` with ``error_weight``, learn the simulated ground
+    truth), no ragdoll (the compared methods run without one), episodes from ``clips`` x
+    ``scenarios``, unclipped actions (the policy's action is added to the sampler's anchor,
+    :meth:`FeatureMap.wrap`)."""
 
     return KinectPoseEnv(
         graph,
@@ -232,7 +236,8 @@ def make_training_env(
         latent_dim=latent_dim,
         action_scale=action_scale,
         action_mode=action_mode,
-        reward_mode="energy",
+        reward_mode=reward_mode,
+        error_weight=error_weight,
         clip_actions=False,
         ragdoll=False,
         max_episode_steps=max_frames,
@@ -256,6 +261,8 @@ def train_rl(
     anchor: str = "quadratic",
     anchor_style: float = DEFAULT_STYLE,
     hyperparameters: dict[str, Any] | None = None,
+    reward_mode: str = "energy",
+    error_weight: float = 1.0,
     evaluate: Callable[[GaussianSampler], dict[str, Any]] | None = None,
     eval_every: int | None = None,
     checkpoints: str | os.PathLike[str] | None = None,
@@ -263,7 +270,9 @@ def train_rl(
     progress: bool = False,
     log: Callable[[str], None] | None = None,
 ) -> tuple[RLSampler, list[dict[str, Any]]]:
-    """Train an SB3 ``algo`` policy on the energy reward; returns the sampler and its history.
+    """Train an SB3 ``algo`` policy on the env's reward (``reward_mode``: the energy by
+    default, or the ground-truth error, alone or combined); returns the sampler and its
+    history.
 
     Parameters
     ----------
@@ -281,6 +290,10 @@ def train_rl(
         an offset from it.
     hyperparameters : dict, optional
         Overrides of :data:`RL_DEFAULTS`.
+    reward_mode : {"energy", "error", "combined"}
+        The env's reward (:class:`~fpg_gym.env.KinectPoseEnv`); ``error_weight`` weighs the
+        error in ``"combined"``.
+    error_weight : float
     evaluate : callable, optional
         ``evaluate(sampler) -> {"mean": {...}}`` run every ``eval_every`` steps (a checkpoint
         is saved then too, in ``checkpoints``).
@@ -321,6 +334,8 @@ def train_rl(
         action_scale=action_scale,
         action_mode=action_mode,
         max_frames=max_frames,
+        reward_mode=reward_mode,
+        error_weight=error_weight,
     )
     spec = SamplerSpec.for_env(
         env,

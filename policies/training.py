@@ -457,6 +457,13 @@ class TrainConfig:
     seed : int
     target : {"best", "search", "truth"}
         Supervised target (:func:`collect_imitation_data`).
+    follow : {"search", "anchor", "truth"}
+        What the supervised data's stream continues from (:func:`collect_imitation_data`;
+        ``"anchor"`` and ``"truth"`` need ``target="truth"`` and run no search).
+    reward : {"energy", "error", "combined"}
+        The RL env's reward (rl; ``"error"`` learns the simulated ground truth).
+    error_weight : float
+        Weight of the error in the ``"combined"`` reward.
     epochs : int
         Supervised epochs.
     eval_every : int, optional
@@ -495,6 +502,9 @@ class TrainConfig:
     timesteps: int | None = None
     seed: int = 0
     target: str = "best"
+    follow: str = "search"
+    reward: str = "energy"
+    error_weight: float = 1.0
     epochs: int = 40
     eval_every: int | None = None
     eval_episodes: int = 6
@@ -519,6 +529,15 @@ class TrainConfig:
             raise ValueError(f"algo: expected 'ppo' or 'sac', got {self.algo!r}")
         if self.target not in TARGETS:
             raise ValueError(f"target: expected one of {TARGETS}, got {self.target!r}")
+        if self.follow not in FOLLOW or (self.follow != "search" and self.target != "truth"):
+            raise ValueError(
+                f"follow: expected one of {FOLLOW} ('anchor' and 'truth' with target 'truth'), "
+                f"got {self.follow!r} with target {self.target!r}"
+            )
+        if self.reward not in ("energy", "error", "combined"):
+            raise ValueError(
+                f"reward: expected 'energy', 'error' or 'combined', got {self.reward!r}"
+            )
         if self.timesteps is not None and self.timesteps < 1:
             raise ValueError(f"timesteps: expected >= 1, got {self.timesteps}")
         if self.epochs < 1:
@@ -674,6 +693,8 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             anchor=config.anchor,
             anchor_style=config.anchor_style,
             hyperparameters=config.hyperparameters,
+            reward_mode=config.reward,
+            error_weight=config.error_weight,
             evaluate=evaluate,
             eval_every=config.eval_every or max(config.total_timesteps // 10, 1),
             checkpoints=checkpoints,
@@ -682,6 +703,9 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             log=say,
         )
         seconds["train"] = time.perf_counter() - t0
+        training_info["reward"] = config.reward
+        if config.reward == "combined":
+            training_info["error_weight"] = config.error_weight
     sampler.spec.training = {**training_info, "seconds": dict(seconds), "history": history}
     t0 = time.perf_counter()
 
@@ -733,6 +757,7 @@ def _train_supervised(
         hyperparameters={
             **config.hyperparameters,
             "target": config.target,
+            "follow": config.follow,
             "epochs": config.epochs,
         },
     )
@@ -750,6 +775,7 @@ def _train_supervised(
         recordings,
         spec,
         target=config.target,
+        follow=config.follow,
         frames=config.total_timesteps,
         seed=config.seed,
         progress=config.progress,

@@ -15,15 +15,29 @@ For each: ``fpg-gym train-sampler`` for the supervised and the PPO sampler (time
 diagnostic rows run through the Python API: the sampler's anchor alone and its mean alone
 (1 evaluation each). Prints one table per protocol (``table.md`` in each folder).
 
+* ``uiprmd``: real Kinect v2 streams against Vicon, leave subjects out over s01-s08
+  (:mod:`scripts.real_kinect`'s machinery: the UI-PRMD database and the Kinect v2 -> Vicon map
+  of each fold are fitted on the other seven subjects only). A supervised sampler learns the
+  ground truth (target ``truth``) of the training subjects' real streams; its imitation data of
+  a training subject is collected with a database that lacks that subject too (nested), so the
+  truth is never among the candidates, as on the held-out subject. One training subject per
+  fold is the validation split (early stopping, spread calibration). ``--seeds`` training seeds;
+  each is scored on the held-out subject with ``learned:`` and ``learned+search:`` (200
+  evaluations), beside ``closed-form`` (the anchor, 1), ``local-search`` (2,000) and the raw
+  sensor; 95 % confidence intervals by a bootstrap over episodes.
+
 Usage::
 
     python scripts/learned_samplers.py --out runs/learned [--protocols embedded,bandai]
+    python scripts/learned_samplers.py --protocols uiprmd --seeds 0,1,2
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
+import json
 import re
 import shlex
 import subprocess
@@ -33,6 +47,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import real_kinect  # scripts/real_kinect.py: the UI-PRMD leave-subjects-out machinery
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "bandai_namco"
@@ -199,6 +214,280 @@ def protocol(
     return report
 
 
+# --------------------------------------------------------------------------- UI-PRMD
+
+
+def _bootstrap_ci(values: np.ndarray, rng: np.random.Generator, draws: int = 2000) -> tuple:
+    """95 % percentile bootstrap interval of the mean of ``values`` (one per episode)."""
+    idx = rng.integers(0, len(values), size=(draws, len(values)))
+    means = values[idx].mean(axis=1)
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
+
+
+def _uiprmd_data(
+    imported: Path,
+    subjects: dict[str, list[Path]],
+    held_out: str,
+    subject: str,
+    spec: Any,
+    options: dict[str, Any],
+    reps: int,
+    thres1: float,
+) -> Any:
+    """Ground-truth imitation data of one training ``subject``, collected with a database and
+    sensor map that lack both it and the held-out subject."""
+    from fpg_gym.io.recording import load_recording
+    from policies.training import collect_imitation_data
+
+    graph = real_kinect.uiprmd_graph(imported, {held_out, subject}, thres1)
+    others = [
+        load_recording(p) for s, ps in subjects.items() if s not in (held_out, subject) for p in ps
+    ]
+    sensor_map, _, _ = real_kinect._fold_maps("uiprmd", graph, others, True, False)
+    recordings = [load_recording(p) for p in real_kinect._episodes(subjects[subject], reps)]
+    return collect_imitation_data(
+        graph,
+        recordings,
+        spec,
+        target="truth",
+        follow="anchor",
+        reconstructor_options={**options, "sensor_map": sensor_map},
+    )
+
+
+def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
+    """One held-out subject: data, ``len(seeds)`` samplers, and every method scored."""
+    import torch
+
+    import optimizers
+    from fpg_gym import metrics
+    from fpg_gym.env_observation import ObservationLayout
+    from fpg_gym.io.recording import load_recording
+    from fpg_gym.methods import MethodRunner
+    from optimizers.learned import LearnedSampler
+    from policies.sampler import FEATURE_SETS, SamplerSpec
+    from policies.supervised import SupervisedSampler, fit_supervised
+
+    torch.set_num_threads(1)
+    imported, out = Path(task["imported"]), Path(task["out"])
+    held_out, thres1 = task["subject"], task["thres1"]
+    subjects = real_kinect._by_subject(imported / "recordings")
+    train_subjects = [s for s in sorted(subjects) if s != held_out]
+    # The validation subject: the first training subject after the held-out one (cyclic).
+    val_subject = train_subjects[
+        next((i for i, s in enumerate(train_subjects) if s > held_out), 0)
+    ]
+    options: dict[str, Any] = {"sensor_blend": task["blend"]}
+    spec = SamplerSpec(
+        kind="supervised",
+        algo="mlp",
+        latent_dim=20,
+        candidates=30,
+        observation_size=ObservationLayout(20, 30).size,
+        action_mode="absolute",
+        features=list(FEATURE_SETS[task["features"]]),
+        hyperparameters={"hidden": task["hidden"], "target": "truth", "epochs": task["epochs"]},
+    )
+    t0 = time.process_time()
+    data = {
+        s: _uiprmd_data(imported, subjects, held_out, s, spec, options, task["train_reps"], thres1)
+        for s in train_subjects
+    }
+    data_cpu = time.process_time() - t0
+    train = [data[s] for s in train_subjects if s != val_subject]
+    obs = np.concatenate([d.observations for d in train])
+    act = np.concatenate([d.actions for d in train])
+    mask = np.concatenate([d.masks for d in train])
+    val = data[val_subject]
+    transformed = spec.feature_map().transform(obs)
+    models: dict[int, str] = {}
+    train_cpu: dict[int, float] = {}
+    for seed in task["seeds"]:
+        t0 = time.process_time()
+        features = transformed[0]
+        sampler = SupervisedSampler.create(
+            dataclasses.replace(spec, hyperparameters=dict(spec.hyperparameters)),
+            features.mean(axis=0),
+            np.maximum(features.std(axis=0), 1e-3),
+            seed=seed,
+        )
+        history = fit_supervised(
+            sampler,
+            obs,
+            act,
+            mask,
+            epochs=task["epochs"],
+            seed=seed,
+            validation=(val.observations, val.actions, val.masks),
+            transformed=transformed,
+        )
+        train_cpu[seed] = time.process_time() - t0
+        best = next(r["epoch"] for r in history if r.get("best"))
+        sampler.spec.training = {
+            "protocol": "uiprmd leave-subjects-out",
+            "held_out": held_out,
+            "validation_subject": val_subject,
+            "train_subjects": [s for s in train_subjects if s != val_subject],
+            "frames": len(obs),
+            "best_epoch": best,
+            "seed": seed,
+            "command": task["command"],
+        }
+        path = out / f"sampler_{held_out}_seed{seed}"
+        sampler.save(path)
+        models[seed] = str(path)
+
+    def mean_only(path: str, **_: Any) -> Any:
+        return LearnedSampler(path, samples=1)
+
+    optimizers.register_prefix("mean-only", mean_only, overwrite=True)
+    methods = ["raw", "fpg:closed-form", "fpg:local-search"]
+    for path in models.values():
+        methods += [f"fpg:mean-only:{path}", f"fpg:learned:{path}", f"fpg:learned+search:{path}"]
+    graph = real_kinect.uiprmd_graph(imported, {held_out}, thres1)
+    train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
+    sensor_map, _, _ = real_kinect._fold_maps("uiprmd", graph, train_recs, True, False)
+    rows = []
+    with MethodRunner(
+        graph, budget=2000, reconstructor_options={**options, "sensor_map": sensor_map}
+    ) as runner:
+        for path in real_kinect._episodes(subjects[held_out], task["reps"]):
+            recording = load_recording(path)
+            truth = recording.ground_truth
+            assert truth is not None
+            for method in methods:
+                c0 = time.process_time()
+                poses = runner.run(method, recording, seed=0).poses
+                cpu = 1000 * (time.process_time() - c0) / recording.num_frames
+                rows.append(
+                    {
+                        "subject": held_out,
+                        "episode": path.stem,
+                        "method": method,
+                        "error": float(metrics.frame_error(truth, poses).mean()),
+                        "jitter": float(np.nanmean(metrics.jitter(poses, fps=recording.fps))),
+                        "cpu_ms": cpu,
+                    }
+                )
+    return {
+        "subject": held_out,
+        "validation_subject": val_subject,
+        "models": {str(k): v for k, v in models.items()},
+        "frames": len(obs),
+        "val_frames": len(val),
+        "data_cpu_s": data_cpu,
+        "train_cpu_s": {str(k): v for k, v in train_cpu.items()},
+        "rows": rows,
+    }
+
+
+def _method_kind(method: str, models: dict[str, dict[str, str]]) -> tuple[str, str | None]:
+    """``(row name, seed)`` of a method of the UI-PRMD protocol."""
+    for fold in models.values():
+        for seed, path in fold.items():
+            if method.endswith(path):
+                return method[: -len(path)].removeprefix("fpg:").rstrip(":"), seed
+    return method.removeprefix("fpg:"), None
+
+
+def uiprmd_table(results: list[dict[str, Any]]) -> str:
+    """The UI-PRMD table: per method, mean error with its 95 % CI (episodes), the change
+    against closed-form with its CI (paired), jitter, CPU ms per frame; learned rows pool the
+    seeds (one row per seed below)."""
+    rows = [r for result in results for r in result["rows"]]
+    models = {res["subject"]: res["models"] for res in results}
+    rng = np.random.default_rng(2016)
+    by: dict[str, dict[str, dict[str, Any]]] = {}
+    for row in rows:
+        name, seed = _method_kind(row["method"], models)
+        for key in [name] + ([f"{name} (seed {seed})"] if seed is not None else []):
+            episodes = by.setdefault(key, {})
+            slot = episodes.setdefault(row["episode"], {"error": [], "jitter": [], "cpu": []})
+            slot["error"].append(row["error"])
+            slot["jitter"].append(row["jitter"])
+            slot["cpu"].append(row["cpu_ms"])
+    base = by["closed-form"]
+    order = sorted(base)
+    lines = [
+        "| method | evaluations/frame | mean error (m) [95 % CI] | vs closed-form [95 % CI] "
+        "| vs local-search | jitter (m/s²) | CPU ms/frame |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    evaluations = {"raw": "–", "closed-form": "1", "local-search": "2,000", "mean-only": "1"}
+    local = np.array([np.mean(by["local-search"][e]["error"]) for e in order])
+    anchor = np.array([np.mean(base[e]["error"]) for e in order])
+    for name, episodes in by.items():
+        err = np.array([np.mean(episodes[e]["error"]) for e in order])
+        ratio = err / anchor - 1
+        lo, hi = _bootstrap_ci(err, rng)
+        rlo, rhi = _bootstrap_ci(ratio, rng)
+        jit = np.mean([np.mean(episodes[e]["jitter"]) for e in order])
+        cpu = np.median([np.median(episodes[e]["cpu"]) for e in order])
+        kind = name.split(" ")[0]
+        lines.append(
+            f"| {name} | {evaluations.get(kind, '200')} | {err.mean():.4f} [{lo:.4f}, {hi:.4f}] "
+            f"| {100 * (err.mean() / anchor.mean() - 1):+.1f} % [{100 * rlo:+.1f}, "
+            f"{100 * rhi:+.1f}] | {100 * (err.mean() / local.mean() - 1):+.1f} % | {jit:.2f} | "
+            f"{cpu:.2f} |"
+        )
+    return "\n".join(lines)
+
+
+def uiprmd_protocol(args: argparse.Namespace) -> str:
+    """The UI-PRMD leave-subjects-out protocol (see the module docstring)."""
+    folder = args.out / "uiprmd"
+    folder.mkdir(parents=True, exist_ok=True)
+    imported = real_kinect._imported(args.work, args.data.parent)
+    command = "python scripts/learned_samplers.py " + " ".join(
+        shlex.quote(a) for a in (args.argv or [])
+    )
+    tasks = [
+        {
+            "imported": str(imported),
+            "out": str(folder),
+            "subject": subject,
+            "seeds": [int(s) for s in args.seeds.split(",")],
+            "thres1": args.uiprmd_thres1,
+            "blend": args.sensor_blend,
+            "train_reps": args.train_reps,
+            "reps": args.reps,
+            "epochs": args.epochs,
+            "hidden": [int(w) for w in args.hidden.split(",")],
+            "features": args.features,
+            "command": command,
+        }
+        for subject in args.subjects.split(",")
+    ]
+    start = time.perf_counter()
+    results = []
+    from concurrent.futures import ProcessPoolExecutor
+
+    with ProcessPoolExecutor(max_workers=args.workers) as pool:
+        for result in pool.map(_uiprmd_fold, tasks):
+            print(
+                f"held out {result['subject']} (validation {result['validation_subject']}): "
+                f"{result['frames']} training frames, data {result['data_cpu_s']:.0f} s CPU, "
+                f"training {json.dumps(result['train_cpu_s'])} s CPU",
+                file=sys.stderr,
+                flush=True,
+            )
+            results.append(result)
+    (folder / "results.json").write_text(json.dumps(results, indent=1))
+    wall = time.perf_counter() - start
+    episodes = len({r["episode"] for res in results for r in res["rows"]})
+    report = (
+        f"### uiprmd (leave-subjects-out, held out {args.subjects}, {episodes} episodes, "
+        f"seeds {args.seeds}, sensor blend {args.sensor_blend}, temporal defaults)\n\n"
+        f"{uiprmd_table(results)}\n\nWall time {wall:.0f} s ({args.workers} workers); "
+        f"training CPU per sampler: "
+        f"{np.mean([v for res in results for v in res['train_cpu_s'].values()]):.0f} s, data "
+        f"CPU per fold {np.mean([res['data_cpu_s'] for res in results]):.0f} s.\n"
+    )
+    (folder / "table.md").write_text(report)
+    print(report, flush=True)
+    return report
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--out", type=Path, default=REPO / "runs" / "learned")
@@ -208,10 +497,25 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-frames", type=int, default=150)
     parser.add_argument("--sup-timesteps", type=int, default=20_000)
     parser.add_argument("--rl-timesteps", type=int, default=100_000)
+    group = parser.add_argument_group("uiprmd protocol")
+    group.add_argument("--work", type=Path, default=Path("runs/real_kinect"), help="import folder")
+    group.add_argument("--subjects", default="s01,s02,s03,s04,s05,s06,s07,s08")
+    group.add_argument("--seeds", default="0,1,2", help="training seeds")
+    group.add_argument("--reps", type=int, default=1, help="scored repetitions per exercise")
+    group.add_argument("--train-reps", type=int, default=3, help="training reps per exercise")
+    group.add_argument("--epochs", type=int, default=40)
+    group.add_argument("--hidden", default="256,256", help="MLP layer widths")
+    group.add_argument("--features", default="all", choices=("all", "latent"))
+    group.add_argument("--uiprmd-thres1", type=float, default=0.1)
+    group.add_argument("--sensor-blend", type=float, default=0.5)
+    group.add_argument("--workers", type=int, default=1)
     args = parser.parse_args(argv)
+    args.argv = list(sys.argv[1:] if argv is None else argv)
     args.out.mkdir(parents=True, exist_ok=True)
     reports = []
     wanted = [p.strip() for p in args.protocols.split(",") if p.strip()]
+    if "uiprmd" in wanted:
+        reports.append(uiprmd_protocol(args))
     if "embedded" in wanted:
         reports.append(protocol("embedded", args.out, "default", [], ["default"], args, []))
     if "bandai" in wanted:

@@ -103,6 +103,17 @@ def _episodes(paths: list[Path], reps: int) -> list[Path]:
     return chosen
 
 
+def uiprmd_graph(imported: Path, exclude: set[str], thres1: float) -> FilteredPoseGraph:
+    """The UI-PRMD database: a graph of the Vicon joint centres of every subject but
+    ``exclude`` (``imported`` is an ``import-uiprmd`` folder)."""
+    clips = [
+        read_positions(p)
+        for p in sorted((imported / "clips").glob("*.npz"))
+        if p.stem.split("_")[1] not in exclude
+    ]
+    return FilteredPoseGraph.build(clips, thres1=thres1, progress=False)
+
+
 def _bandai_graph(work: Path, data: Path) -> FilteredPoseGraph:
     path = work / "bandai-dataset1.npz"
     if not path.is_file():
@@ -147,12 +158,7 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
     database = task["database"]
     t0 = time.process_time()
     if database == "uiprmd":
-        clips = [
-            read_positions(p)
-            for p in sorted((imported / "clips").glob("*.npz"))
-            if p.stem.split("_")[1] != held_out
-        ]
-        graph = FilteredPoseGraph.build(clips, thres1=task["uiprmd_thres1"], progress=False)
+        graph = uiprmd_graph(imported, {held_out}, task["uiprmd_thres1"])
     elif database == "embedded":
         graph = default_graph()
     else:

@@ -106,3 +106,15 @@ def test_follow_modes_need_no_search_and_check_their_arguments(graph: Any) -> No
         collect_imitation_data(graph, [recording], spec, target="best", follow="anchor")
     with pytest.raises(ValueError, match="follow"):
         collect_imitation_data(graph, [recording], spec, target="truth", follow="nope")
+
+
+def test_train_config_checks_follow_and_reward() -> None:
+    from policies.training import TrainConfig
+
+    assert TrainConfig(kind="supervised", out="m", target="truth", follow="anchor").follow == (
+        "anchor"
+    )
+    with pytest.raises(ValueError, match="follow"):
+        TrainConfig(kind="supervised", out="m", target="best", follow="anchor")
+    with pytest.raises(ValueError, match="reward"):
+        TrainConfig(kind="rl", out="m", reward="smile")

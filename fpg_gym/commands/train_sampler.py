@@ -28,6 +28,8 @@ examples:
       --out runs/sampler_ppo
   fpg-gym train-sampler --kind supervised --graph runs/bandai.npz \\
       --clips @runs/split/graph_takes.txt --max-frames 150 --out runs/sampler_bandai
+  fpg-gym train-sampler --kind supervised --target truth --follow anchor --graph default \\
+      --out runs/sampler_truth       # learns the simulated ground truth, no search
 """
 
 
@@ -94,6 +96,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="best",
         help="supervised target: the best search optimum (local search from x0 and from the "
         "anchor), the papers' local-search optimum, or the ground truth (default best)",
+    )
+    parser.add_argument(
+        "--follow",
+        choices=["search", "anchor", "truth"],
+        default="search",
+        help="what the supervised data's stream continues from: the local search (default), "
+        "or, with --target truth and no search at all, the closed-form anchor or the truth",
+    )
+    parser.add_argument(
+        "--reward",
+        choices=["energy", "error", "combined"],
+        default="energy",
+        help="RL reward: the energy (default), the simulated ground truth's error, or "
+        "energy + --error-weight x error",
+    )
+    parser.add_argument(
+        "--error-weight", type=float, default=1.0, help="error weight of --reward combined (1)"
     )
     parser.add_argument("--epochs", type=int, default=40, help="supervised epochs (40)")
     parser.add_argument(
@@ -177,6 +196,9 @@ def run(args: argparse.Namespace) -> int:
         timesteps=args.timesteps,
         seed=args.seed,
         target=args.target,
+        follow=args.follow,
+        reward=args.reward,
+        error_weight=args.error_weight,
         epochs=args.epochs,
         eval_every=args.eval_every,
         eval_episodes=args.eval_episodes,
