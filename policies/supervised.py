@@ -18,9 +18,12 @@ pose-space error of the anchor by about 60 %, where the unweighted one barely le
 Early stopping keeps the epoch with the lowest validation error of the mean; the spread is then
 calibrated on the validation pairs (one factor ``c`` with ``mean(((a - mu) / (c sigma))^2) =
 1``, stored as the buffer ``std_scale``), because a spread fitted on training frames is too
-narrow on new ones. The result is the Gaussian the ``learned:PATH`` optimiser draws from. The
-targets are :func:`policies.training.collect_imitation_data`'s: the best search optimum
-(``"best"``), the papers' local-search optimum (``"search"``) or the ground truth (``"truth"``).
+narrow on new ones; before that, the learned offset is shrunk towards the anchor by the factor
+in [0, 1] that fits the validation targets best (the buffer ``mean_scale``), so that an offset
+that does not carry over to new subjects or takes falls back to the anchor. The result is the
+Gaussian the ``learned:PATH`` optimiser draws from. The targets are
+:func:`policies.training.collect_imitation_data`'s: the best search optimum (``"best"``), the
+papers' local-search optimum (``"search"``) or the ground truth (``"truth"``).
 
 Saved as ``MODEL.pt`` (``torch.save`` of the ``state_dict``: tensors only; loaded with
 ``weights_only=True``) and ``MODEL.json`` (:class:`~policies.sampler.SamplerSpec`).
@@ -45,7 +48,7 @@ from policies.sampler import (
     SamplerSpec,
     check_layer_widths,
     import_learn,
-    load_weights_into,
+    load_weights_file,
     model_paths,
 )
 
@@ -94,6 +97,7 @@ def _module_class() -> Any:
             self.register_buffer("feature_mean", torch.zeros(in_size))
             self.register_buffer("feature_scale", torch.ones(in_size))
             self.register_buffer("std_scale", torch.ones(()))
+            self.register_buffer("mean_scale", torch.ones(()))
             layers: list[Any] = []
             size = in_size
             for width in hidden:
@@ -111,7 +115,7 @@ def _module_class() -> Any:
         def forward(self, features: Any) -> tuple[Any, Any]:
             h = self.body((features - self.feature_mean) / self.feature_scale)
             log_std = self.log_std_head(h).clamp(self.min_log_std, self.max_log_std)
-            return self.mean_head(h), log_std + self.std_scale.log()
+            return self.mean_scale * self.mean_head(h), log_std + self.std_scale.log()
 
     return GaussianMLP
 
@@ -185,8 +189,16 @@ class SupervisedSampler(GaussianSampler):
             If the file is not a tensor file or its tensors do not fit the network ``spec``
             describes.
         """
+        torch = import_learn("torch")
         module = _build(spec, spec.feature_map().size, source=weights)
-        load_weights_into(module, weights)
+        state = load_weights_file(weights)
+        state.setdefault("mean_scale", torch.ones(()))  # files written before it existed
+        try:
+            module.load_state_dict(state, strict=True)
+        except (RuntimeError, ValueError) as error:
+            raise DataFormatError(
+                weights, f"the tensors do not fit the network in the JSON ({error})"
+            ) from None
         return cls(spec, module, seed)
 
     def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -241,6 +253,7 @@ def fit_supervised(
     on_epoch: Callable[[dict[str, Any]], None] | None = None,
     restore_best: bool = True,
     calibrate: bool = True,
+    shrink: bool = True,
     progress: bool = False,
     transformed: tuple[np.ndarray, np.ndarray] | None = None,
 ) -> list[dict[str, Any]]:
@@ -277,6 +290,10 @@ def fit_supervised(
     calibrate : bool
         With ``validation``: scale the spread so that the validation targets' squared
         standardised offsets average 1 (``std_scale``).
+    shrink : bool
+        With ``validation``: scale the learned offset from the anchor by the factor in [0, 1]
+        that fits the validation targets best (``mean_scale``; 0 falls back to the anchor when
+        what was learned does not carry over to the validation split). Before ``calibrate``.
     progress : bool
         A tqdm bar over the epochs.
     transformed : (features, anchor), optional
@@ -381,6 +398,16 @@ def fit_supervised(
     if best_state is not None and best_record is not None:
         module.load_state_dict(best_state)
         best_record["best"] = True
+    if shrink and val is not None:
+        # The learned offset, scaled by the factor in [0, 1] that fits the validation targets
+        # best (least squares): 0 when nothing learned carries over, i.e. the anchor alone.
+        with torch.no_grad():
+            module.mean_scale.fill_(1.0)
+            mean, _ = module(val[0])
+            num = float((val[1] * mean * val[2]).sum())
+            den = float((mean * mean * val[2]).sum())
+            module.mean_scale.fill_(float(np.clip(num / den, 0.0, 1.0)) if den > 0 else 0.0)
+        history[-1]["mean_scale"] = float(module.mean_scale)
     if calibrate and val is not None:
         with torch.inference_mode():
             mean, log_std = module(val[0])

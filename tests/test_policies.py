@@ -197,6 +197,44 @@ def test_supervised_learning_beats_the_anchor_over_seeds(trained: dict[str, Any]
     assert max(ratios) < 1.0 and np.mean(ratios) < 0.75, ratios
 
 
+def test_validation_shrinks_an_offset_that_does_not_carry_over(
+    trained: dict[str, Any], tmp_path: Path
+) -> None:
+    """``mean_scale``: 0 when the validation targets are the anchor itself (the sampler falls
+    back to it), near 1 when they are the training targets; files without it still load."""
+    import torch
+
+    from policies.supervised import SupervisedSampler, fit_supervised
+
+    data, spec = trained["data"], trained["spec"]
+    features = spec.feature_map()(data.observations)
+    scales = {}
+    for name in ("anchor", "training"):
+        sampler = SupervisedSampler.create(
+            spec, features.mean(axis=0), np.maximum(features.std(axis=0), 1e-3), seed=0
+        )
+        _, _, anchor = sampler.distribution(data.observations)
+        targets = anchor if name == "anchor" else data.actions
+        history = fit_supervised(
+            sampler, data.observations, data.actions, data.masks, epochs=30, batch_size=16,
+            validation=(data.observations, targets, data.masks), restore_best=False,
+        )  # fmt: skip
+        scales[name] = history[-1]["mean_scale"]
+        if name == "anchor":
+            mean, _, anchor = sampler.distribution(data.observations)
+            np.testing.assert_allclose(mean, anchor, atol=1e-6)
+    assert scales["anchor"] < 0.05 < 0.7 < scales["training"] <= 1.0, scales
+    # A file written before mean_scale existed loads with a scale of 1.
+    sampler = trained["sampler"]
+    path = sampler.save(tmp_path / "old")
+    weights = tmp_path / "old.pt"
+    state = torch.load(weights, weights_only=True)
+    state.pop("mean_scale")
+    torch.save(state, weights)
+    loaded = load_sampler(path)
+    assert float(loaded.module.mean_scale) == 1.0
+
+
 def test_supervised_training_is_deterministic(trained: dict[str, Any]) -> None:
     from policies.supervised import SupervisedSampler, fit_supervised
 
