@@ -275,28 +275,12 @@ def _oracle(graph: Any, options: dict[str, Any], recording: Any) -> np.ndarray:
     return out
 
 
-def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
-    """One held-out subject: data, ``len(seeds)`` samplers, and every method scored."""
-    import torch
-
-    import optimizers
-    from fpg_gym import metrics
+def _spec(task: dict[str, Any]) -> Any:
+    """The supervised sampler's description (ground-truth target, the env's layout)."""
     from fpg_gym.env_observation import ObservationLayout
-    from fpg_gym.io.recording import load_recording
-    from fpg_gym.methods import MethodRunner
-    from optimizers.learned import LearnedSampler
     from policies.sampler import FEATURE_SETS, SamplerSpec
-    from policies.supervised import SupervisedSampler, fit_supervised
 
-    torch.set_num_threads(1)
-    imported, out = Path(task["imported"]), Path(task["out"])
-    held_out, thres1 = task["subject"], task["thres1"]
-    subjects = real_kinect._by_subject(imported / "recordings")
-    train_subjects = [s for s in sorted(subjects) if s != held_out]
-    # The validation subject: the first training subject after the held-out one (cyclic).
-    val_subject = train_subjects[next((i for i, s in enumerate(train_subjects) if s > held_out), 0)]
-    options: dict[str, Any] = {"sensor_blend": task["blend"]}
-    spec = SamplerSpec(
+    return SamplerSpec(
         kind="supervised",
         algo="mlp",
         latent_dim=20,
@@ -306,24 +290,24 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
         features=list(FEATURE_SETS[task["features"]]),
         hyperparameters={"hidden": task["hidden"], "target": "truth", "epochs": task["epochs"]},
     )
-    t0 = time.process_time()
-    data = {
-        s: _uiprmd_data(imported, subjects, held_out, s, spec, options, task["train_reps"], thres1)
-        for s in train_subjects
-    }
-    data_cpu = time.process_time() - t0
-    train = [data[s] for s in train_subjects if s != val_subject]
+
+
+def _train_seeds(
+    spec: Any, train: list[Any], val: Any, task: dict[str, Any], name: str, info: dict[str, Any]
+) -> dict[str, Any]:
+    """One sampler per seed of ``task["seeds"]`` on the ``train`` imitation data, early
+    stopping, shrinking and spread calibration on ``val``; saved as ``{out}/sampler_{name}_seedS``.
+    """
+    from policies.supervised import SupervisedSampler, fit_supervised
+
     obs = np.concatenate([d.observations for d in train])
     act = np.concatenate([d.actions for d in train])
     mask = np.concatenate([d.masks for d in train])
-    val = data[val_subject]
     transformed = spec.feature_map().transform(obs)
-    models: dict[int, str] = {}
-    train_cpu: dict[int, float] = {}
-    shrink: dict[int, float] = {}
+    features = transformed[0]
+    result: dict[str, Any] = {"models": {}, "train_cpu_s": {}, "mean_scale": {}}
     for seed in task["seeds"]:
         t0 = time.process_time()
-        features = transformed[0]
         sampler = SupervisedSampler.create(
             dataclasses.replace(spec, hyperparameters=dict(spec.hyperparameters)),
             features.mean(axis=0),
@@ -340,24 +324,34 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
             validation=(val.observations, val.actions, val.masks),
             transformed=transformed,
         )
-        train_cpu[seed] = time.process_time() - t0
-        shrink[seed] = float(history[-1].get("mean_scale", 1.0))
-        best = next(r["epoch"] for r in history if r.get("best"))
+        result["train_cpu_s"][str(seed)] = time.process_time() - t0
+        result["mean_scale"][str(seed)] = float(history[-1].get("mean_scale", 1.0))
         sampler.spec.training = {
-            "protocol": "uiprmd leave-subjects-out",
-            "held_out": held_out,
-            "validation_subject": val_subject,
-            "train_subjects": [s for s in train_subjects if s != val_subject],
+            **info,
             "frames": len(obs),
-            "best_epoch": best,
+            "validation_frames": len(val),
+            "best_epoch": next(r["epoch"] for r in history if r.get("best")),
             "mean_scale": history[-1].get("mean_scale"),
             "std_scale": history[-1].get("std_scale"),
             "seed": seed,
             "command": task["command"],
         }
-        path = out / f"sampler_{held_out}_seed{seed}"
+        path = Path(task["out"]) / f"sampler_{name}_seed{seed}"
         sampler.save(path)
-        models[seed] = str(path)
+        result["models"][str(seed)] = str(path)
+    result["frames"] = len(obs)
+    return result
+
+
+def _score(
+    graph: Any, options: dict[str, Any], models: dict[str, str], episodes: list[tuple[str, Any]]
+) -> list[dict[str, Any]]:
+    """Every method (raw, closed-form, local-search, each model's mean alone, ``learned:`` and
+    ``learned+search:``, the oracle) on every ``(name, recording)``: error, jitter, CPU."""
+    import optimizers
+    from fpg_gym import metrics
+    from fpg_gym.methods import MethodRunner
+    from optimizers.learned import LearnedSampler
 
     def mean_only(path: str, **_: Any) -> Any:
         return LearnedSampler(path, samples=1)
@@ -366,45 +360,176 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
     methods = ["raw", "fpg:closed-form", "fpg:local-search"]
     for path in models.values():
         methods += [f"fpg:mean-only:{path}", f"fpg:learned:{path}", f"fpg:learned+search:{path}"]
-    graph = real_kinect.uiprmd_graph(imported, {held_out}, thres1)
-    train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
-    sensor_map, _, _ = real_kinect._fold_maps("uiprmd", graph, train_recs, True, False)
     rows = []
-    with MethodRunner(
-        graph, budget=2000, reconstructor_options={**options, "sensor_map": sensor_map}
-    ) as runner:
-        for path in real_kinect._episodes(subjects[held_out], task["reps"]):
-            recording = load_recording(path)
+    with MethodRunner(graph, budget=2000, reconstructor_options=options) as runner:
+        for name, recording in episodes:
             truth = recording.ground_truth
             assert truth is not None
             for method in [*methods, "oracle"]:
                 c0 = time.process_time()
                 if method == "oracle":
-                    poses = _oracle(graph, {**options, "sensor_map": sensor_map}, recording)
+                    poses = _oracle(graph, options, recording)
                 else:
                     poses = runner.run(method, recording, seed=0).poses
                 cpu = 1000 * (time.process_time() - c0) / recording.num_frames
                 rows.append(
                     {
-                        "subject": held_out,
-                        "episode": path.stem,
+                        "episode": name,
                         "method": method,
                         "error": float(metrics.frame_error(truth, poses).mean()),
                         "jitter": float(np.nanmean(metrics.jitter(poses, fps=recording.fps))),
                         "cpu_ms": cpu,
                     }
                 )
+    return rows
+
+
+def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
+    """One held-out subject: data, ``len(seeds)`` samplers, and every method scored."""
+    import torch
+
+    from fpg_gym.io.recording import load_recording
+
+    torch.set_num_threads(1)
+    imported = Path(task["imported"])
+    held_out, thres1 = task["subject"], task["thres1"]
+    subjects = real_kinect._by_subject(imported / "recordings")
+    train_subjects = [s for s in sorted(subjects) if s != held_out]
+    # The validation subject: the first training subject after the held-out one (cyclic).
+    val_subject = train_subjects[next((i for i, s in enumerate(train_subjects) if s > held_out), 0)]
+    options: dict[str, Any] = {"sensor_blend": task["blend"]}
+    spec = _spec(task)
+    t0 = time.process_time()
+    data = {
+        s: _uiprmd_data(imported, subjects, held_out, s, spec, options, task["train_reps"], thres1)
+        for s in train_subjects
+    }
+    data_cpu = time.process_time() - t0
+    info = {
+        "protocol": "uiprmd leave-subjects-out",
+        "held_out": held_out,
+        "validation_subject": val_subject,
+        "train_subjects": [s for s in train_subjects if s != val_subject],
+    }
+    trained = _train_seeds(
+        spec,
+        [data[s] for s in train_subjects if s != val_subject],
+        data[val_subject],
+        task,
+        held_out,
+        info,
+    )
+    graph = real_kinect.uiprmd_graph(imported, {held_out}, thres1)
+    train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
+    sensor_map, _, _ = real_kinect._fold_maps("uiprmd", graph, train_recs, True, False)
+    episodes = [
+        (path.stem, load_recording(path))
+        for path in real_kinect._episodes(subjects[held_out], task["reps"])
+    ]
+    rows = _score(graph, {**options, "sensor_map": sensor_map}, trained["models"], episodes)
     return {
         "subject": held_out,
         "validation_subject": val_subject,
-        "models": {str(k): v for k, v in models.items()},
-        "frames": len(obs),
-        "val_frames": len(val),
         "data_cpu_s": data_cpu,
-        "train_cpu_s": {str(k): v for k, v in train_cpu.items()},
-        "mean_scale": {str(k): v for k, v in shrink.items()},
+        **trained,
         "rows": rows,
     }
+
+
+def _sim_data(
+    graph_clips: list[Any], clips: list[Any], spec: Any, task: dict[str, Any], seed: int
+) -> Any:
+    """Ground-truth imitation data of simulated streams of ``clips`` (``task["sim_scenarios"]``,
+    first ``task["train_frames"]`` frames), collected with a graph of ``graph_clips``."""
+    from fpg_gym.graph import FilteredPoseGraph
+    from policies.training import collect_imitation_data, simulate_episodes
+
+    graph = FilteredPoseGraph.build(graph_clips, progress=False)
+    recordings = simulate_episodes(
+        clips, task["sim_scenarios"], [seed], max_frames=task["train_frames"]
+    )
+    return collect_imitation_data(graph, recordings, spec, target="truth", follow="anchor")
+
+
+def sim_protocol(args: argparse.Namespace) -> str:
+    """The simulated held-out Bandai protocol with ground-truth samplers (module docstring)."""
+    import torch
+
+    from fpg_gym.graph import FilteredPoseGraph
+    from fpg_gym.holdout import split_takes
+    from fpg_gym.io import load_clips
+    from policies.training import simulate_episodes
+
+    torch.set_num_threads(1)
+    folder = args.out / "sim"
+    folder.mkdir(parents=True, exist_ok=True)
+    files = sorted((args.data / "dataset-1").glob("*.bvh"))
+    graph_files, eval_files = split_takes(files)
+    eval_files = eval_files[: args.sim_eval_takes]
+    graph_clips = load_clips(graph_files, progress=False)
+    eval_clips = load_clips(eval_files, progress=False)
+    task = {
+        "out": str(folder),
+        "seeds": [int(s) for s in args.seeds.split(",")],
+        "epochs": args.epochs,
+        "hidden": [int(w) for w in args.hidden.split(",")],
+        "features": args.features,
+        "sim_scenarios": args.sim_train_scenarios.split(","),
+        "train_frames": args.sim_train_frames,
+        "command": "python scripts/learned_samplers.py "
+        + " ".join(shlex.quote(a) for a in (args.argv or [])),
+    }
+    spec = _spec(task)
+    # Nested: the graph takes in two halves; a half's streams are collected with a graph of
+    # the other half, so no training target is a database pose (as on held-out takes). A
+    # seeded tenth of the takes (from both halves) is the validation split.
+    order = np.random.default_rng(2016).permutation(len(graph_clips))
+    halves = [sorted(order[: len(order) // 2]), sorted(order[len(order) // 2 :])]
+    val_ids = set(order[:: max(2, round(1 / args.sim_val_share))].tolist())
+    start = time.perf_counter()
+    t0 = time.process_time()
+    train_parts, val_parts = [], []
+    for h, half in enumerate(halves):
+        other = [graph_clips[i] for i in halves[1 - h]]
+        for ids, parts in (
+            ([i for i in half if i not in val_ids], train_parts),
+            ([i for i in half if i in val_ids], val_parts),
+        ):
+            parts.append(_sim_data(other, [graph_clips[i] for i in ids], spec, task, 1000 + h))
+    data_cpu = time.process_time() - t0
+    val = dataclasses.replace(
+        val_parts[0],
+        observations=np.concatenate([d.observations for d in val_parts]),
+        actions=np.concatenate([d.actions for d in val_parts]),
+        masks=np.concatenate([d.masks for d in val_parts]),
+        episodes=np.concatenate([d.episodes for d in val_parts]),
+        search_energies=np.concatenate([d.search_energies for d in val_parts]),
+    )
+    info = {
+        "protocol": "simulated held-out Bandai dataset-1 (seed-2016 take split)",
+        "graph_takes": len(graph_clips),
+        "validation_takes": sorted(graph_clips[i].name for i in val_ids),
+        "scenarios": task["sim_scenarios"],
+    }
+    trained = _train_seeds(spec, train_parts, val, task, "bandai", info)
+    graph = FilteredPoseGraph.build(graph_clips, progress=False)
+    scenarios = SCENARIOS.split(",")
+    recordings = simulate_episodes(eval_clips, scenarios, [0], max_frames=args.max_frames)
+    names = [f"{c.name}/{s}" for c in eval_clips for s in scenarios]
+    rows = _score(graph, {}, trained["models"], list(zip(names, recordings, strict=True)))
+    result = {"subject": "bandai", "data_cpu_s": data_cpu, **trained, "rows": rows}
+    (folder / "results.json").write_text(json.dumps([result], indent=1))
+    report = (
+        f"### simulated held-out Bandai ({len(names)} episodes: {len(eval_clips)} held-out "
+        f"dataset-1 takes x {SCENARIOS}, first {args.max_frames} frames; seeds {args.seeds})\n\n"
+        f"{uiprmd_table([result])}\n\nWall time {time.perf_counter() - start:.0f} s; training "
+        f"CPU per sampler {np.mean(list(trained['train_cpu_s'].values())):.0f} s, data CPU "
+        f"{data_cpu:.0f} s ({trained['frames']} training frames, {len(val)} validation); "
+        f"offset kept (mean_scale) {json.dumps(trained['mean_scale'])}.\n"
+    )
+    (folder / "table.md").write_text(report)
+    print(report, flush=True)
+    return report
 
 
 def _method_kind(method: str, models: dict[str, dict[str, str]]) -> tuple[str, str | None]:
@@ -542,11 +667,18 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--uiprmd-thres1", type=float, default=0.1)
     group.add_argument("--sensor-blend", type=float, default=0.5)
     group.add_argument("--workers", type=int, default=1)
+    group = parser.add_argument_group("sim protocol (also --seeds, --epochs, --hidden, --features)")
+    group.add_argument("--sim-eval-takes", type=int, default=8, help="held-out takes scored")
+    group.add_argument("--sim-train-frames", type=int, default=100, help="frames per stream")
+    group.add_argument("--sim-train-scenarios", default=SCENARIOS)
+    group.add_argument("--sim-val-share", type=float, default=0.1)
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.out.mkdir(parents=True, exist_ok=True)
     reports = []
     wanted = [p.strip() for p in args.protocols.split(",") if p.strip()]
+    if "sim" in wanted:
+        reports.append(sim_protocol(args))
     if "uiprmd" in wanted:
         reports.append(uiprmd_protocol(args))
     if "embedded" in wanted:
