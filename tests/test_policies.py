@@ -432,6 +432,23 @@ def test_rl_training_improves_the_return_and_round_trips(graph: Any, tmp_path: P
     env.close()
 
 
+def test_rl_training_env_takes_the_error_reward(graph: Any) -> None:
+    """``--reward error``: the RL sampler's env rewards minus the ground truth's error."""
+    from policies.rl import make_training_env
+
+    clips = load_default_clips(["run"])
+    env = make_training_env(
+        graph, clips, ["front-many"], action_mode="absolute", reward_mode="error", **SMALL
+    )
+    try:
+        env.reset(seed=0)
+        for _ in range(3):
+            _, reward, _, _, info = env.step(np.zeros(env.action_space.shape))
+            assert reward == pytest.approx(-info["frame_error"]) and info["frame_error"] > 0
+    finally:
+        env.close()
+
+
 # --------------------------------------------------------------------------- extra, CLI
 
 
