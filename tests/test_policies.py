@@ -515,3 +515,24 @@ def test_cli_trains_a_tiny_supervised_sampler(tmp_path: Path, capsys: Any) -> No
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert {"learned (200)", "local-search (2000)"} <= set(summary["evaluation"])
     assert load_sampler(out).spec.training["frames"] == 12
+
+
+def test_cli_trains_on_the_ground_truth_without_search(tmp_path: Path, capsys: Any) -> None:
+    from fpg_gym.cli import main
+
+    out = tmp_path / "truth_model"
+    code = main(
+        [
+            "train-sampler", "--kind", "supervised", "--target", "truth", "--follow", "anchor",
+            "--clips", "run", "--val-clips", "jump", "--scenarios", "front-many",
+            "--timesteps", "12", "--epochs", "2", "--k", "8", "--latent-dim", "7",
+            "--max-frames", "6", "--eval-episodes", "1", "--no-mirror", "--out", str(out),
+            "--quiet",
+        ]
+    )  # fmt: skip
+    assert code == 0
+    spec = load_sampler(out).spec
+    assert spec.hyperparameters["follow"] == "anchor"
+    assert spec.training["target"] == "truth"
+    with pytest.raises(SystemExit):
+        main(["train-sampler", "--kind", "supervised", "--follow", "sideways", "--out", "x"])

@@ -30,6 +30,11 @@ examples:
       --clips @runs/split/graph_takes.txt --max-frames 150 --out runs/sampler_bandai
   fpg-gym train-sampler --kind supervised --target truth --follow anchor --graph default \\
       --out runs/sampler_truth       # learns the simulated ground truth, no search
+
+The samplers of docs/methods.md (ground truth of real UI-PRMD subjects, left out in turn, and of
+simulated Bandai takes; 3 seeds each) come from
+  python scripts/learned_samplers.py --protocols uiprmd,sim --seeds 0,1,2
+and each model's JSON records the command that wrote it (training.command).
 """
 
 
