@@ -427,13 +427,16 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
         for path in real_kinect._episodes(subjects[held_out], task["reps"])
     ]
     rows = _score(graph, {**options, "sensor_map": sensor_map}, trained["models"], episodes)
-    return {
+    result = {
         "subject": held_out,
         "validation_subject": val_subject,
         "data_cpu_s": data_cpu,
         **trained,
         "rows": rows,
     }
+    # Each fold's rows as soon as they exist (a stopped run keeps its finished folds).
+    (Path(task["out"]) / f"fold_{held_out}.json").write_text(json.dumps(result, indent=1))
+    return result
 
 
 def _sim_data(
