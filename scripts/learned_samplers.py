@@ -670,6 +670,9 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--uiprmd-thres1", type=float, default=0.1)
     group.add_argument("--sensor-blend", type=float, default=0.5)
     group.add_argument("--workers", type=int, default=1)
+    group.add_argument(
+        "--report-only", action="store_true", help="table of the finished folds in --out, no run"
+    )
     group = parser.add_argument_group("sim protocol (also --seeds, --epochs, --hidden, --features)")
     group.add_argument("--sim-eval-takes", type=int, default=8, help="held-out takes scored")
     group.add_argument("--sim-train-frames", type=int, default=100, help="frames per stream")
@@ -680,6 +683,12 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     reports = []
     wanted = [p.strip() for p in args.protocols.split(",") if p.strip()]
+    if args.report_only:  # the table of the folds a (possibly stopped) run has finished
+        folds = sorted((args.out / "uiprmd").glob("fold_*.json"))
+        results = [json.loads(path.read_text()) for path in folds]
+        print(f"{len(results)} fold(s): {', '.join(r['subject'] for r in results)}\n")
+        print(uiprmd_table(results))
+        return 0
     if "sim" in wanted:
         reports.append(sim_protocol(args))
     if "uiprmd" in wanted:
