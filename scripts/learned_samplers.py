@@ -351,7 +351,7 @@ def _score(
     import optimizers
     from fpg_gym import metrics
     from fpg_gym.methods import MethodRunner
-    from optimizers.learned import LearnedSampler
+    from policies.learned_optimizers import LearnedSampler
 
     def mean_only(path: str, **_: Any) -> Any:
         return LearnedSampler(path, samples=1)
