@@ -49,6 +49,20 @@ from typing import Any
 import numpy as np
 import real_kinect  # scripts/real_kinect.py: the UI-PRMD leave-subjects-out machinery
 
+import optimizers
+from fpg_gym import metrics
+from fpg_gym.env_observation import ObservationLayout
+from fpg_gym.graph import FilteredPoseGraph
+from fpg_gym.holdout import split_takes
+from fpg_gym.io import load_clips
+from fpg_gym.io.recording import load_recording
+from fpg_gym.methods import MethodRunner
+from fpg_gym.reconstruct import Reconstructor
+from policies.learned_optimizers import LearnedSampler
+from policies.sampler import FEATURE_SETS, SamplerSpec
+from policies.supervised import SupervisedSampler, fit_supervised
+from policies.training import collect_imitation_data, simulate_episodes, truth_latent
+
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "bandai_namco"
 SCENARIOS = "front-many,left45-many,right45-many"
@@ -217,7 +231,9 @@ def protocol(
 # --------------------------------------------------------------------------- UI-PRMD
 
 
-def _bootstrap_ci(values: np.ndarray, rng: np.random.Generator, draws: int = 2000) -> tuple:
+def _bootstrap_ci(
+    values: np.ndarray, rng: np.random.Generator, draws: int = 2000
+) -> tuple[float, float]:
     """95 % percentile bootstrap interval of the mean of ``values`` (one per episode)."""
     idx = rng.integers(0, len(values), size=(draws, len(values)))
     means = values[idx].mean(axis=1)
@@ -236,8 +252,6 @@ def _uiprmd_data(
 ) -> Any:
     """Ground-truth imitation data of one training ``subject``, collected with a database and
     sensor map that lack both it and the held-out subject."""
-    from fpg_gym.io.recording import load_recording
-    from policies.training import collect_imitation_data
 
     graph = real_kinect.uiprmd_graph(imported, {held_out, subject}, thres1)
     others = [
@@ -259,8 +273,6 @@ def _oracle(graph: Any, options: dict[str, Any], recording: Any) -> np.ndarray:
     """The stream reconstructed from the ground truth's own latent point every frame
     (:func:`policies.training.truth_latent`): what a perfect sampler of this latent space
     would give (the ceiling of every sampler; it sees the truth, so it is no method)."""
-    from fpg_gym.reconstruct import Reconstructor
-    from policies.training import truth_latent
 
     truth = recording.ground_truth
     out = np.empty_like(recording.positions)
@@ -277,8 +289,6 @@ def _oracle(graph: Any, options: dict[str, Any], recording: Any) -> np.ndarray:
 
 def _spec(task: dict[str, Any]) -> Any:
     """The supervised sampler's description (ground-truth target, the env's layout)."""
-    from fpg_gym.env_observation import ObservationLayout
-    from policies.sampler import FEATURE_SETS, SamplerSpec
 
     return SamplerSpec(
         kind="supervised",
@@ -298,7 +308,6 @@ def _train_seeds(
     """One sampler per seed of ``task["seeds"]`` on the ``train`` imitation data, early
     stopping, shrinking and spread calibration on ``val``; saved as ``{out}/sampler_{name}_seedS``.
     """
-    from policies.supervised import SupervisedSampler, fit_supervised
 
     obs = np.concatenate([d.observations for d in train])
     act = np.concatenate([d.actions for d in train])
@@ -348,10 +357,6 @@ def _score(
 ) -> list[dict[str, Any]]:
     """Every method (raw, closed-form, local-search, each model's mean alone, ``learned:`` and
     ``learned+search:``, the oracle) on every ``(name, recording)``: error, jitter, CPU."""
-    import optimizers
-    from fpg_gym import metrics
-    from fpg_gym.methods import MethodRunner
-    from policies.learned_optimizers import LearnedSampler
 
     def mean_only(path: str, **_: Any) -> Any:
         return LearnedSampler(path, samples=1)
@@ -386,9 +391,7 @@ def _score(
 
 def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
     """One held-out subject: data, ``len(seeds)`` samplers, and every method scored."""
-    import torch
-
-    from fpg_gym.io.recording import load_recording
+    import torch  # the learn extra (optional)
 
     torch.set_num_threads(1)
     imported = Path(task["imported"])
@@ -444,8 +447,6 @@ def _sim_data(
 ) -> Any:
     """Ground-truth imitation data of simulated streams of ``clips`` (``task["sim_scenarios"]``,
     first ``task["train_frames"]`` frames), collected with a graph of ``graph_clips``."""
-    from fpg_gym.graph import FilteredPoseGraph
-    from policies.training import collect_imitation_data, simulate_episodes
 
     graph = FilteredPoseGraph.build(graph_clips, progress=False)
     recordings = simulate_episodes(
@@ -456,12 +457,7 @@ def _sim_data(
 
 def sim_protocol(args: argparse.Namespace) -> str:
     """The simulated held-out Bandai protocol with ground-truth samplers (module docstring)."""
-    import torch
-
-    from fpg_gym.graph import FilteredPoseGraph
-    from fpg_gym.holdout import split_takes
-    from fpg_gym.io import load_clips
-    from policies.training import simulate_episodes
+    import torch  # the learn extra (optional)
 
     torch.set_num_threads(1)
     folder = args.out / "sim"
