@@ -100,7 +100,9 @@ def axis_angle_matrix(axes: FloatArray, angles: FloatArray) -> np.ndarray:
     return c * np.eye(3) + s * cross + (1.0 - c) * axes[..., :, None] * axes[..., None, :]
 
 
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+def cross_product(u: np.ndarray, v: np.ndarray) -> np.ndarray:
+    """``u x v`` over the last axis (broadcasting)."""
+
     # Component by component: cheaper than np.cross on the small arrays used every frame.
     out = np.empty(np.broadcast_shapes(u.shape, v.shape))
     out[..., 0] = u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1]
@@ -118,13 +120,13 @@ def shortest_arc(a: FloatArray, b: FloatArray) -> np.ndarray:
     a = np.asarray(a, dtype=np.float64)
     b = np.asarray(b, dtype=np.float64)
     q = np.empty((*np.broadcast_shapes(a.shape[:-1], b.shape[:-1]), 4))
-    q[..., :3] = _cross(a, b)
+    q[..., :3] = cross_product(a, b)
     q[..., 3] = 1.0 + np.sum(a * b, axis=-1)
     norm = np.sqrt(np.sum(q * q, axis=-1, keepdims=True))
     opposite = norm[..., 0] < 1e-6
     if np.any(opposite):
         helper = np.where(np.abs(a[..., :1]) < 0.9, [1.0, 0.0, 0.0], [0.0, 1.0, 0.0])
-        axis = _cross(a, helper)
+        axis = cross_product(a, helper)
         axis /= np.linalg.norm(axis, axis=-1, keepdims=True)
         flip = np.concatenate([axis, np.zeros((*axis.shape[:-1], 1))], axis=-1)
         q = np.where(opposite[..., None], flip, q)

@@ -655,8 +655,12 @@ def load_weights_file(path: str | os.PathLike[str]) -> dict[str, Any]:
     return dict(state)
 
 
-def load_weights_into(module: Any, path: str | os.PathLike[str]) -> None:
+def load_weights_into(
+    module: Any, path: str | os.PathLike[str], defaults: Mapping[str, Any] | None = None
+) -> None:
     """Load a weights file (:func:`load_weights_file`) into a torch module, strictly.
+
+    ``defaults`` gives tensors that files written before they existed lack.
 
     Raises
     ------
@@ -664,6 +668,8 @@ def load_weights_into(module: Any, path: str | os.PathLike[str]) -> None:
         If the file is refused, or its tensors do not fit the module built from the JSON.
     """
     state = load_weights_file(path)
+    for name, value in (defaults or {}).items():
+        state.setdefault(name, value)
     try:
         module.load_state_dict(state, strict=True)
     except (RuntimeError, ValueError) as error:

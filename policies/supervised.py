@@ -48,7 +48,7 @@ from policies.sampler import (
     SamplerSpec,
     check_layer_widths,
     import_learn,
-    load_weights_file,
+    load_weights_into,
     model_paths,
 )
 
@@ -191,14 +191,7 @@ class SupervisedSampler(GaussianSampler):
         """
         torch = import_learn("torch")
         module = _build(spec, spec.feature_map().size, source=weights)
-        state = load_weights_file(weights)
-        state.setdefault("mean_scale", torch.ones(()))  # files written before it existed
-        try:
-            module.load_state_dict(state, strict=True)
-        except (RuntimeError, ValueError) as error:
-            raise DataFormatError(
-                weights, f"the tensors do not fit the network in the JSON ({error})"
-            ) from None
+        load_weights_into(module, weights, defaults={"mean_scale": torch.ones(())})
         return cls(spec, module, seed)
 
     def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import os
 import zlib
+from pathlib import Path
 
 from fpg_gym.errors import DataFormatError
 
@@ -50,3 +51,22 @@ def maybe_gunzip(raw: bytes, path: str | os.PathLike[str] = "") -> bytes:
         if data[:2] != GZIP_MAGIC:
             raise DataFormatError(path, "corrupt gzip data (unexpected bytes after the stream)")
     return b"".join(pieces)
+
+
+def read_input_bytes(path: Path) -> bytes:
+    """The bytes of an input file, decompressed when gzip (:func:`maybe_gunzip`).
+
+    Raises
+    ------
+    FileNotFoundError
+        ``path`` does not exist (the message names it).
+    DataFormatError
+        Naming ``path``: it cannot be read, or its gzip data is corrupt.
+    """
+    try:
+        raw = path.read_bytes()
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{path}: no such file") from None
+    except OSError as error:
+        raise DataFormatError(path, f"cannot read the file ({error.strerror})") from None
+    return maybe_gunzip(raw, path)

@@ -60,7 +60,7 @@ import numpy as np
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
-from fpg_gym.io._compression import maybe_gunzip
+from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.recording import NOT_TRACKED, TRACKED, Recording, load_recording
 from fpg_gym.io.trackers import JointMap, is_azure_kinect_json, read_azure_kinect, read_mapped
 
@@ -112,13 +112,7 @@ class SkippedLinesWarning(UserWarning):
 
 def _read_text(path: Path) -> list[str]:
     """The file's lines (gzip-compressed files are accepted)."""
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: no such file") from None
-    except OSError as error:
-        raise DataFormatError(path, f"cannot read the file ({error.strerror})") from None
-    return maybe_gunzip(raw, path).decode("utf-8", errors="replace").splitlines()
+    return read_input_bytes(path).decode("utf-8", errors="replace").splitlines()
 
 
 class _LineLog:

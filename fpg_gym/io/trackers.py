@@ -49,7 +49,7 @@ import numpy as np
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
-from fpg_gym.io._compression import maybe_gunzip
+from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.recording import INFERRED, NOT_TRACKED, TRACKED, Recording
 from fpg_gym.validation import check_choice, check_integer
 
@@ -177,19 +177,9 @@ def _number(value: Any) -> float | None:
     return number if math.isfinite(number) else None
 
 
-def _read_bytes(path: Path) -> bytes:
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: no such file") from None
-    except OSError as error:
-        raise DataFormatError(path, f"cannot read the file ({error.strerror})") from None
-    return maybe_gunzip(raw, path)
-
-
 def _load_json(path: Path) -> Any:
     try:
-        return json.loads(_read_bytes(path))
+        return json.loads(read_input_bytes(path))
     except UnicodeDecodeError:
         raise DataFormatError(path, "not UTF-8 text") from None
     except json.JSONDecodeError as error:
@@ -463,7 +453,7 @@ class JointMap:
             Naming the file when it does not fit.
         """
         path = Path(path)
-        raw = _read_bytes(path)
+        raw = read_input_bytes(path)
         try:
             text = raw.decode("utf-8")
         except UnicodeDecodeError:
@@ -516,7 +506,7 @@ class JointMap:
 
 
 def _mapped_csv(path: Path, joint_map: JointMap, log: _FrameLog) -> tuple[Any, ...]:
-    text = _read_bytes(path).decode("utf-8", errors="replace")
+    text = read_input_bytes(path).decode("utf-8", errors="replace")
     numbered = [
         (n, t) for n, t in enumerate(text.splitlines(), start=1) if t.strip() and t[0] != "#"
     ]
@@ -609,7 +599,7 @@ def read_mapped(
     elif not isinstance(joint_map, JointMap):
         joint_map = JointMap.from_pairs(list(joint_map))
     log = _FrameLog()
-    head = _read_bytes(path).lstrip()[:1]
+    head = read_input_bytes(path).lstrip()[:1]
     reader = _mapped_json if head in (b"{", b"[") else _mapped_csv
     names, rows, has_states, layout = reader(path, joint_map, log)
     kept: list[tuple[float, np.ndarray, np.ndarray]] = []

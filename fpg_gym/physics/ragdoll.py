@@ -91,7 +91,7 @@ from fpg_gym import poses, skeleton
 from fpg_gym.errors import FpgGymError
 from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
 from fpg_gym.physics.ragdoll_model import GRAVITY, BodyModel, build_body_model
-from fpg_gym.rotations import shortest_arc
+from fpg_gym.rotations import cross_product, shortest_arc
 
 __all__ = ["PhysicsError", "PhysicsWarning", "Ragdoll"]
 
@@ -149,14 +149,6 @@ _STARTS = np.array(skeleton.BONES[:, 0])
 # generic cross/moveaxis cost more than the arithmetic.
 
 
-def _cross(u: np.ndarray, v: np.ndarray) -> np.ndarray:
-    out = np.empty(np.broadcast_shapes(u.shape, v.shape))
-    out[..., 0] = u[..., 1] * v[..., 2] - u[..., 2] * v[..., 1]
-    out[..., 1] = u[..., 2] * v[..., 0] - u[..., 0] * v[..., 2]
-    out[..., 2] = u[..., 0] * v[..., 1] - u[..., 1] * v[..., 0]
-    return out
-
-
 def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
     bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
@@ -175,8 +167,8 @@ def _quat_conj(q: np.ndarray) -> np.ndarray:
 def _quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
     """Rotate vectors ``v (..., 3)`` by unit quaternions ``q (..., 4)``."""
     u = q[..., :3]
-    t = 2.0 * _cross(u, v)
-    return v + q[..., 3:] * t + _cross(u, t)
+    t = 2.0 * cross_product(u, v)
+    return v + q[..., 3:] * t + cross_product(u, t)
 
 
 def _matrix_to_quat(m: np.ndarray) -> np.ndarray:
@@ -560,7 +552,7 @@ class Ragdoll:
             line = _quat_rotate(self._root_frame, np.array([1.0, 0.0, 0.0]))
             left = line - up * float(line @ up)
         left = left / np.linalg.norm(left)
-        frame = np.stack([left, up, _cross(left, up)], axis=1)  # columns: rest X, Y, Z
+        frame = np.stack([left, up, cross_product(left, up)], axis=1)  # columns: rest X, Y, Z
         world = np.empty((_NB, 4))
         world[0] = _quat_mul(
             _matrix_to_quat(frame),
@@ -794,8 +786,12 @@ class Ragdoll:
         linear = np.array([v[0] for v in velocities])
         angular = np.array([v[1] for v in velocities])
         out = np.empty((skeleton.NUM_JOINTS, 3))
-        out[skeleton.BONES[:, 1]] = linear + _cross(angular, joints[skeleton.BONES[:, 1]] - centres)
-        out[skeleton.ROOT] = linear[0] + _cross(angular[0], joints[skeleton.ROOT] - centres[0])
+        out[skeleton.BONES[:, 1]] = linear + cross_product(
+            angular, joints[skeleton.BONES[:, 1]] - centres
+        )
+        out[skeleton.ROOT] = linear[0] + cross_product(
+            angular[0], joints[skeleton.ROOT] - centres[0]
+        )
         return out.astype(np.float32)
 
     @property
