@@ -37,6 +37,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import itertools
 import json
 import re
 import shlex
@@ -486,22 +487,25 @@ def sim_protocol(args: argparse.Namespace) -> str:
         + " ".join(shlex.quote(a) for a in (args.argv or [])),
     }
     spec = _spec(task)
-    # Nested: the graph takes in two halves; a half's streams are collected with a graph of
-    # the other half, so no training target is a database pose (as on held-out takes). A
-    # seeded tenth of the takes (from both halves) is the validation split.
+    # Nested: the graph takes in ``--sim-folds`` folds; a fold's streams are collected with a
+    # graph of the other folds, so no training target is a database pose (as on held-out
+    # takes); more folds make that graph closer to the evaluation graph (all graph takes). A
+    # seeded tenth of the takes (from every fold) is the validation split.
     order = np.random.default_rng(2016).permutation(len(graph_clips))
-    halves = [sorted(order[: len(order) // 2]), sorted(order[len(order) // 2 :])]
+    bounds = [f * len(order) // args.sim_folds for f in range(args.sim_folds + 1)]
+    folds = [sorted(order[a:b]) for a, b in itertools.pairwise(bounds)]
     val_ids = set(order[:: max(2, round(1 / args.sim_val_share))].tolist())
     start = time.perf_counter()
     t0 = time.process_time()
     train_parts, val_parts = [], []
-    for h, half in enumerate(halves):
-        other = [graph_clips[i] for i in halves[1 - h]]
+    for f, fold in enumerate(folds):
+        other = [graph_clips[i] for g, ids in enumerate(folds) if g != f for i in ids]
         for ids, parts in (
-            ([i for i in half if i not in val_ids], train_parts),
-            ([i for i in half if i in val_ids], val_parts),
+            ([i for i in fold if i not in val_ids], train_parts),
+            ([i for i in fold if i in val_ids], val_parts),
         ):
-            parts.append(_sim_data(other, [graph_clips[i] for i in ids], spec, task, 1000 + h))
+            if ids:
+                parts.append(_sim_data(other, [graph_clips[i] for i in ids], spec, task, 1000 + f))
     data_cpu = time.process_time() - t0
     val = dataclasses.replace(
         val_parts[0],
@@ -680,6 +684,9 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--sim-train-frames", type=int, default=100, help="frames per stream")
     group.add_argument("--sim-train-scenarios", default=SCENARIOS)
     group.add_argument("--sim-val-share", type=float, default=0.1)
+    group.add_argument(
+        "--sim-folds", type=int, default=2, help="folds of the nested data collection (2)"
+    )
     args = parser.parse_args(argv)
     args.argv = list(sys.argv[1:] if argv is None else argv)
     args.out.mkdir(parents=True, exist_ok=True)
