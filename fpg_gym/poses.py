@@ -136,11 +136,13 @@ def yaw_matrix(yaw: FloatArray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` about +Y by ``yaw`` radians (right-handed)."""
     yaw = np.asarray(yaw, dtype=np.float64)
     c, s = np.cos(yaw), np.sin(yaw)
-    zero, one = np.zeros_like(yaw), np.ones_like(yaw)
-    return np.stack(
-        [np.stack([c, zero, s], -1), np.stack([zero, one, zero], -1), np.stack([-s, zero, c], -1)],
-        -2,
-    )
+    out = np.zeros((*yaw.shape, 3, 3))  # filled in place: a frame's hot path calls it 4 times
+    out[..., 0, 0] = c
+    out[..., 0, 2] = s
+    out[..., 1, 1] = 1.0
+    out[..., 2, 0] = -s
+    out[..., 2, 2] = c
+    return out
 
 
 def facing_yaw(poses: FloatArray) -> np.ndarray:

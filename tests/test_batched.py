@@ -3,15 +3,18 @@ the stacked energy equals the per-frame energies, and the budget loop steps like
 
 from __future__ import annotations
 
+from dataclasses import replace
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
 
 from fpg_gym.reconstruct import STAGES, EnergyWeights, Reconstructor
-from fpg_gym.reconstruct.batched import reconstruct_many, run_streams
+from fpg_gym.reconstruct.batched import reconstruct_many, run_streams, search_together
 from fpg_gym.reconstruct.energy import StackedEnergy
+from fpg_gym.reconstruct.kernels import available_kernels, stack_tables
 from optimizers import OptimizerRun, run_optimizer
+from optimizers.local_search import LocalSearch
 from tests.test_reconstructor import graph, recording
 
 
@@ -39,6 +42,8 @@ def test_each_stream_equals_its_single_stream_run() -> None:
     for rec, config, seed, result in zip(recs, configs, seeds, many, strict=True):
         alone = Reconstructor(graph(), **config).reconstruct(rec, "local-search", rng=seed)
         np.testing.assert_allclose(result.poses, alone.poses, atol=1e-5)
+        if "numba" in available_kernels():  # the same compiled arithmetic: equal to the bit
+            np.testing.assert_array_equal(result.poses, alone.poses)
         np.testing.assert_allclose(
             [r.energy for r in result.records], [r.energy for r in alone.records], rtol=1e-9
         )
@@ -52,11 +57,12 @@ def test_each_stream_equals_its_single_stream_run() -> None:
     assert np.abs(other.poses - many[0].poses).max() > 1e-4
 
 
-def test_stacked_energy_equals_each_frame_energy() -> None:
+@pytest.mark.parametrize("kernel", available_kernels())
+def test_stacked_energy_equals_each_frame_energy(kernel: str) -> None:
     recs = [recording("punch", seed=s) for s in (1, 2, 3)]
     problems = []
     for rec in recs:
-        r = Reconstructor(graph())
+        r = Reconstructor(graph(), energy_kernel=kernel)
         for t in range(3):  # a frame with a motion target
             problem = r.prepare(rec.positions[t], rec.states[t], rec.timestamps[t])
             if t < 2:
@@ -66,6 +72,8 @@ def test_stacked_energy_equals_each_frame_energy() -> None:
     stacked = StackedEnergy.of([p.energy for p in problems]).total(z)
     expected = np.stack([p.energy(z[i]) for i, p in enumerate(problems)])
     np.testing.assert_allclose(stacked, expected, rtol=1e-12)
+    if kernel == "numba":  # the same compiled row loop: equal to the last bit
+        np.testing.assert_array_equal(stacked, expected)
     assert np.ptp(expected[:, 0]) > 0  # three different frames
     subset = StackedEnergy.of([p.energy for p in problems]).select(np.array([2, 0]))
     np.testing.assert_allclose(subset.total(z[[2, 0]]), expected[[2, 0]], rtol=1e-12)
@@ -80,6 +88,13 @@ def test_stacked_energy_refuses_models_that_differ() -> None:
         StackedEnergy.of([first.energy, second.energy])
     with pytest.raises(ValueError, match="at least one"):
         StackedEnergy.of([])
+    direct = Reconstructor(graph(), energy_kernel="direct")
+    with pytest.raises(ValueError, match="'direct' kernel"):
+        StackedEnergy.of([direct.prepare(rec.positions[0], rec.states[0], 0.0).energy])
+    with pytest.raises(ValueError, match=r"frames\[1\]: expected wk"):
+        stack_tables([first.energy.tables, replace(second.energy.tables, wk=9.0)])
+    with pytest.raises(ValueError, match="stacked tables"):
+        first.energy.tables.select(np.array([0]))
 
 
 def test_stepped_run_equals_run_optimizer_with_a_clipped_budget() -> None:
@@ -115,3 +130,22 @@ def test_bad_arguments_are_named() -> None:
     with pytest.raises(ValueError, match=r"recordings\[1\]\.states"):
         bad = SimpleNamespace(positions=recs[1].positions, states=recs[1].states[:2])
         run_streams([r, Reconstructor(graph())], [recs[0], bad], rngs=[0, 1])
+
+
+def test_a_non_finite_proposal_names_its_stream() -> None:
+    class Wild(LocalSearch):
+        def ask(self) -> np.ndarray | None:
+            z = super().ask()
+            if z is not None:
+                z[3, 1] = np.nan
+            return z
+
+    recs = [_short(recording(), 2), _short(recording(seed=4), 2)]
+    reconstructors = [Reconstructor(graph()), Reconstructor(graph())]
+    problems = [
+        r.prepare(rec.positions[0], rec.states[0], 0.0)
+        for r, rec in zip(reconstructors, recs, strict=True)
+    ]
+    runs = [OptimizerRun(problems[0], "local-search", 0), OptimizerRun(problems[1], Wild(), 1)]
+    with pytest.raises(ValueError, match="stream 1: the optimiser proposed non-finite"):
+        search_together(problems, runs)

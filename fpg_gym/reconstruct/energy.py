@@ -40,7 +40,13 @@ import numpy.typing as npt
 
 from fpg_gym import skeleton
 from fpg_gym.poses import bone_lengths
-from fpg_gym.reconstruct.kernels import KERNELS, EnergyTables, fused_energy, resolve_kernel
+from fpg_gym.reconstruct.kernels import (
+    KERNELS,
+    EnergyTables,
+    fused_energy,
+    resolve_kernel,
+    stack_tables,
+)
 from fpg_gym.reconstruct.latent import POSE_SIZE, LatentSpace
 
 #: The papers' terms (computable from a pose alone) and all terms, in weight order.
@@ -165,14 +171,9 @@ _PARENT_COORDS = (3 * skeleton.BONES[:, 0][:, None] + np.arange(3)).reshape(-1)
 
 @dataclass(frozen=True)
 class _Working:
-    """The arrays of the latent fast path, for one frame or stacked over frames.
-
-    One frame: ``mean``, ``sensor``, ``joint_weights``, ``target`` ``(60,)``, ``components``
-    ``(d, 60)``, ``y`` ``(K, d)``, ``y_sq``/``r_sq`` ``(K,)``, ``std`` ``(d,)``, ``lengths``
-    ``(19,)``. Stacked over S frames (:class:`StackedEnergy`): a leading axis S, and an axis of
-    length 1 where the points' axis broadcasts (``mean`` ``(S, 1, 60)``, ``joint_weights``
-    ``(S, 60, 1)``, ``y`` ``(S, K, d)``).
-    """
+    """The arrays of the latent terms of one frame, in the arithmetic precision: ``mean``,
+    ``sensor``, ``joint_weights``, ``target`` ``(60,)``, ``components`` ``(d, 60)``, ``y``
+    ``(K, d)``, ``y_sq``/``r_sq`` ``(K,)``, ``std`` ``(d,)``, ``lengths`` ``(19,)``."""
 
     mean: np.ndarray
     components: np.ndarray
@@ -191,34 +192,24 @@ def _decode(w: _Working, z: np.ndarray) -> np.ndarray:
 
 
 def _latent_terms(w: _Working, z: np.ndarray) -> dict[str, np.ndarray]:
-    """The five terms for points ``(n, d)`` of one frame or ``(S, n, d)`` of S stacked frames
-    (each ``(n,)`` or ``(S, n)``, float64): the one implementation of the latent fast path."""
+    """The five terms for points ``(n, d)`` (each ``(n,)``, float64), term by term (the fused
+    kernel gives their weighted sum)."""
     x = _decode(w, z)
     joints = skeleton.NUM_JOINTS
     diff = x - w.sensor
-    if w.joint_weights.ndim == 1:
-        ec = (diff * diff) @ w.joint_weights  # Eq. 11
-    else:
-        ec = ((diff * diff) @ w.joint_weights)[..., 0]
+    ec = (diff * diff) @ w.joint_weights  # Eq. 11
     u = z * w.std  # unwhitened coordinates
-    dist = (
-        np.einsum("...nd,...nd->...n", u, u)[..., None]
-        - 2.0 * (u @ np.swapaxes(w.y, -1, -2))
-        + w.y_sq
-        + w.r_sq
-    )
+    dist = np.einsum("nd,nd->n", u, u)[:, None] - 2.0 * (u @ w.y.T) + w.y_sq + w.r_sq
     es = np.maximum(dist.min(axis=-1), 0.0) / joints  # Eq. 12
-    bones = (x[..., _CHILD_COORDS] - x[..., _PARENT_COORDS]).reshape(
-        *x.shape[:-1], skeleton.NUM_BONES, 3
-    )
-    length = np.sqrt(np.einsum("...bc,...bc->...b", bones, bones))
+    bones = (x[:, _CHILD_COORDS] - x[:, _PARENT_COORDS]).reshape(len(x), skeleton.NUM_BONES, 3)
+    length = np.sqrt(np.einsum("nbc,nbc->nb", bones, bones))
     ek = ((length - w.lengths) ** 2).mean(axis=-1)  # Eq. 13
     if w.target is None:
-        em = np.zeros(x.shape[:-1])
+        em = np.zeros(len(x))
     else:
         diff = x - w.target
-        em = np.einsum("...d,...d->...", diff, diff) / joints  # Eq. 14
-    ep = np.einsum("...d,...d->...", z, z) / max(z.shape[-1], 1)  # latent prior (beyond papers)
+        em = np.einsum("nd,nd->n", diff, diff) / joints  # Eq. 14
+    ep = np.einsum("nd,nd->n", z, z) / max(z.shape[-1], 1)  # latent prior (beyond papers)
     out = {"Ec": ec, "Es": es, "Ek": ek, "Em": em, "Ep": ep}
     if z.dtype != np.float64:
         out = {k: v.astype(np.float64) for k, v in out.items()}
@@ -249,8 +240,8 @@ class EnergyModel:
         :class:`~fpg_gym.reconstruct.kernels.EnergyTables` (Eq. 10 as one matrix) evaluated by
         :func:`~fpg_gym.reconstruct.kernels.fused_energy`, compiled when ``fpg-gym[fast]``
         (numba) is installed with ``"auto"``; ``"direct"`` sums :func:`pose_energy_terms` of the
-        decoded poses (the definition; slow, for benchmarks). :meth:`terms` is computed as
-        before (one function with :class:`StackedEnergy`).
+        decoded poses (the definition; slow, for benchmarks; not stacked by
+        :class:`StackedEnergy`). :meth:`terms` gives each term, computed term by term.
     """
 
     def __init__(
@@ -301,7 +292,7 @@ class EnergyModel:
         if self.dtype != np.float64:
             self.tables = self.tables.astype(self.dtype)
         self._energy: Callable[[np.ndarray, EnergyTables], np.ndarray] = functools.partial(
-            fused_energy, kernel=self.kernel if self.kernel != "direct" else "numpy"
+            fused_energy, kernel=self.fused_kernel
         )
 
     def _tables(self, latent: LatentSpace, y: np.ndarray, centred_sq: np.ndarray) -> EnergyTables:
@@ -344,16 +335,16 @@ class EnergyModel:
         """Latent dimension ``d``."""
         return int(self._work.components.shape[0])
 
+    @property
+    def fused_kernel(self) -> str:
+        """The kernel evaluating :attr:`tables` (``"numba"`` or ``"numpy"``; ``"numpy"`` for
+        the ``"direct"`` model, whose tables are the same)."""
+        return "numpy" if self.kernel == "direct" else self.kernel
+
     def stack_key(self) -> tuple[Any, ...]:
         """Models with equal keys can be stacked (:meth:`StackedEnergy.of`): same dtype,
-        weights, latent dimension, number of candidates and presence of a motion target."""
-        return (
-            self.dtype.str,
-            tuple(self._w),
-            self.dim,
-            len(self._work.y),
-            self.target is None,
-        )
+        weights, latent dimension, number of candidates and kernel."""
+        return (self.dtype.str, tuple(self._w), self.dim, self.tables.k, self.kernel)
 
     def decode_flat(self, z: np.ndarray) -> np.ndarray:
         """Poses as 60-vectors ``(n, 60)`` for latent points ``(n, d)`` (in ``dtype``)."""
@@ -396,17 +387,18 @@ class EnergyModel:
 class StackedEnergy:
     """The energies of S frames (S streams, one frame each) evaluated together.
 
-    Built from S :class:`EnergyModel` with equal :meth:`EnergyModel.stack_key`; the terms are
-    computed by the same function as one model's (the arrays get a leading stream axis), so
-    ``StackedEnergy.of(models).total(z)[s]`` equals ``models[s](z[s])`` to floating-point
-    rounding. The many-stream path (:mod:`fpg_gym.reconstruct.batched`) evaluates one search
-    iteration of every stream with one call.
+    Built from S :class:`EnergyModel` with equal :meth:`EnergyModel.stack_key`: their
+    :class:`~fpg_gym.reconstruct.kernels.EnergyTables` stacked
+    (:func:`~fpg_gym.reconstruct.kernels.stack_tables`) and evaluated by the same fused kernel,
+    so ``StackedEnergy.of(models).total(z)[s]`` equals ``models[s](z[s])`` (to the last bit with
+    the compiled kernel, to floating-point rounding with numpy's). The many-stream path
+    (:mod:`fpg_gym.reconstruct.batched`) evaluates one search iteration of every stream with
+    one call.
     """
 
-    def __init__(self, work: _Working, weights: np.ndarray, dtype: np.dtype[Any]) -> None:
-        self._work = work
-        self._w = weights
-        self.dtype = dtype
+    def __init__(self, tables: EnergyTables, kernel: str) -> None:
+        self.tables = tables
+        self.kernel = kernel
 
     @classmethod
     def of(cls, models: Sequence[EnergyModel]) -> StackedEnergy:
@@ -415,69 +407,31 @@ class StackedEnergy:
         Raises
         ------
         ValueError
-            On an empty list or models that differ in their stack key.
+            On an empty list, a ``"direct"`` model or models that differ in their stack key.
         """
         if not models:
             raise ValueError("models: expected at least one EnergyModel, got none")
+        if models[0].kernel == "direct":
+            raise ValueError("models[0]: the 'direct' kernel is evaluated model by model")
         key = models[0].stack_key()
         for i, model in enumerate(models):
             if model.stack_key() != key:
                 raise ValueError(
                     f"models[{i}]: expected the stack key {key} of models[0], got "
-                    f"{model.stack_key()} (dtype, weights, d, K, no target)"
+                    f"{model.stack_key()} (dtype, weights, d, K, kernel)"
                 )
-        works = [m._work for m in models]
-
-        def rows(name: str) -> np.ndarray:
-            return np.stack([getattr(w, name) for w in works])[:, None]
-
-        return cls(
-            _Working(
-                mean=rows("mean"),
-                components=np.stack([w.components for w in works]),
-                sensor=rows("sensor"),
-                joint_weights=np.stack([w.joint_weights for w in works])[..., None],
-                y=np.stack([w.y for w in works]),
-                y_sq=rows("y_sq"),
-                r_sq=rows("r_sq"),
-                std=rows("std"),
-                lengths=rows("lengths"),
-                target=None if works[0].target is None else rows("target"),
-            ),
-            models[0]._w,
-            models[0].dtype,
-        )
+        return cls(stack_tables([m.tables for m in models]), models[0].fused_kernel)
 
     def __len__(self) -> int:
-        return int(self._work.components.shape[0])
+        return len(self.tables)
 
     def select(self, streams: np.ndarray) -> StackedEnergy:
         """The stack of the given streams (indices into this stack)."""
-        w = self._work
-        return StackedEnergy(
-            _Working(
-                mean=w.mean[streams],
-                components=w.components[streams],
-                sensor=w.sensor[streams],
-                joint_weights=w.joint_weights[streams],
-                y=w.y[streams],
-                y_sq=w.y_sq[streams],
-                r_sq=w.r_sq[streams],
-                std=w.std[streams],
-                lengths=w.lengths[streams],
-                target=None if w.target is None else w.target[streams],
-            ),
-            self._w,
-            self.dtype,
-        )
-
-    def terms(self, z: np.ndarray) -> dict[str, np.ndarray]:
-        """The five terms of points ``(S, n, d)``, each ``(S, n)`` float64."""
-        return _latent_terms(self._work, np.asarray(z, dtype=self.dtype))
+        return StackedEnergy(self.tables.select(streams), self.kernel)
 
     def total(self, z: np.ndarray) -> np.ndarray:
-        """``E`` (Eq. 10) of points ``(S, n, d)`` -> ``(S, n)``."""
-        terms = self.terms(z)
-        w = self._w
-        total = w[0] * terms["Ec"] + w[1] * terms["Es"] + w[2] * terms["Ek"] + w[3] * terms["Em"]
-        return total + w[4] * terms["Ep"] if w[4] else total
+        """``E`` (Eq. 10) of points ``(S, n, d)`` -> ``(S, n)`` float64."""
+        energy = fused_energy(
+            np.asarray(z, dtype=self.tables.matrix.dtype), self.tables, self.kernel
+        )
+        return energy if energy.dtype == np.float64 else energy.astype(np.float64)

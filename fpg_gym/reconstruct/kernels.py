@@ -19,13 +19,15 @@ constants of one frame; :func:`fused_energy` evaluates it, with a compiled (numb
 floating-point tolerance; ``tests/reference_energy.py`` keeps the previous implementation and the
 tests compare them).
 
-The tables are plain arrays, so a batched caller (many streams) can stack them.
+The tables are plain arrays, so a batched caller (many streams) stacks them
+(:func:`stack_tables`: a leading axis of S frames) and evaluates S frames' points ``(S, n, d)``
+with one call of the same kernel.
 """
 
 from __future__ import annotations
 
 import functools
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -41,6 +43,7 @@ __all__ = [
     "fused_energy",
     "numpy_energy",
     "resolve_kernel",
+    "stack_tables",
 ]
 
 #: Kernel names: ``"auto"`` picks ``"numba"`` when it is installed, else ``"numpy"``.
@@ -56,12 +59,15 @@ class EnergyTables:
     ``E(z) = rowdot(P[:, :d], z) + P[:, d] + c0 + min_k (P[:, d+1+k] + ycst[k])
     + wk * sum_b (|P[:, bones_b] + b0_b| - lengths_b)^2`` with ``P = z @ matrix``.
 
+    One frame, or S frames stacked (:func:`stack_tables`): then every array has a leading axis
+    S and ``c0`` is an array ``(S,)``.
+
     Attributes
     ----------
     matrix : ndarray, shape (d, d + 1 + K + 57), C-contiguous
         Weighted quadratic form (``d`` columns), linear term (1), ``Es`` inner products
         (``K``, scaled by ``-2 w_s / 20``), bone vectors' linear part (57).
-    c0 : float
+    c0 : float or ndarray of shape (S,)
         Constant of the quadratic terms.
     ycst : ndarray, shape (K,)
         ``w_s / 20 (|y_n|^2 + |r_n|^2)``.
@@ -74,7 +80,7 @@ class EnergyTables:
     """
 
     matrix: np.ndarray
-    c0: float
+    c0: float | np.ndarray
     ycst: np.ndarray
     b0: np.ndarray
     lengths: np.ndarray
@@ -83,19 +89,41 @@ class EnergyTables:
     @property
     def dim(self) -> int:
         """Latent dimension ``d``."""
-        return int(self.matrix.shape[0])
+        return int(self.matrix.shape[-2])
 
     @property
     def k(self) -> int:
         """Number of candidates ``K`` of ``Es``."""
-        return len(self.ycst)
+        return int(self.ycst.shape[-1])
+
+    @property
+    def stacked(self) -> bool:
+        """Whether these are S frames' tables (:func:`stack_tables`)."""
+        return self.matrix.ndim == 3
+
+    def __len__(self) -> int:
+        """Frames stacked (1 for one frame's tables)."""
+        return int(self.matrix.shape[0]) if self.stacked else 1
+
+    def select(self, frames: np.ndarray) -> EnergyTables:
+        """The stacked tables of the given frames (indices into this stack)."""
+        if not self.stacked:
+            raise ValueError("select: expected stacked tables (stack_tables), got one frame's")
+        return EnergyTables(
+            self.matrix[frames],
+            np.asarray(self.c0)[frames],
+            self.ycst[frames],
+            self.b0[frames],
+            self.lengths[frames],
+            self.wk,
+        )
 
     def astype(self, dtype: Any) -> EnergyTables:
         """The same tables in another floating-point precision."""
         t = np.dtype(dtype)
         return EnergyTables(
             np.ascontiguousarray(self.matrix, dtype=t),
-            float(self.c0),
+            np.asarray(self.c0, dtype=t) if self.stacked else float(self.c0),
             self.ycst.astype(t),
             self.b0.astype(t),
             self.lengths.astype(t),
@@ -103,23 +131,59 @@ class EnergyTables:
         )
 
 
+def stack_tables(frames: Sequence[EnergyTables]) -> EnergyTables:
+    """S frames' tables (equal ``d``, ``K``, dtype and ``wk``) stacked along a leading axis.
+
+    Raises
+    ------
+    ValueError
+        On an empty sequence, or tables whose shapes, dtype or ``wk`` differ.
+    """
+    if not frames:
+        raise ValueError("frames: expected at least one EnergyTables, got none")
+    first = frames[0]
+    for i, t in enumerate(frames):
+        if (
+            t.stacked
+            or t.matrix.shape != first.matrix.shape
+            or t.matrix.dtype != first.matrix.dtype
+        ):
+            raise ValueError(
+                f"frames[{i}]: expected one frame's tables of shape {first.matrix.shape} "
+                f"({first.matrix.dtype}), got {t.matrix.shape} ({t.matrix.dtype})"
+            )
+        if t.wk != first.wk:
+            raise ValueError(f"frames[{i}]: expected wk {first.wk} (the same weights), got {t.wk}")
+    dtype = first.matrix.dtype
+    return EnergyTables(
+        np.stack([t.matrix for t in frames]),
+        np.array([t.c0 for t in frames], dtype=dtype),
+        np.stack([t.ycst for t in frames]),
+        np.stack([t.b0 for t in frames]),
+        np.stack([t.lengths for t in frames]),
+        first.wk,
+    )
+
+
 # --------------------------------------------------------------------------- numpy kernel
 
 
 def numpy_energy(z: np.ndarray, tables: EnergyTables) -> np.ndarray:
-    """The fused energy in numpy: points ``(n, d)`` -> ``(n,)`` in the tables' dtype."""
+    """The fused energy in numpy: points ``(n, d)`` -> ``(n,)`` in the tables' dtype, or
+    ``(S, n, d)`` -> ``(S, n)`` with stacked tables."""
     d, k = tables.dim, tables.k
     p = z @ tables.matrix
-    energy = np.einsum("nd,nd->n", p[:, :d], z)  # quadratic form (Ec, Em, Ep, |u|^2 of Es)
-    energy += p[:, d]
-    energy += tables.c0
-    energy += (p[:, d + 1 : d + 1 + k] + tables.ycst).min(axis=1)  # Es, Eq. 12
-    bones = p[:, d + 1 + k :]
-    bones += tables.b0
+    energy = np.einsum("...nd,...nd->...n", p[..., :d], z)  # quadratic form (Ec, Em, Ep, |u|^2)
+    energy += p[..., d]
+    energy += np.asarray(tables.c0)[..., None] if tables.stacked else tables.c0
+    ycst = tables.ycst[:, None] if tables.stacked else tables.ycst
+    energy += (p[..., d + 1 : d + 1 + k] + ycst).min(axis=-1)  # Es, Eq. 12
+    bones = p[..., d + 1 + k :]
+    bones += tables.b0[:, None] if tables.stacked else tables.b0
     bones *= bones
-    length = np.sqrt(bones.reshape(len(z), skeleton.NUM_BONES, 3).sum(axis=2))
-    length -= tables.lengths
-    energy += tables.wk * np.einsum("nb,nb->n", length, length)  # Ek, Eq. 13
+    length = np.sqrt(bones.reshape(*z.shape[:-1], skeleton.NUM_BONES, 3).sum(axis=-1))
+    length -= tables.lengths[:, None] if tables.stacked else tables.lengths
+    energy += tables.wk * np.einsum("...b,...b->...", length, length)  # Ek, Eq. 13
     return energy
 
 
@@ -127,32 +191,31 @@ def numpy_energy(z: np.ndarray, tables: EnergyTables) -> np.ndarray:
 
 
 @functools.lru_cache(maxsize=1)
-def _numba_kernel() -> Callable[..., np.ndarray] | None:
-    """The compiled kernel, or None without numba (compiled on first use, cached on disk)."""
+def _numba_kernels() -> tuple[Callable[..., np.ndarray], Callable[..., np.ndarray]] | None:
+    """The compiled kernels (one frame, S stacked frames), or None without numba (compiled on
+    first use, cached on disk). Both run the same row loop on ``P = z @ matrix``."""
     try:
         import numba  # optional extra fpg-gym[fast]
     except ImportError:
         return None
 
     @numba.njit(cache=True, nogil=True)
-    def kernel(z, matrix, c0, ycst, b0, lengths, wk):
-        p = z @ matrix
+    def rows(p, z, c0, ycst, b0, lengths, wk, out):
         n, d = z.shape
         k = ycst.shape[0]
         bones = lengths.shape[0]
-        out = np.empty(n, dtype=z.dtype)
         for i in range(n):
             e = c0 + p[i, d]
             for j in range(d):
                 e += p[i, j] * z[i, j]
             best = np.inf
-            for m in range(k):
+            for m in range(k):  # Es, Eq. 12
                 v = p[i, d + 1 + m] + ycst[m]
                 if v < best:
                     best = v
             s = 0.0
             base = d + 1 + k
-            for b in range(bones):
+            for b in range(bones):  # Ek, Eq. 13
                 c = base + 3 * b
                 x = p[i, c] + b0[3 * b]
                 y = p[i, c + 1] + b0[3 * b + 1]
@@ -160,14 +223,26 @@ def _numba_kernel() -> Callable[..., np.ndarray] | None:
                 diff = np.sqrt(x * x + y * y + w * w) - lengths[b]
                 s += diff * diff
             out[i] = e + best + wk * s
+
+    @numba.njit(cache=True, nogil=True)
+    def kernel(z, matrix, c0, ycst, b0, lengths, wk):
+        out = np.empty(z.shape[0], dtype=z.dtype)
+        rows(z @ matrix, z, c0, ycst, b0, lengths, wk, out)
         return out
 
-    return kernel
+    @numba.njit(cache=True, nogil=True)
+    def stacked_kernel(z, matrix, c0, ycst, b0, lengths, wk):
+        out = np.empty(z.shape[:2], dtype=z.dtype)
+        for f in range(z.shape[0]):
+            rows(z[f] @ matrix[f], z[f], c0[f], ycst[f], b0[f], lengths[f], wk, out[f])
+        return out
+
+    return kernel, stacked_kernel
 
 
 def available_kernels() -> tuple[str, ...]:
     """The kernels this installation can run (``"numpy"`` always)."""
-    return ("numba", "numpy") if _numba_kernel() is not None else ("numpy",)
+    return ("numba", "numpy") if _numba_kernels() is not None else ("numpy",)
 
 
 def compile_kernels() -> tuple[str, ...]:
@@ -198,35 +273,47 @@ def resolve_kernel(name: str) -> str:
         raise ValueError(f"kernel: expected one of {', '.join(KERNELS)}, got {name!r}")
     if name == "auto":
         return available_kernels()[0]
-    if name == "numba" and _numba_kernel() is None:
+    if name == "numba" and _numba_kernels() is None:
         raise ValueError("kernel: 'numba' needs numba (pip install 'fpg-gym[fast]')")
     return name
 
 
 def fused_energy(z: np.ndarray, tables: EnergyTables, kernel: str = "auto") -> np.ndarray:
-    """Total energy (Shum Eq. 10) of latent points ``(n, d)`` -> ``(n,)``.
+    """Total energy (Shum Eq. 10) of latent points ``(n, d)`` -> ``(n,)``, or of S frames'
+    points ``(S, n, d)`` -> ``(S, n)`` with stacked tables (:func:`stack_tables`).
 
     Parameters
     ----------
-    z : ndarray, shape (n, d)
+    z : ndarray, shape (n, d) or (S, n, d)
         Whitened latent points in the tables' dtype (float64 or float32), C-contiguous.
     tables : EnergyTables
     kernel : {"auto", "numba", "numpy"}
 
     Returns
     -------
-    ndarray, shape (n,)
+    ndarray, shape (n,) or (S, n)
         In the tables' dtype.
     """
-    compiled = _numba_kernel() if resolve_kernel(kernel) == "numba" else None
+    compiled = _numba_kernels() if resolve_kernel(kernel) == "numba" else None
     if compiled is None:
         return numpy_energy(z, tables)
-    return compiled(
+    dtype = tables.matrix.dtype.type
+    if tables.stacked:
+        return compiled[1](
+            np.ascontiguousarray(z),
+            tables.matrix,
+            np.asarray(tables.c0),
+            tables.ycst,
+            tables.b0,
+            tables.lengths,
+            dtype(tables.wk),
+        )
+    return compiled[0](
         np.ascontiguousarray(z),
         tables.matrix,
-        tables.matrix.dtype.type(tables.c0),
+        dtype(tables.c0),
         tables.ycst,
         tables.b0,
         tables.lengths,
-        tables.matrix.dtype.type(tables.wk),
+        dtype(tables.wk),
     )
