@@ -23,10 +23,8 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-from tqdm.auto import tqdm
 
 from fpg_gym import metrics
-from fpg_gym import poses as pose_utils
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
@@ -35,11 +33,15 @@ from fpg_gym.poses import mirror
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
-from fpg_gym.reconstruct.energy import EnergyWeights
 from fpg_gym.simulate import simulate_clips
-from fpg_gym.skeleton import ROOT
-from optimizers import make, run_optimizer
 from optimizers.random_search import RandomSearch
+from policies.imitation import (
+    FOLLOW,
+    TARGETS,
+    ImitationData,
+    collect_imitation_data,
+    truth_latent,
+)
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
 from policies.rl import train_rl
 from policies.sampler import (
@@ -49,7 +51,6 @@ from policies.sampler import (
     SamplerSpec,
     import_learn,
     model_paths,
-    problem_observation,
 )
 from policies.supervised import SupervisedSampler, fit_supervised
 
@@ -69,36 +70,6 @@ __all__ = [
     "training_clips",
     "truth_latent",
 ]
-
-#: Targets of the supervised sampler (:func:`collect_imitation_data`).
-TARGETS: tuple[str, ...] = ("best", "search", "truth")
-#: What the imitation stream continues from (:func:`collect_imitation_data`).
-FOLLOW: tuple[str, ...] = ("search", "anchor", "truth")
-
-
-def truth_latent(problem: Any, placement: Any, truth: np.ndarray) -> np.ndarray:
-    """Whitened coordinates ``(d,)`` of a ground-truth pose in ``problem``'s latent space.
-
-    The truth is seen in the problem's frame: its own root at the origin (Eq. 13 scores bone
-    vectors, so the root's offset carries no error, and the database poses are root-centred)
-    and turned by ``placement.yaw``, the heading the reconstructor normalised the frame with
-    (:attr:`fpg_gym.reconstruct.Reconstructor.placement`). That heading is not always the raw
-    sensor pose's: after a left/right relabelling it differs by about 180 degrees, a frame
-    without a body keeps the last one, and a sensor map or the temporal stage move it;
-    recomputing it from the raw sensor frame (what collect_imitation_data did before) put the
-    target in a wrong heading on exactly those frames.
-
-    Parameters
-    ----------
-    problem : SearchProblem
-    placement : Placement
-        The prepared frame's placement.
-    truth : ndarray, shape (20, 3)
-        Ground truth, camera space.
-    """
-    pose = np.asarray(truth, dtype=np.float64)
-    frame = pose_utils.Placement(root=pose[ROOT], yaw=np.asarray(placement.yaw))
-    return np.asarray(problem.encode(pose_utils.into_placement(pose, frame)), dtype=np.float64)
 
 
 def default_training_clip_names() -> list[str]:
@@ -168,180 +139,6 @@ def simulate_episodes(
     (:func:`fpg_gym.simulate.simulate_clips`)."""
 
     return simulate_clips(clips, scenarios, seeds, max_frames=max_frames)
-
-
-# --------------------------------------------------------------------------- imitation data
-
-
-@dataclass
-class ImitationData:
-    """(observation, target action) pairs of the supervised sampler.
-
-    Attributes
-    ----------
-    observations : ndarray, shape (n, N), float32
-        Env observations (:func:`policies.sampler.problem_observation`).
-    actions : ndarray, shape (n, L), float32
-        Target actions (zero beyond each frame's ``d`` axes).
-    masks : ndarray, shape (n, L), float32
-        1 on each frame's valid axes.
-    episodes : ndarray, shape (n,), int
-        Episode index of each frame.
-    search_energies : ndarray, shape (n,)
-        Energy of the local-search optimum on each frame.
-    """
-
-    observations: np.ndarray
-    actions: np.ndarray
-    masks: np.ndarray
-    episodes: np.ndarray
-    search_energies: np.ndarray
-
-    def __len__(self) -> int:
-        return len(self.actions)
-
-
-def collect_imitation_data(
-    graph: Any,
-    recordings: Sequence[Any],
-    spec: SamplerSpec,
-    *,
-    target: str = "best",
-    frames: int | None = None,
-    seed: int = 0,
-    progress: bool = False,
-    follow: str = "search",
-    reconstructor_options: dict[str, Any] | None = None,
-) -> ImitationData:
-    """Roll ``recordings`` through the reconstructor and record (observation, target) pairs.
-
-    Every frame is searched with the papers' local search (``local-search``, 2,000
-    evaluations, from ``x0``); with ``target="best"`` a second local search starts from the
-    spec's anchor (:class:`~policies.sampler.FeatureMap`) on the same problem. The stream
-    continues from the best point found, as a search-driven
-    reconstruction would. The target action selects:
-
-    * ``"search"``: the best point of the papers' local search alone;
-    * ``"best"``: the best point of both searches (the lowest energy found; the same as
-      ``"search"`` without an anchor);
-    * ``"truth"``: the ground-truth pose seen in the problem's frame (:func:`truth_latent`:
-      root-relative, turned by the heading the reconstructor normalised the frame with) and
-      projected (needs recordings with ground truth).
-
-    With ``follow="anchor"`` or ``"truth"`` (``target="truth"`` only) no search runs: the
-    stream continues from the spec's anchor (the closed-form point: previous frames of the
-    quality a sampler will give) or from the projected truth (teacher forcing), one
-    evaluation per frame; data collection is then a small fraction of the search's cost.
-
-    Parameters
-    ----------
-    graph : FilteredPoseGraph
-    recordings : sequence of Recording
-    spec : SamplerSpec
-        The sampler the data is for (observation layout, action mode and scale, anchor).
-    target : {"best", "search", "truth"}
-    frames : int, optional
-        Stop after this many frames (all recordings otherwise).
-    seed : int
-        The searches' generator.
-    progress : bool
-        A tqdm bar over the frames.
-    follow : {"search", "anchor", "truth"}
-        The point each frame is finished with (the next frames' history).
-    reconstructor_options : dict, optional
-        Overrides of the :class:`~fpg_gym.reconstruct.Reconstructor` settings (default: the
-        env's per-frame problem: temporal stage off, no ragdoll). Pass the settings the
-        sampler will be used with (``sensor_map``, ``temporal``, ``sensor_blend``...).
-    """
-
-    if target not in TARGETS:
-        raise ValueError(f"target: expected one of {TARGETS}, got {target!r}")
-    if follow not in FOLLOW:
-        raise ValueError(f"follow: expected one of {FOLLOW}, got {follow!r}")
-    if follow != "search" and target != "truth":
-        raise ValueError(f"follow={follow!r} needs target='truth' (got target={target!r})")
-    if target == "truth":
-        missing = [i for i, r in enumerate(recordings) if r.ground_truth is None]
-        if missing:
-            raise ValueError(f"target 'truth' needs ground truth; recordings {missing} have none")
-    layout = spec.layout
-    latent_dim, scale = spec.latent_dim, spec.action_scale
-    delta = spec.action_mode == "delta"
-    weights = dict(
-        zip(("control", "style", "kinematic", "motion"), spec.energy_weights, strict=True)
-    )
-    options: dict[str, Any] = {
-        "k": spec.candidates,
-        "latent_dim": latent_dim,
-        "ragdoll": False,
-        "weights": EnergyWeights(**weights),
-        "temporal": TemporalConfig.off(),  # the env's per-frame problem
-        **(reconstructor_options or {}),
-        "max_evaluations": None,
-    }
-    reconstructor = Reconstructor(graph, **options)
-    search = make("local-search")
-    anchor_only = LearnedSampler(AnchorSampler(spec), samples=1)
-    anchored = None
-    if target == "best" and spec.anchor != "none":
-        anchored = LearnedSearch(AnchorSampler(spec), samples=1, iterations=20, search_samples=100)
-    rng = np.random.default_rng(seed)
-    total = sum(r.num_frames for r in recordings)
-    limit = total if frames is None else min(int(frames), total)
-    observations = np.zeros((limit, layout.size), np.float32)
-    actions = np.zeros((limit, latent_dim), np.float32)
-    masks = np.zeros((limit, latent_dim), np.float32)
-    episodes = np.zeros(limit, np.int64)
-    energies = np.zeros(limit)
-    bar = None
-    if progress:
-        bar = tqdm(total=limit, desc="imitation data", unit="frame", leave=False)
-    n = 0
-    try:
-        for e, recording in enumerate(recordings):
-            if n >= limit:
-                break
-            reconstructor.reset()
-            truth = recording.ground_truth
-            for t in range(recording.num_frames):
-                if n >= limit:
-                    break
-                problem = reconstructor.prepare(
-                    recording.positions[t], recording.states[t], float(recording.timestamps[t])
-                )
-                if follow == "search":
-                    found = run_optimizer(problem, search, rng)
-                    if anchored is not None:
-                        other = run_optimizer(problem, anchored, rng)
-                        found = other if other.energy < found.energy else found  # best of both
-                else:
-                    found = run_optimizer(problem, anchor_only, rng)
-                z = found.x
-                d = min(problem.dim, latent_dim)
-                if target == "truth":
-                    assert truth is not None and reconstructor.placement is not None
-                    z_target = truth_latent(problem, reconstructor.placement, truth[t])
-                    if follow == "truth":
-                        z = z_target
-                else:
-                    z_target = z
-                origin = problem.x0 if delta else 0.0
-                actions[n, :d] = ((z_target - origin) / scale)[:d]
-                masks[n, :d] = 1.0
-                observations[n] = problem_observation(
-                    problem, layout, action_scale=scale, delta=delta, frame_dt=spec.frame_dt
-                )
-                episodes[n] = e
-                energies[n] = found.energy
-                reconstructor.finish(z)
-                n += 1
-                if bar is not None:
-                    bar.update(1)
-    finally:
-        reconstructor.close()
-        if bar is not None:
-            bar.close()
-    return ImitationData(observations[:n], actions[:n], masks[:n], episodes[:n], energies[:n])
 
 
 # --------------------------------------------------------------------------- evaluation
@@ -488,6 +285,9 @@ class TrainConfig:
         TensorBoard log folder (used only when tensorboard is installed).
     units : str
         BVH units.
+    workers : int
+        Processes the supervised data's episodes are split between (1: this process; the data
+        is the same for any value, :func:`collect_imitation_data`).
     progress : bool
     """
 
@@ -520,6 +320,7 @@ class TrainConfig:
     hyperparameters: dict[str, Any] = field(default_factory=dict)
     tensorboard: str | None = None
     units: str = "auto"
+    workers: int = 1
     progress: bool = True
 
     def __post_init__(self) -> None:
@@ -546,6 +347,8 @@ class TrainConfig:
             raise ValueError(f"eval_episodes: expected >= 1, got {self.eval_episodes}")
         if self.max_frames is not None and self.max_frames < 2:
             raise ValueError(f"max_frames: expected >= 2, got {self.max_frames}")
+        if self.workers < 1:
+            raise ValueError(f"workers: expected >= 1, got {self.workers}")
 
     @property
     def total_timesteps(self) -> int:
@@ -779,6 +582,7 @@ def _train_supervised(
         frames=config.total_timesteps,
         seed=config.seed,
         progress=config.progress,
+        workers=config.workers,
     )
     seconds["data"] = time.perf_counter() - t0
     say(

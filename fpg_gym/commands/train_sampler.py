@@ -169,6 +169,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="TensorBoard log folder (only if tensorboard is installed)",
     )
     parser.add_argument("--units", default="auto", help="BVH units (auto)")
+    parser.add_argument(
+        "--workers",
+        type=int,
+        default=1,
+        metavar="N",
+        help="processes collecting the supervised data (1; the same data for any N)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--json", action="store_true", help="print a JSON summary last")
 
@@ -217,6 +224,7 @@ def run(args: argparse.Namespace) -> int:
         mirror=not args.no_mirror,
         tensorboard=args.tensorboard,
         units=args.units,
+        workers=args.workers,
         progress=not args.quiet,
     )
     result = train_sampler(config)

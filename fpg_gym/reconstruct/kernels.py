@@ -192,52 +192,14 @@ def numpy_energy(z: np.ndarray, tables: EnergyTables) -> np.ndarray:
 
 @functools.lru_cache(maxsize=1)
 def _numba_kernels() -> tuple[Callable[..., np.ndarray], Callable[..., np.ndarray]] | None:
-    """The compiled kernels (one frame, S stacked frames), or None without numba (compiled on
-    first use, cached on disk). Both run the same row loop on ``P = z @ matrix``."""
+    """The compiled kernels (one frame, S stacked frames;
+    :mod:`fpg_gym.reconstruct.compiled_kernels`), or None without numba. Compiled on first
+    use, cached on disk."""
     try:
-        import numba  # optional extra fpg-gym[fast]
+        from fpg_gym.reconstruct import compiled_kernels  # needs numba: fpg-gym[fast]
     except ImportError:
         return None
-
-    @numba.njit(cache=True, nogil=True)
-    def rows(p, z, c0, ycst, b0, lengths, wk, out):
-        n, d = z.shape
-        k = ycst.shape[0]
-        bones = lengths.shape[0]
-        for i in range(n):
-            e = c0 + p[i, d]
-            for j in range(d):
-                e += p[i, j] * z[i, j]
-            best = np.inf
-            for m in range(k):  # Es, Eq. 12
-                v = p[i, d + 1 + m] + ycst[m]
-                if v < best:
-                    best = v
-            s = 0.0
-            base = d + 1 + k
-            for b in range(bones):  # Ek, Eq. 13
-                c = base + 3 * b
-                x = p[i, c] + b0[3 * b]
-                y = p[i, c + 1] + b0[3 * b + 1]
-                w = p[i, c + 2] + b0[3 * b + 2]
-                diff = np.sqrt(x * x + y * y + w * w) - lengths[b]
-                s += diff * diff
-            out[i] = e + best + wk * s
-
-    @numba.njit(cache=True, nogil=True)
-    def kernel(z, matrix, c0, ycst, b0, lengths, wk):
-        out = np.empty(z.shape[0], dtype=z.dtype)
-        rows(z @ matrix, z, c0, ycst, b0, lengths, wk, out)
-        return out
-
-    @numba.njit(cache=True, nogil=True)
-    def stacked_kernel(z, matrix, c0, ycst, b0, lengths, wk):
-        out = np.empty(z.shape[:2], dtype=z.dtype)
-        for f in range(z.shape[0]):
-            rows(z[f] @ matrix[f], z[f], c0[f], ycst[f], b0[f], lengths[f], wk, out[f])
-        return out
-
-    return kernel, stacked_kernel
+    return compiled_kernels.fused_kernel, compiled_kernels.stacked_fused_kernel
 
 
 def available_kernels() -> tuple[str, ...]:
@@ -246,8 +208,8 @@ def available_kernels() -> tuple[str, ...]:
 
 
 def compile_kernels() -> tuple[str, ...]:
-    """Compile (or load from the disk cache) the available kernels now rather than on the first
-    frame; returns their names."""
+    """Compile (or load from the disk cache) the available kernels, for one frame and for
+    stacked frames in float64, now rather than on the first frame; returns their names."""
     tables = EnergyTables(
         np.zeros((1, 2 + 1 + _BONE_COORDS)),
         0.0,
@@ -256,8 +218,10 @@ def compile_kernels() -> tuple[str, ...]:
         np.zeros(skeleton.NUM_BONES),
         0.0,
     )
+    stacked = stack_tables([tables])
     for name in available_kernels():
         fused_energy(np.zeros((1, 1)), tables, name)
+        fused_energy(np.zeros((1, 1, 1)), stacked, name)
     return available_kernels()
 
 

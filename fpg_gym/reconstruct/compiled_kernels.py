@@ -1,0 +1,60 @@
+"""The fused energy's compiled (numba) kernels; imported only when ``fpg-gym[fast]`` is installed.
+
+Module-level functions so that numba's disk cache (``cache=True``) finds them again in a new
+process (functions defined inside a function, calling one another, are recompiled every time).
+Both kernels run the same row loop, :func:`energy_rows`, on ``P = z @ matrix``, so one frame's
+energies and S stacked frames' are equal to the last bit. The maths is documented in
+:mod:`fpg_gym.reconstruct.kernels`.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["energy_rows", "fused_kernel", "stacked_fused_kernel"]
+
+
+@numba.njit(cache=True, nogil=True)
+def energy_rows(p, z, c0, ycst, b0, lengths, wk, out):
+    """``out[i] = z_i . P[i, :d] + P[i, d] + c0 + min_k (P[i, d+1+k] + ycst[k]) + wk * sum_b
+    (|P[i, bone b] + b0_b| - lengths_b)^2`` (Shum Eq. 10 as in the tables)."""
+    n, d = z.shape
+    k = ycst.shape[0]
+    bones = lengths.shape[0]
+    for i in range(n):
+        e = c0 + p[i, d]
+        for j in range(d):
+            e += p[i, j] * z[i, j]
+        best = np.inf
+        for m in range(k):  # Es, Eq. 12
+            v = p[i, d + 1 + m] + ycst[m]
+            if v < best:
+                best = v
+        s = 0.0
+        base = d + 1 + k
+        for b in range(bones):  # Ek, Eq. 13
+            c = base + 3 * b
+            x = p[i, c] + b0[3 * b]
+            y = p[i, c + 1] + b0[3 * b + 1]
+            w = p[i, c + 2] + b0[3 * b + 2]
+            diff = np.sqrt(x * x + y * y + w * w) - lengths[b]
+            s += diff * diff
+        out[i] = e + best + wk * s
+
+
+@numba.njit(cache=True, nogil=True)
+def fused_kernel(z, matrix, c0, ycst, b0, lengths, wk):
+    """One frame: points ``(n, d)`` -> ``(n,)``."""
+    out = np.empty(z.shape[0], dtype=z.dtype)
+    energy_rows(z @ matrix, z, c0, ycst, b0, lengths, wk, out)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def stacked_fused_kernel(z, matrix, c0, ycst, b0, lengths, wk):
+    """S stacked frames: points ``(S, n, d)`` -> ``(S, n)``."""
+    out = np.empty(z.shape[:2], dtype=z.dtype)
+    for f in range(z.shape[0]):
+        energy_rows(z[f] @ matrix[f], z[f], c0[f], ycst[f], b0[f], lengths[f], wk, out[f])
+    return out

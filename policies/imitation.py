@@ -1,0 +1,426 @@
+"""The supervised sampler's training pairs: (observation, target action) per frame.
+
+:func:`collect_imitation_data` rolls recordings through the
+:class:`~fpg_gym.reconstruct.Reconstructor` and records, on every frame, the sampler's
+observation and the latent point it should propose. The recordings are reconstructed side by
+side, ``batch`` at a time, with their searches' energies evaluated together
+(:func:`fpg_gym.reconstruct.batched.search_together`), and split between ``workers`` processes.
+Each episode draws from its own generator (``SeedSequence(seed).spawn``), so the pairs do not
+depend on ``batch`` or ``workers``.
+"""
+
+from __future__ import annotations
+
+import copy
+import multiprocessing
+from collections.abc import Sequence
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from fpg_gym import poses as pose_utils
+from fpg_gym.reconstruct import Reconstructor, TemporalConfig
+from fpg_gym.reconstruct.batched import search_together
+from fpg_gym.reconstruct.energy import EnergyWeights
+from fpg_gym.skeleton import ROOT
+from optimizers import OptimizerRun, make, run_optimizer
+from policies.learned_optimizers import LearnedSampler, LearnedSearch
+from policies.sampler import AnchorSampler, SamplerSpec, problem_observation
+
+__all__ = ["FOLLOW", "TARGETS", "ImitationData", "collect_imitation_data", "truth_latent"]
+
+#: Targets of the supervised sampler (:func:`collect_imitation_data`).
+TARGETS: tuple[str, ...] = ("best", "search", "truth")
+#: What the imitation stream continues from (:func:`collect_imitation_data`).
+FOLLOW: tuple[str, ...] = ("search", "anchor", "truth")
+#: Recordings reconstructed side by side by default.
+DEFAULT_BATCH = 8
+
+
+def truth_latent(problem: Any, placement: Any, truth: np.ndarray) -> np.ndarray:
+    """Whitened coordinates ``(d,)`` of a ground-truth pose in ``problem``'s latent space.
+
+    The truth is seen in the problem's frame: its own root at the origin (Eq. 13 scores bone
+    vectors, so the root's offset carries no error, and the database poses are root-centred)
+    and turned by ``placement.yaw``, the heading the reconstructor normalised the frame with
+    (:attr:`fpg_gym.reconstruct.Reconstructor.placement`). That heading is not always the raw
+    sensor pose's: after a left/right relabelling it differs by about 180 degrees, a frame
+    without a body keeps the last one, and a sensor map or the temporal stage move it;
+    recomputing it from the raw sensor frame (what collect_imitation_data did before) put the
+    target in a wrong heading on exactly those frames.
+
+    Parameters
+    ----------
+    problem : SearchProblem
+    placement : Placement
+        The prepared frame's placement.
+    truth : ndarray, shape (20, 3)
+        Ground truth, camera space.
+    """
+    pose = np.asarray(truth, dtype=np.float64)
+    frame = pose_utils.Placement(root=pose[ROOT], yaw=np.asarray(placement.yaw))
+    return np.asarray(problem.encode(pose_utils.into_placement(pose, frame)), dtype=np.float64)
+
+
+@dataclass
+class ImitationData:
+    """(observation, target action) pairs of the supervised sampler.
+
+    Attributes
+    ----------
+    observations : ndarray, shape (n, N), float32
+        Env observations (:func:`policies.sampler.problem_observation`).
+    actions : ndarray, shape (n, L), float32
+        Target actions (zero beyond each frame's ``d`` axes).
+    masks : ndarray, shape (n, L), float32
+        1 on each frame's valid axes.
+    episodes : ndarray, shape (n,), int
+        Episode index of each frame.
+    search_energies : ndarray, shape (n,)
+        Energy of the local-search optimum on each frame.
+    """
+
+    observations: np.ndarray
+    actions: np.ndarray
+    masks: np.ndarray
+    episodes: np.ndarray
+    search_energies: np.ndarray
+
+    def __len__(self) -> int:
+        return len(self.actions)
+
+    @classmethod
+    def empty(cls, observation_size: int, latent_dim: int) -> ImitationData:
+        """No pairs (the arrays' widths set)."""
+        return cls(
+            np.zeros((0, observation_size), np.float32),
+            np.zeros((0, latent_dim), np.float32),
+            np.zeros((0, latent_dim), np.float32),
+            np.zeros(0, np.int64),
+            np.zeros(0),
+        )
+
+    @classmethod
+    def concatenate(cls, parts: Sequence[ImitationData]) -> ImitationData:
+        """The pairs of ``parts`` one after the other (at least one part)."""
+        return cls(
+            np.concatenate([p.observations for p in parts]),
+            np.concatenate([p.actions for p in parts]),
+            np.concatenate([p.masks for p in parts]),
+            np.concatenate([p.episodes for p in parts]),
+            np.concatenate([p.search_energies for p in parts]),
+        )
+
+
+@dataclass(frozen=True)
+class _Collection:
+    """What every episode's collection shares (sent once to each worker process)."""
+
+    spec: SamplerSpec
+    target: str
+    follow: str
+    options: dict[str, Any]
+    batch: int
+
+
+def _frame_caps(recordings: Sequence[Any], frames: int | None) -> list[int]:
+    """Frames collected per recording: all of them, in order, until ``frames`` in total."""
+    caps, left = [], None if frames is None else max(int(frames), 0)
+    for recording in recordings:
+        n = recording.num_frames if left is None else min(recording.num_frames, left)
+        caps.append(n)
+        if left is not None:
+            left -= n
+    return caps
+
+
+def _best_of(
+    problems: Sequence[Any],
+    optimizers: Sequence[Any],
+    rngs: Sequence[np.random.Generator],
+) -> list[Any]:
+    """One search per problem, run side by side; their results."""
+    runs = [OptimizerRun(p, o, r) for p, o, r in zip(problems, optimizers, rngs, strict=True)]
+    search_together(problems, runs)
+    return [run.result() for run in runs]
+
+
+def _collect_episodes(
+    graph: Any,
+    recordings: Sequence[Any],
+    episodes: Sequence[int],
+    caps: Sequence[int],
+    rngs: Sequence[np.random.Generator],
+    job: _Collection,
+    progress: Any = None,
+) -> ImitationData:
+    """The pairs of ``recordings`` (episode numbers ``episodes``), ``job.batch`` side by side."""
+    spec, target, follow = job.spec, job.target, job.follow
+    layout, latent_dim, scale = spec.layout, spec.latent_dim, spec.action_scale
+    delta = spec.action_mode == "delta"
+    anchor_only = LearnedSampler(AnchorSampler(spec), samples=1)
+    anchored = None
+    if target == "best" and spec.anchor != "none":
+        anchored = LearnedSearch(AnchorSampler(spec), samples=1, iterations=20, search_samples=100)
+    parts = []
+    for first in range(0, len(recordings), job.batch):
+        group = range(first, min(first + job.batch, len(recordings)))
+        reconstructors = [Reconstructor(graph, **job.options) for _ in group]
+        # One optimiser object per stream, reset on every frame.
+        searches = [make("local-search") for _ in group]
+        anchored_searches = [copy.deepcopy(anchored) for _ in group] if anchored else []
+        length = max((caps[i] for i in group), default=0)
+        count = sum(caps[i] for i in group)
+        observations = np.zeros((count, layout.size), np.float32)
+        actions = np.zeros((count, latent_dim), np.float32)
+        masks = np.zeros((count, latent_dim), np.float32)
+        energies = np.zeros(count)
+        # Each episode's rows are contiguous: episode i's frame t goes to row start[i] + t.
+        start = dict(zip(group, np.cumsum([0] + [caps[i] for i in group])[:-1], strict=True))
+        try:
+            for t in range(length):
+                active = [i for i in group if t < caps[i]]
+                own = [reconstructors[i - first] for i in active]
+                problems = [
+                    r.prepare(
+                        recordings[i].positions[t],
+                        recordings[i].states[t],
+                        float(recordings[i].timestamps[t]),
+                    )
+                    for r, i in zip(own, active, strict=True)
+                ]
+                streams = [rngs[i] for i in active]
+                if follow == "search":
+                    found = _best_of(problems, [searches[i - first] for i in active], streams)
+                    if anchored_searches:
+                        others = _best_of(
+                            problems, [anchored_searches[i - first] for i in active], streams
+                        )
+                        # The best of both searches (the lowest energy found).
+                        found = [
+                            o if o.energy < f.energy else f
+                            for f, o in zip(found, others, strict=True)
+                        ]
+                else:
+                    found = [
+                        run_optimizer(p, anchor_only, r)
+                        for p, r in zip(problems, streams, strict=True)
+                    ]
+                for r, i, problem, result in zip(own, active, problems, found, strict=True):
+                    z = result.x
+                    d = min(problem.dim, latent_dim)
+                    if target == "truth":
+                        truth = recordings[i].ground_truth
+                        assert truth is not None and r.placement is not None
+                        z_target = truth_latent(problem, r.placement, truth[t])
+                        if follow == "truth":
+                            z = z_target
+                    else:
+                        z_target = z
+                    row = start[i] + t
+                    origin = problem.x0 if delta else 0.0
+                    actions[row, :d] = ((z_target - origin) / scale)[:d]
+                    masks[row, :d] = 1.0
+                    observations[row] = problem_observation(
+                        problem, layout, action_scale=scale, delta=delta, frame_dt=spec.frame_dt
+                    )
+                    energies[row] = result.energy
+                    r.finish(z)
+                if progress is not None:
+                    progress.update(len(active))
+        finally:
+            for r in reconstructors:
+                r.close()
+        labels = np.repeat(
+            np.asarray([episodes[i] for i in group], np.int64), [caps[i] for i in group]
+        )
+        parts.append(ImitationData(observations, actions, masks, labels, energies))
+    if not parts:
+        return ImitationData.empty(layout.size, latent_dim)
+    return ImitationData.concatenate(parts)
+
+
+#: The graph of this worker process (set once by the pool's initializer).
+_WORKER_GRAPH: list[Any] = []
+
+
+def _init_worker(graph: Any) -> None:
+    """Pool initializer: keep the graph (sent once per process) and BLAS on one thread."""
+    from threadpoolctl import threadpool_limits
+
+    threadpool_limits(1)
+    _WORKER_GRAPH[:] = [graph]
+
+
+def _collect_in_worker(
+    recordings: Sequence[Any],
+    episodes: Sequence[int],
+    caps: Sequence[int],
+    rngs: Sequence[np.random.Generator],
+    job: _Collection,
+) -> ImitationData:
+    """:func:`_collect_episodes` in a worker process, on the process's graph."""
+    return _collect_episodes(_WORKER_GRAPH[0], recordings, episodes, caps, rngs, job)
+
+
+def collect_imitation_data(
+    graph: Any,
+    recordings: Sequence[Any],
+    spec: SamplerSpec,
+    *,
+    target: str = "best",
+    frames: int | None = None,
+    seed: int = 0,
+    progress: bool = False,
+    follow: str = "search",
+    reconstructor_options: dict[str, Any] | None = None,
+    batch: int = DEFAULT_BATCH,
+    workers: int = 1,
+) -> ImitationData:
+    """Roll ``recordings`` through the reconstructor and record (observation, target) pairs.
+
+    Every frame is searched with the papers' local search (``local-search``, 2,000
+    evaluations, from ``x0``); with ``target="best"`` a second local search starts from the
+    spec's anchor (:class:`~policies.sampler.FeatureMap`) on the same problem. The stream
+    continues from the best point found, as a search-driven
+    reconstruction would. The target action selects:
+
+    * ``"search"``: the best point of the papers' local search alone;
+    * ``"best"``: the best point of both searches (the lowest energy found; the same as
+      ``"search"`` without an anchor);
+    * ``"truth"``: the ground-truth pose seen in the problem's frame (:func:`truth_latent`:
+      root-relative, turned by the heading the reconstructor normalised the frame with) and
+      projected (needs recordings with ground truth).
+
+    With ``follow="anchor"`` or ``"truth"`` (``target="truth"`` only) no search runs: the
+    stream continues from the spec's anchor (the closed-form point: previous frames of the
+    quality a sampler will give) or from the projected truth (teacher forcing), one
+    evaluation per frame; data collection is then a small fraction of the search's cost.
+
+    Parameters
+    ----------
+    graph : FilteredPoseGraph
+    recordings : sequence of Recording
+    spec : SamplerSpec
+        The sampler the data is for (observation layout, action mode and scale, anchor).
+    target : {"best", "search", "truth"}
+    frames : int, optional
+        Stop after this many frames, taken in recording order (all recordings otherwise).
+    seed : int
+        Root of the episodes' generators (episode ``e`` draws from the ``e``-th child of
+        ``SeedSequence(seed)``).
+    progress : bool
+        A tqdm bar over the frames.
+    follow : {"search", "anchor", "truth"}
+        The point each frame is finished with (the next frames' history).
+    reconstructor_options : dict, optional
+        Overrides of the :class:`~fpg_gym.reconstruct.Reconstructor` settings (default: the
+        env's per-frame problem: temporal stage off, no ragdoll). Pass the settings the
+        sampler will be used with (``sensor_map``, ``temporal``, ``sensor_blend``...).
+    batch : int
+        Recordings reconstructed side by side (8); the pairs are the same for any value.
+    workers : int
+        Processes the recordings are split between (1: this process); the pairs are the same
+        for any value.
+
+    Raises
+    ------
+    ValueError
+        On an unknown ``target`` or ``follow``, ``follow`` other than ``"search"`` without
+        ``target="truth"``, ``"truth"`` without ground truth, or ``batch``/``workers`` < 1.
+    """
+    if target not in TARGETS:
+        raise ValueError(f"target: expected one of {TARGETS}, got {target!r}")
+    if follow not in FOLLOW:
+        raise ValueError(f"follow: expected one of {FOLLOW}, got {follow!r}")
+    if follow != "search" and target != "truth":
+        raise ValueError(f"follow={follow!r} needs target='truth' (got target={target!r})")
+    if batch < 1:
+        raise ValueError(f"batch: expected >= 1, got {batch}")
+    if workers < 1:
+        raise ValueError(f"workers: expected >= 1, got {workers}")
+    if target == "truth":
+        missing = [i for i, r in enumerate(recordings) if r.ground_truth is None]
+        if missing:
+            raise ValueError(f"target 'truth' needs ground truth; recordings {missing} have none")
+    weights = dict(
+        zip(("control", "style", "kinematic", "motion"), spec.energy_weights, strict=True)
+    )
+    options: dict[str, Any] = {
+        "k": spec.candidates,
+        "latent_dim": spec.latent_dim,
+        "ragdoll": False,
+        "weights": EnergyWeights(**weights),
+        "temporal": TemporalConfig.off(),  # the env's per-frame problem
+        **(reconstructor_options or {}),
+        "max_evaluations": None,
+    }
+    job = _Collection(spec, target, follow, options, batch)
+    caps = _frame_caps(recordings, frames)
+    kept = [i for i, n in enumerate(caps) if n > 0]
+    children = np.random.SeedSequence(seed).spawn(len(recordings))
+    rngs = {i: np.random.default_rng(children[i]) for i in kept}
+    bar = tqdm(
+        total=sum(caps), desc="imitation data", unit="frame", leave=False, disable=not progress
+    )
+    try:
+        if workers == 1 or len(kept) <= 1:
+            return _collect_episodes(
+                graph,
+                [recordings[i] for i in kept],
+                kept,
+                [caps[i] for i in kept],
+                [rngs[i] for i in kept],
+                job,
+                bar,
+            )
+        return _collect_in_pool(graph, recordings, kept, caps, rngs, job, workers, bar)
+    finally:
+        bar.close()
+
+
+def _collect_in_pool(
+    graph: Any,
+    recordings: Sequence[Any],
+    kept: Sequence[int],
+    caps: Sequence[int],
+    rngs: dict[int, np.random.Generator],
+    job: _Collection,
+    workers: int,
+    bar: Any,
+) -> ImitationData:
+    """The episodes in ``workers`` spawned processes, in chunks of at most ``job.batch``
+    episodes (fewer when that keeps every worker busy); the pairs put back in episode order."""
+    size = max(1, min(job.batch, -(-len(kept) // workers)))
+    chunks = [list(kept[i : i + size]) for i in range(0, len(kept), size)]
+    context = multiprocessing.get_context("spawn")
+    results: dict[int, ImitationData] = {}
+    pool = ProcessPoolExecutor(
+        min(workers, len(chunks)), mp_context=context, initializer=_init_worker, initargs=(graph,)
+    )
+    try:
+        pending: dict[Future[ImitationData], int] = {
+            pool.submit(
+                _collect_in_worker,
+                [recordings[i] for i in chunk],
+                chunk,
+                [caps[i] for i in chunk],
+                [rngs[i] for i in chunk],
+                job,
+            ): n
+            for n, chunk in enumerate(chunks)
+        }
+        while pending:
+            done, _ = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                n = pending.pop(future)
+                results[n] = future.result()
+                bar.update(len(results[n]))
+    except BaseException:
+        pool.shutdown(wait=False, cancel_futures=True)  # Ctrl-C or a failing chunk: stop now
+        raise
+    pool.shutdown()
+    return ImitationData.concatenate([results[n] for n in range(len(chunks))])

@@ -1,0 +1,96 @@
+"""The supervised sampler's training pairs (policies.imitation): the same pairs whatever the
+batch size and the number of worker processes, the frame cap in recording order, and the
+arguments checked."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.env_observation import ObservationLayout
+from fpg_gym.graph import default_graph
+from fpg_gym.io import load_default_clips
+from fpg_gym.reconstruct.kernels import available_kernels
+from policies.imitation import ImitationData, collect_imitation_data
+from policies.sampler import SamplerSpec
+from policies.training import simulate_episodes
+
+
+@pytest.fixture(scope="module")
+def graph(tmp_path_factory: pytest.TempPathFactory) -> Any:
+    return default_graph(
+        exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=tmp_path_factory.mktemp("fpg-cache")
+    )
+
+
+@pytest.fixture(scope="module")
+def recordings() -> list[Any]:
+    clips = load_default_clips(["walk", "punch"])
+    return simulate_episodes(clips, ["front-many"], [0, 1], max_frames=5)  # 4 episodes
+
+
+SPEC = SamplerSpec(
+    kind="supervised",
+    algo="mlp",
+    latent_dim=20,
+    candidates=30,
+    observation_size=ObservationLayout(20, 30).size,
+    action_mode="absolute",
+)
+
+
+def _assert_same(a: ImitationData, b: ImitationData) -> None:
+    np.testing.assert_array_equal(a.episodes, b.episodes)
+    if "numba" in available_kernels():  # the same compiled arithmetic: equal to the bit
+        np.testing.assert_array_equal(a.actions, b.actions)
+        np.testing.assert_array_equal(a.observations, b.observations)
+        np.testing.assert_array_equal(a.search_energies, b.search_energies)
+    else:
+        np.testing.assert_allclose(a.actions, b.actions, atol=1e-4)
+        np.testing.assert_allclose(a.search_energies, b.search_energies, rtol=1e-6)
+
+
+def test_pairs_do_not_depend_on_batch_or_workers(graph: Any, recordings: list[Any]) -> None:
+    alone = collect_imitation_data(graph, recordings, SPEC, target="best", seed=3, batch=1)
+    batched = collect_imitation_data(graph, recordings, SPEC, target="best", seed=3, batch=3)
+    pooled = collect_imitation_data(
+        graph, recordings, SPEC, target="best", seed=3, batch=8, workers=2
+    )
+    assert len(alone) == sum(r.num_frames for r in recordings)
+    # Episode-major order: each episode's frames contiguous, episodes in recording order.
+    np.testing.assert_array_equal(
+        alone.episodes, np.repeat(np.arange(len(recordings)), [r.num_frames for r in recordings])
+    )
+    _assert_same(alone, batched)
+    _assert_same(alone, pooled)
+    assert np.all(alone.masks == 1.0)
+    # Another seed draws other searches: the equalities above are not vacuous.
+    other = collect_imitation_data(graph, recordings, SPEC, target="best", seed=4, batch=3)
+    assert not np.array_equal(other.actions, alone.actions)
+
+
+def test_the_frame_cap_takes_frames_in_recording_order(graph: Any, recordings: list[Any]) -> None:
+    whole = collect_imitation_data(graph, recordings, SPEC, target="search", seed=0)
+    first = recordings[0].num_frames
+    capped = collect_imitation_data(
+        graph, recordings, SPEC, target="search", seed=0, frames=first + 2
+    )
+    assert len(capped) == first + 2
+    np.testing.assert_array_equal(capped.episodes, [0] * first + [1, 1])
+    # An episode's first frames do not depend on where the cap cuts it.
+    np.testing.assert_allclose(capped.actions, whole.actions[: first + 2])
+
+
+def test_bad_arguments_are_named(graph: Any, recordings: list[Any]) -> None:
+    with pytest.raises(ValueError, match="batch: expected >= 1"):
+        collect_imitation_data(graph, recordings, SPEC, batch=0)
+    with pytest.raises(ValueError, match="workers: expected >= 1"):
+        collect_imitation_data(graph, recordings, SPEC, workers=0)
+    with pytest.raises(ValueError, match="target 'truth' needs ground truth"):
+        no_truth = [type(recordings[0])(r.positions, r.states, r.timestamps) for r in recordings]
+        collect_imitation_data(graph, no_truth, SPEC, target="truth", follow="anchor")
+    empty = collect_imitation_data(graph, recordings, SPEC, frames=0)
+    assert len(empty) == 0 and empty.observations.shape == (0, SPEC.layout.size)
