@@ -196,10 +196,10 @@ def _numba_kernels() -> tuple[Callable[..., np.ndarray], Callable[..., np.ndarra
     :mod:`fpg_gym.reconstruct.compiled_kernels`), or None without numba. Compiled on first
     use, cached on disk."""
     try:
-        from fpg_gym.reconstruct import compiled_kernels  # needs numba: fpg-gym[fast]
+        import fpg_gym.reconstruct.compiled_kernels as compiled  # needs numba: fpg-gym[fast]
     except ImportError:
         return None
-    return compiled_kernels.fused_kernel, compiled_kernels.stacked_fused_kernel
+    return compiled.fused_kernel, compiled.stacked_fused_kernel
 
 
 def available_kernels() -> tuple[str, ...]:
