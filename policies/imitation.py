@@ -4,9 +4,11 @@
 :class:`~fpg_gym.reconstruct.Reconstructor` and records, on every frame, the sampler's
 observation and the latent point it should propose. The recordings are reconstructed side by
 side, ``batch`` at a time, with their searches' energies evaluated together
-(:func:`fpg_gym.reconstruct.batched.search_together`), and split between ``workers`` processes.
-Each episode draws from its own generator (``SeedSequence(seed).spawn``), so the pairs do not
-depend on ``batch`` or ``workers``.
+(:func:`fpg_gym.reconstruct.batched.search_together`), and split between ``workers`` local
+processes or, with ``backend="ray"``, Ray tasks (``fpg-gym[distributed]``: the graph put once in
+the object store, each task carrying its recordings). Each episode draws from its own generator
+(``SeedSequence(seed).spawn``), so the pairs do not depend on ``batch``, ``workers`` or the
+backend.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from fpg_gym import poses as pose_utils
+from fpg_gym.ray_session import ray_session, require_ray
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.batched import search_together
 from fpg_gym.reconstruct.energy import EnergyWeights
@@ -38,6 +41,8 @@ TARGETS: tuple[str, ...] = ("best", "search", "truth")
 FOLLOW: tuple[str, ...] = ("search", "anchor", "truth")
 #: Recordings reconstructed side by side by default.
 DEFAULT_BATCH = 8
+#: Where the episodes run: here or in local worker processes, or on a Ray cluster.
+BACKENDS: tuple[str, ...] = ("local", "ray")
 
 
 def truth_latent(problem: Any, placement: Any, truth: np.ndarray) -> np.ndarray:
@@ -279,6 +284,8 @@ def collect_imitation_data(
     reconstructor_options: dict[str, Any] | None = None,
     batch: int = DEFAULT_BATCH,
     workers: int = 1,
+    backend: str = "local",
+    address: str | None = None,
 ) -> ImitationData:
     """Roll ``recordings`` through the reconstructor and record (observation, target) pairs.
 
@@ -323,14 +330,23 @@ def collect_imitation_data(
     batch : int
         Recordings reconstructed side by side (8); the pairs are the same for any value.
     workers : int
-        Processes the recordings are split between (1: this process); the pairs are the same
-        for any value.
+        Local processes the recordings are split between (1: this process), or with
+        ``backend="ray"`` the CPUs of a local Ray instance started for the call; the pairs are
+        the same for any value.
+    backend : {"local", "ray"}
+        ``"ray"`` runs chunks of at most ``batch`` episodes as Ray tasks.
+    address : str, optional
+        Ray cluster (``backend="ray"``); None: ``RAY_ADDRESS``, an instance already started
+        in this process, or a local one.
 
     Raises
     ------
     ValueError
-        On an unknown ``target`` or ``follow``, ``follow`` other than ``"search"`` without
-        ``target="truth"``, ``"truth"`` without ground truth, or ``batch``/``workers`` < 1.
+        On an unknown ``target``, ``follow`` or ``backend``, ``follow`` other than
+        ``"search"`` without ``target="truth"``, ``"truth"`` without ground truth, or
+        ``batch``/``workers`` < 1.
+    RayUnavailable
+        ``backend="ray"`` without Ray installed.
     """
     if target not in TARGETS:
         raise ValueError(f"target: expected one of {TARGETS}, got {target!r}")
@@ -342,6 +358,10 @@ def collect_imitation_data(
         raise ValueError(f"batch: expected >= 1, got {batch}")
     if workers < 1:
         raise ValueError(f"workers: expected >= 1, got {workers}")
+    if backend not in BACKENDS:
+        raise ValueError(f"backend: expected one of {BACKENDS}, got {backend!r}")
+    if backend == "ray":
+        require_ray()  # before any work
     if target == "truth":
         missing = [i for i, r in enumerate(recordings) if r.ground_truth is None]
         if missing:
@@ -367,6 +387,8 @@ def collect_imitation_data(
         total=sum(caps), desc="imitation data", unit="frame", leave=False, disable=not progress
     )
     try:
+        if backend == "ray":
+            return _collect_on_ray(graph, recordings, kept, caps, rngs, job, workers, bar, address)
         if workers == 1 or len(kept) <= 1:
             return _collect_episodes(
                 graph,
@@ -392,10 +414,9 @@ def _collect_in_pool(
     workers: int,
     bar: Any,
 ) -> ImitationData:
-    """The episodes in ``workers`` spawned processes, in chunks of at most ``job.batch``
-    episodes (fewer when that keeps every worker busy); the pairs put back in episode order."""
-    size = max(1, min(job.batch, -(-len(kept) // workers)))
-    chunks = [list(kept[i : i + size]) for i in range(0, len(kept), size)]
+    """The episodes in ``workers`` spawned processes (:func:`_chunks`); the pairs put back in
+    episode order."""
+    chunks = _chunks(kept, job.batch, workers)
     context = multiprocessing.get_context("spawn")
     results: dict[int, ImitationData] = {}
     pool = ProcessPoolExecutor(
@@ -423,4 +444,73 @@ def _collect_in_pool(
         pool.shutdown(wait=False, cancel_futures=True)  # Ctrl-C or a failing chunk: stop now
         raise
     pool.shutdown()
+    return ImitationData.concatenate([results[n] for n in range(len(chunks))])
+
+
+def _chunks(kept: Sequence[int], batch: int, workers: int) -> list[list[int]]:
+    """The episodes in chunks of at most ``batch`` (fewer when that keeps every worker busy)."""
+    size = max(1, min(batch, -(-len(kept) // workers)))
+    return [list(kept[i : i + size]) for i in range(0, len(kept), size)]
+
+
+def _collect_ray_task(
+    graph: Any,
+    recordings: Sequence[Any],
+    episodes: Sequence[int],
+    caps: Sequence[int],
+    rngs: Sequence[np.random.Generator],
+    job: _Collection,
+) -> ImitationData:
+    """One Ray task: :func:`_collect_episodes` with BLAS on one thread (the graph comes from
+    the object store)."""
+    from threadpoolctl import threadpool_limits
+
+    with threadpool_limits(1):
+        return _collect_episodes(graph, recordings, episodes, caps, rngs, job)
+
+
+def _collect_on_ray(
+    graph: Any,
+    recordings: Sequence[Any],
+    kept: Sequence[int],
+    caps: Sequence[int],
+    rngs: dict[int, np.random.Generator],
+    job: _Collection,
+    workers: int,
+    bar: Any,
+    address: str | None,
+) -> ImitationData:
+    """The chunks (:func:`_chunks`) as Ray tasks, the graph in the object store once; the
+    pairs put back in episode order."""
+    with ray_session(address, num_cpus=workers) as ray:
+        chunks = _chunks(kept, job.batch, workers)  # ``workers``: the tasks the chunks fill
+        graph_ref = ray.put(graph)
+        remote = ray.remote(num_cpus=1, max_retries=0)(_collect_ray_task)
+        pending = {
+            remote.remote(
+                graph_ref,
+                [recordings[i] for i in chunk],
+                chunk,
+                [caps[i] for i in chunk],
+                [rngs[i] for i in chunk],
+                job,
+            ): n
+            for n, chunk in enumerate(chunks)
+        }
+        results: dict[int, ImitationData] = {}
+        try:
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    n = pending.pop(ref)
+                    try:
+                        results[n] = ray.get(ref)
+                    except ray.exceptions.RayTaskError as error:
+                        cause = getattr(error, "cause", None)
+                        raise (cause if isinstance(cause, Exception) else error) from None
+                    bar.update(len(results[n]))
+        except BaseException:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
     return ImitationData.concatenate([results[n] for n in range(len(chunks))])

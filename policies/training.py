@@ -30,12 +30,14 @@ from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, resolve_clips
 from fpg_gym.poses import mirror
+from fpg_gym.ray_session import require_ray
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.simulate import simulate_clips
 from optimizers.random_search import RandomSearch
 from policies.imitation import (
+    BACKENDS,
     FOLLOW,
     TARGETS,
     ImitationData,
@@ -287,7 +289,13 @@ class TrainConfig:
         BVH units.
     workers : int
         Processes the supervised data's episodes are split between (1: this process; the data
-        is the same for any value, :func:`collect_imitation_data`).
+        is the same for any value, :func:`collect_imitation_data`), or with ``backend="ray"``
+        the Ray tasks they fill.
+    backend : {"local", "ray"}
+        Where the supervised data is collected: here and local processes, or Ray
+        (``fpg-gym[distributed]``).
+    address : str, optional
+        Ray cluster address (``backend="ray"``; None: ``RAY_ADDRESS`` or a local instance).
     progress : bool
     """
 
@@ -321,6 +329,8 @@ class TrainConfig:
     tensorboard: str | None = None
     units: str = "auto"
     workers: int = 1
+    backend: str = "local"
+    address: str | None = None
     progress: bool = True
 
     def __post_init__(self) -> None:
@@ -349,6 +359,13 @@ class TrainConfig:
             raise ValueError(f"max_frames: expected >= 2, got {self.max_frames}")
         if self.workers < 1:
             raise ValueError(f"workers: expected >= 1, got {self.workers}")
+        if self.backend not in BACKENDS:
+            raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
+        if self.kind == "rl" and (self.backend != "local" or self.workers != 1):
+            raise ValueError(
+                "backend and workers: they split the supervised data collection; "
+                "--kind rl runs one environment here"
+            )
 
     @property
     def total_timesteps(self) -> int:
@@ -408,11 +425,15 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         Bad settings, or training clips that are the default protocol's evaluation clips.
     optimizers.MissingDependency
         torch / stable-baselines3 missing (``pip install 'fpg-gym[learn]'``).
+    fpg_gym.ray_session.RayUnavailable
+        ``backend="ray"`` without Ray (``pip install 'fpg-gym[distributed]'``).
     """
 
     import_learn("torch")
     if config.kind == "rl":
         import_learn("stable_baselines3")
+    if config.backend == "ray":
+        require_ray()  # before any work
     say = log or (lambda text: print(text, flush=True))
     started = time.perf_counter()
     seconds: dict[str, float] = {}
@@ -583,6 +604,8 @@ def _train_supervised(
         seed=config.seed,
         progress=config.progress,
         workers=config.workers,
+        backend=config.backend,
+        address=config.address,
     )
     seconds["data"] = time.perf_counter() - t0
     say(

@@ -13,6 +13,7 @@ from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import default_graph
 from fpg_gym.io import load_default_clips
+from fpg_gym.ray_session import signal_handlers
 from fpg_gym.reconstruct.kernels import available_kernels
 from policies.imitation import ImitationData, collect_imitation_data
 from policies.sampler import SamplerSpec
@@ -94,3 +95,31 @@ def test_bad_arguments_are_named(graph: Any, recordings: list[Any]) -> None:
         collect_imitation_data(graph, no_truth, SPEC, target="truth", follow="anchor")
     empty = collect_imitation_data(graph, recordings, SPEC, frames=0)
     assert len(empty) == 0 and empty.observations.shape == (0, SPEC.layout.size)
+
+
+def test_ray_backend_gives_the_local_pairs(graph: Any, recordings: list[Any]) -> None:
+    ray = pytest.importorskip(
+        "ray", reason="Ray is not installed (pip install 'fpg-gym[distributed]')"
+    )
+    local = collect_imitation_data(graph, recordings, SPEC, target="best", seed=3, batch=3)
+    handlers = signal_handlers()
+    on_ray = collect_imitation_data(
+        graph, recordings, SPEC, target="best", seed=3, batch=3, workers=2, backend="ray"
+    )
+    assert not ray.is_initialized()  # the local instance it started is stopped
+    assert signal_handlers() == handlers  # and Ray's driver handlers are gone
+    _assert_same(local, on_ray)
+    with pytest.raises(ValueError, match="backend: expected one of"):
+        collect_imitation_data(graph, recordings, SPEC, backend="dask")
+
+
+def test_train_config_checks_where_the_data_is_collected() -> None:
+    from policies.training import TrainConfig
+
+    assert TrainConfig(kind="supervised", out="m", workers=2, backend="ray").workers == 2
+    with pytest.raises(ValueError, match="workers: expected >= 1"):
+        TrainConfig(kind="supervised", out="m", workers=0)
+    with pytest.raises(ValueError, match="backend: expected one of"):
+        TrainConfig(kind="supervised", out="m", backend="dask")
+    with pytest.raises(ValueError, match="--kind rl runs one environment here"):
+        TrainConfig(kind="rl", out="m", workers=2)

@@ -174,7 +174,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=1,
         metavar="N",
-        help="processes collecting the supervised data (1; the same data for any N)",
+        help="processes (or Ray tasks) collecting the supervised data (1; the same data for "
+        "any N)",
+    )
+    parser.add_argument(
+        "--backend",
+        choices=["local", "ray"],
+        default="local",
+        help="where the supervised data is collected: local processes (default) or Ray "
+        "(pip install 'fpg-gym[distributed]')",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="HOST:PORT",
+        help="Ray cluster to use with --backend ray (default: RAY_ADDRESS, else a local Ray)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--json", action="store_true", help="print a JSON summary last")
@@ -225,6 +239,8 @@ def run(args: argparse.Namespace) -> int:
         tensorboard=args.tensorboard,
         units=args.units,
         workers=args.workers,
+        backend=args.backend,
+        address=args.address,
         progress=not args.quiet,
     )
     result = train_sampler(config)

@@ -16,15 +16,18 @@ an instance the caller already started (``ray.init``) is used as it is.
 
 from __future__ import annotations
 
-import os
-import signal
-import threading
 import uuid
 from collections.abc import Callable, Sequence
 from typing import Any
 
-from fpg_gym.errors import FpgGymError
 from fpg_gym.methods import MethodRunner
+from fpg_gym.ray_session import (
+    RayUnavailable,
+    ray_session,
+    require_ray,
+    restore_signals,
+    signal_handlers,
+)
 
 __all__ = ["RayUnavailable", "require_ray", "restore_signals", "run_on_ray", "signal_handlers"]
 
@@ -32,21 +35,6 @@ __all__ = ["RayUnavailable", "require_ray", "restore_signals", "run_on_ray", "si
 _RUNNERS: dict[str, Any] = {}
 
 Work = Callable[[Any, Sequence[Any], Sequence[Any]], list[Any]]
-
-
-class RayUnavailable(FpgGymError, ImportError):
-    """``--backend ray`` without Ray installed (the message says what to install)."""
-
-
-def require_ray() -> Any:
-    """The ``ray`` module, or :class:`RayUnavailable` naming the extra to install."""
-    try:
-        import ray  # optional extra fpg-gym[distributed]
-    except ImportError:
-        raise RayUnavailable(
-            "backend 'ray' needs Ray: pip install 'fpg-gym[distributed]'"
-        ) from None
-    return ray
 
 
 def _ray_batch(
@@ -102,59 +90,35 @@ def run_on_ray(
     num_cpus : int, optional
         CPUs of a local instance started here (None: all).
     """
-    ray = require_ray()
-    started = False
-    handlers = signal_handlers()
-    if not ray.is_initialized():
-        kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
-        if address is None and not os.environ.get("RAY_ADDRESS"):
-            kwargs["num_cpus"] = num_cpus
-        ray.init(address=address, **kwargs)
-        started = True
     pending: dict[Any, Sequence[Any]] = {}
-    try:
-        token = uuid.uuid4().hex
-        graph_ref = ray.put(graph)  # once: shared by every task of a node
-        remote = ray.remote(num_cpus=1, max_retries=0)(_ray_batch)
-        for batch in batches:
-            recordings = [load(task.recording_path) for task in batch]
-            ref = remote.remote(token, graph_ref, budget, options, work, list(batch), recordings)
-            pending[ref] = batch
-        while pending:
-            done, _ = ray.wait(list(pending), num_returns=1)
-            for ref in done:
-                pending.pop(ref)
-                try:
-                    results = ray.get(ref)
-                except ray.exceptions.RayTaskError as error:
-                    cause = getattr(error, "cause", None)
-                    raise (cause if isinstance(cause, Exception) else error) from None
-                for result in results:
-                    finish(*result)
-    except KeyboardInterrupt:
-        for ref in pending:
-            ray.cancel(ref, force=True)
-        return True
-    except BaseException:
-        for ref in pending:
-            ray.cancel(ref, force=True)
-        raise
-    finally:
-        if started:
-            ray.shutdown()
-            restore_signals(handlers)  # Ray's driver installs its own SIGTERM handler
+    with ray_session(address, num_cpus) as ray:
+        try:
+            token = uuid.uuid4().hex
+            graph_ref = ray.put(graph)  # once: shared by every task of a node
+            remote = ray.remote(num_cpus=1, max_retries=0)(_ray_batch)
+            for batch in batches:
+                recordings = [load(task.recording_path) for task in batch]
+                ref = remote.remote(
+                    token, graph_ref, budget, options, work, list(batch), recordings
+                )
+                pending[ref] = batch
+            while pending:
+                done, _ = ray.wait(list(pending), num_returns=1)
+                for ref in done:
+                    pending.pop(ref)
+                    try:
+                        results = ray.get(ref)
+                    except ray.exceptions.RayTaskError as error:
+                        cause = getattr(error, "cause", None)
+                        raise (cause if isinstance(cause, Exception) else error) from None
+                    for result in results:
+                        finish(*result)
+        except KeyboardInterrupt:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            return True
+        except BaseException:
+            for ref in pending:
+                ray.cancel(ref, force=True)
+            raise
     return False
-
-
-def signal_handlers() -> dict[int, Any]:
-    """This process's SIGINT and SIGTERM handlers (empty outside the main thread)."""
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-    return {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
-
-
-def restore_signals(handlers: dict[int, Any]) -> None:
-    """Put back handlers saved by :func:`signal_handlers`."""
-    for number, handler in handlers.items():
-        if handler is not None:
-            signal.signal(number, handler)

@@ -1,0 +1,79 @@
+"""Ray (``fpg-gym[distributed]``) for the commands that send work past one machine.
+
+What ``compare --backend ray`` and the sampler's training-data collection share: the import with
+an error naming the extra, and a session that connects to a cluster (``address``, else
+``RAY_ADDRESS``) or starts a local instance, and leaves the process as it found it (an instance
+it started is shut down, the signal handlers Ray's driver installs are put back). Ray schedules
+the work; nothing here is a scheduler.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+from collections.abc import Iterator
+from contextlib import contextmanager
+from typing import Any
+
+from fpg_gym.errors import FpgGymError
+
+__all__ = ["RayUnavailable", "ray_session", "require_ray", "restore_signals", "signal_handlers"]
+
+
+class RayUnavailable(FpgGymError, ImportError):
+    """``--backend ray`` without Ray installed (the message says what to install)."""
+
+
+def require_ray() -> Any:
+    """The ``ray`` module, or :class:`RayUnavailable` naming the extra to install."""
+    try:
+        import ray  # optional extra fpg-gym[distributed]
+    except ImportError:
+        raise RayUnavailable(
+            "backend 'ray' needs Ray: pip install 'fpg-gym[distributed]'"
+        ) from None
+    return ray
+
+
+def signal_handlers() -> dict[int, Any]:
+    """This process's SIGINT and SIGTERM handlers (empty outside the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {number: signal.getsignal(number) for number in (signal.SIGINT, signal.SIGTERM)}
+
+
+def restore_signals(handlers: dict[int, Any]) -> None:
+    """Put back handlers saved by :func:`signal_handlers`."""
+    for number, handler in handlers.items():
+        if handler is not None:
+            signal.signal(number, handler)
+
+
+@contextmanager
+def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iterator[Any]:
+    """The ``ray`` module, connected for the ``with`` block.
+
+    An instance the caller already started (``ray.init``) is used as it is. Otherwise this
+    connects to ``address`` (or ``RAY_ADDRESS``), or starts a local instance with ``num_cpus``
+    CPUs (None: all), and shuts it down on leaving.
+
+    Raises
+    ------
+    RayUnavailable
+        Without Ray installed.
+    """
+    ray = require_ray()
+    if ray.is_initialized():
+        yield ray
+        return
+    handlers = signal_handlers()
+    kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
+    if address is None and not os.environ.get("RAY_ADDRESS"):
+        kwargs["num_cpus"] = num_cpus
+    ray.init(address=address, **kwargs)
+    try:
+        yield ray
+    finally:
+        ray.shutdown()
+        restore_signals(handlers)  # Ray's driver installs its own SIGTERM handler
