@@ -18,7 +18,14 @@ from typing import Any
 
 from fpg_gym.errors import FpgGymError
 
-__all__ = ["RayUnavailable", "ray_session", "require_ray", "restore_signals", "signal_handlers"]
+__all__ = [
+    "RayUnavailable",
+    "ray_session",
+    "require_ray",
+    "restore_signals",
+    "signal_handlers",
+    "task_result",
+]
 
 
 class RayUnavailable(FpgGymError, ImportError):
@@ -77,3 +84,12 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
     finally:
         ray.shutdown()
         restore_signals(handlers)  # Ray's driver installs its own SIGTERM handler
+
+
+def task_result(ray: Any, ref: Any) -> Any:
+    """``ray.get(ref)``, a failed task raising its own exception here (not Ray's wrapper)."""
+    try:
+        return ray.get(ref)
+    except ray.exceptions.RayTaskError as error:
+        cause = getattr(error, "cause", None)
+        raise (cause if isinstance(cause, Exception) else error) from None

@@ -16,7 +16,7 @@ from __future__ import annotations
 import copy
 import multiprocessing
 from collections.abc import Sequence
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any
 
@@ -24,7 +24,7 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from fpg_gym import poses as pose_utils
-from fpg_gym.ray_session import ray_session, require_ray
+from fpg_gym.ray_session import ray_session, require_ray, task_result
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.batched import search_together
 from fpg_gym.reconstruct.energy import EnergyWeights
@@ -131,6 +131,36 @@ class _Collection:
     batch: int
 
 
+@dataclass(frozen=True)
+class _Chunk:
+    """Episodes collected together: their recordings, episode numbers, frame caps and
+    generators (one each)."""
+
+    recordings: list[Any]
+    episodes: list[int]
+    caps: list[int]
+    rngs: list[np.random.Generator]
+
+
+def _chunks(
+    recordings: Sequence[Any],
+    caps: Sequence[int],
+    rngs: Sequence[np.random.Generator],
+    size: int,
+) -> list[_Chunk]:
+    """The episodes with frames to collect, in order, in chunks of at most ``size``."""
+    kept = [i for i, n in enumerate(caps) if n > 0]
+    return [
+        _Chunk(
+            [recordings[i] for i in part],
+            part,
+            [caps[i] for i in part],
+            [rngs[i] for i in part],
+        )
+        for part in (kept[j : j + size] for j in range(0, len(kept), size))
+    ]
+
+
 def _frame_caps(recordings: Sequence[Any], frames: int | None) -> list[int]:
     """Frames collected per recording: all of them, in order, until ``frames`` in total."""
     caps, left = [], None if frames is None else max(int(frames), 0)
@@ -154,15 +184,10 @@ def _best_of(
 
 
 def _collect_episodes(
-    graph: Any,
-    recordings: Sequence[Any],
-    episodes: Sequence[int],
-    caps: Sequence[int],
-    rngs: Sequence[np.random.Generator],
-    job: _Collection,
-    progress: Any = None,
+    graph: Any, chunk: _Chunk, job: _Collection, progress: Any = None
 ) -> ImitationData:
-    """The pairs of ``recordings`` (episode numbers ``episodes``), ``job.batch`` side by side."""
+    """The pairs of the chunk's episodes, ``job.batch`` side by side."""
+    recordings, episodes, caps, rngs = chunk.recordings, chunk.episodes, chunk.caps, chunk.rngs
     spec, target, follow = job.spec, job.target, job.follow
     layout, latent_dim, scale = spec.layout, spec.latent_dim, spec.action_scale
     delta = spec.action_mode == "delta"
@@ -260,15 +285,9 @@ def _init_worker(graph: Any) -> None:
     _WORKER_GRAPH[:] = [graph]
 
 
-def _collect_in_worker(
-    recordings: Sequence[Any],
-    episodes: Sequence[int],
-    caps: Sequence[int],
-    rngs: Sequence[np.random.Generator],
-    job: _Collection,
-) -> ImitationData:
+def _collect_in_worker(chunk: _Chunk, job: _Collection) -> ImitationData:
     """:func:`_collect_episodes` in a worker process, on the process's graph."""
-    return _collect_episodes(_WORKER_GRAPH[0], recordings, episodes, caps, rngs, job)
+    return _collect_episodes(_WORKER_GRAPH[0], chunk, job)
 
 
 def collect_imitation_data(
@@ -380,60 +399,40 @@ def collect_imitation_data(
     }
     job = _Collection(spec, target, follow, options, batch)
     caps = _frame_caps(recordings, frames)
-    kept = [i for i, n in enumerate(caps) if n > 0]
     children = np.random.SeedSequence(seed).spawn(len(recordings))
-    rngs = {i: np.random.default_rng(children[i]) for i in kept}
+    rngs = [np.random.default_rng(child) for child in children]
+    # Chunks of at most ``batch`` episodes, fewer when that keeps every worker busy.
+    episodes = sum(n > 0 for n in caps)
+    size = max(1, min(batch, -(-episodes // workers)))
     bar = tqdm(
         total=sum(caps), desc="imitation data", unit="frame", leave=False, disable=not progress
     )
     try:
         if backend == "ray":
-            return _collect_on_ray(graph, recordings, kept, caps, rngs, job, workers, bar, address)
-        if workers == 1 or len(kept) <= 1:
-            return _collect_episodes(
-                graph,
-                [recordings[i] for i in kept],
-                kept,
-                [caps[i] for i in kept],
-                [rngs[i] for i in kept],
-                job,
-                bar,
+            return _collect_on_ray(
+                graph, _chunks(recordings, caps, rngs, size), job, workers, bar, address
             )
-        return _collect_in_pool(graph, recordings, kept, caps, rngs, job, workers, bar)
+        if workers == 1 or episodes <= 1:
+            whole = _chunks(recordings, caps, rngs, max(episodes, 1))
+            if not whole:
+                return ImitationData.empty(spec.layout.size, spec.latent_dim)
+            return _collect_episodes(graph, whole[0], job, bar)
+        return _collect_in_pool(graph, _chunks(recordings, caps, rngs, size), job, workers, bar)
     finally:
         bar.close()
 
 
 def _collect_in_pool(
-    graph: Any,
-    recordings: Sequence[Any],
-    kept: Sequence[int],
-    caps: Sequence[int],
-    rngs: dict[int, np.random.Generator],
-    job: _Collection,
-    workers: int,
-    bar: Any,
+    graph: Any, chunks: Sequence[_Chunk], job: _Collection, workers: int, bar: Any
 ) -> ImitationData:
-    """The episodes in ``workers`` spawned processes (:func:`_chunks`); the pairs put back in
-    episode order."""
-    chunks = _chunks(kept, job.batch, workers)
+    """The chunks in ``workers`` spawned processes; the pairs put back in episode order."""
     context = multiprocessing.get_context("spawn")
     results: dict[int, ImitationData] = {}
     pool = ProcessPoolExecutor(
         min(workers, len(chunks)), mp_context=context, initializer=_init_worker, initargs=(graph,)
     )
     try:
-        pending: dict[Future[ImitationData], int] = {
-            pool.submit(
-                _collect_in_worker,
-                [recordings[i] for i in chunk],
-                chunk,
-                [caps[i] for i in chunk],
-                [rngs[i] for i in chunk],
-                job,
-            ): n
-            for n, chunk in enumerate(chunks)
-        }
+        pending = {pool.submit(_collect_in_worker, c, job): n for n, c in enumerate(chunks)}
         while pending:
             done, _ = wait(pending, return_when=FIRST_COMPLETED)
             for future in done:
@@ -447,67 +446,36 @@ def _collect_in_pool(
     return ImitationData.concatenate([results[n] for n in range(len(chunks))])
 
 
-def _chunks(kept: Sequence[int], batch: int, workers: int) -> list[list[int]]:
-    """The episodes in chunks of at most ``batch`` (fewer when that keeps every worker busy)."""
-    size = max(1, min(batch, -(-len(kept) // workers)))
-    return [list(kept[i : i + size]) for i in range(0, len(kept), size)]
-
-
-def _collect_ray_task(
-    graph: Any,
-    recordings: Sequence[Any],
-    episodes: Sequence[int],
-    caps: Sequence[int],
-    rngs: Sequence[np.random.Generator],
-    job: _Collection,
-) -> ImitationData:
+def _collect_ray_task(graph: Any, chunk: _Chunk, job: _Collection) -> ImitationData:
     """One Ray task: :func:`_collect_episodes` with BLAS on one thread (the graph comes from
     the object store)."""
     from threadpoolctl import threadpool_limits
 
     with threadpool_limits(1):
-        return _collect_episodes(graph, recordings, episodes, caps, rngs, job)
+        return _collect_episodes(graph, chunk, job)
 
 
 def _collect_on_ray(
     graph: Any,
-    recordings: Sequence[Any],
-    kept: Sequence[int],
-    caps: Sequence[int],
-    rngs: dict[int, np.random.Generator],
+    chunks: Sequence[_Chunk],
     job: _Collection,
     workers: int,
     bar: Any,
     address: str | None,
 ) -> ImitationData:
-    """The chunks (:func:`_chunks`) as Ray tasks, the graph in the object store once; the
-    pairs put back in episode order."""
+    """The chunks as Ray tasks (``workers``: the CPUs of a local instance started here), the
+    graph in the object store once; the pairs put back in episode order."""
     with ray_session(address, num_cpus=workers) as ray:
-        chunks = _chunks(kept, job.batch, workers)  # ``workers``: the tasks the chunks fill
         graph_ref = ray.put(graph)
         remote = ray.remote(num_cpus=1, max_retries=0)(_collect_ray_task)
-        pending = {
-            remote.remote(
-                graph_ref,
-                [recordings[i] for i in chunk],
-                chunk,
-                [caps[i] for i in chunk],
-                [rngs[i] for i in chunk],
-                job,
-            ): n
-            for n, chunk in enumerate(chunks)
-        }
+        pending = {remote.remote(graph_ref, c, job): n for n, c in enumerate(chunks)}
         results: dict[int, ImitationData] = {}
         try:
             while pending:
                 done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
                     n = pending.pop(ref)
-                    try:
-                        results[n] = ray.get(ref)
-                    except ray.exceptions.RayTaskError as error:
-                        cause = getattr(error, "cause", None)
-                        raise (cause if isinstance(cause, Exception) else error) from None
+                    results[n] = task_result(ray, ref)
                     bar.update(len(results[n]))
         except BaseException:
             for ref in pending:

@@ -27,6 +27,7 @@ from fpg_gym.ray_session import (
     require_ray,
     restore_signals,
     signal_handlers,
+    task_result,
 )
 
 __all__ = ["RayUnavailable", "require_ray", "restore_signals", "run_on_ray", "signal_handlers"]
@@ -106,12 +107,7 @@ def run_on_ray(
                 done, _ = ray.wait(list(pending), num_returns=1)
                 for ref in done:
                     pending.pop(ref)
-                    try:
-                        results = ray.get(ref)
-                    except ray.exceptions.RayTaskError as error:
-                        cause = getattr(error, "cause", None)
-                        raise (cause if isinstance(cause, Exception) else error) from None
-                    for result in results:
+                    for result in task_result(ray, ref):
                         finish(*result)
         except KeyboardInterrupt:
             for ref in pending:
