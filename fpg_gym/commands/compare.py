@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from typing import Any
 
 from fpg_gym.commands.reconstruct import add_calibration_arguments
 
@@ -46,6 +47,22 @@ def _seeds(text: str) -> list[int]:
     if not values or any(v < 0 for v in values):
         raise argparse.ArgumentTypeError(f"expected non-negative integers, got {text!r}")
     return values
+
+
+def add_backend_arguments(parser: Any, local: str) -> None:
+    """``--backend local|ray`` and ``--address`` (the commands whose work can run on Ray)."""
+    parser.add_argument(
+        "--backend",
+        choices=("local", "ray"),
+        default="local",
+        help=f"{local}, or a Ray cluster (pip install 'fpg-gym[distributed]')",
+    )
+    parser.add_argument(
+        "--address",
+        default=None,
+        metavar="HOST:PORT",
+        help="Ray cluster to use with --backend ray (default: RAY_ADDRESS, else a local Ray)",
+    )
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -158,18 +175,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="episodes of one reconstruction method run side by side in a process, their "
         "searches batched (default 8; 1: one by one); same rows, timings aside",
     )
-    parser.add_argument(
-        "--backend",
-        choices=("local", "ray"),
-        default="local",
-        help="local worker processes, or a Ray cluster (pip install 'fpg-gym[distributed]')",
-    )
-    parser.add_argument(
-        "--address",
-        default=None,
-        metavar="HOST:PORT",
-        help="Ray cluster to use with --backend ray (default: RAY_ADDRESS, else a local Ray)",
-    )
+    add_backend_arguments(parser, "local worker processes")
     parser.add_argument("--out", required=True, metavar="DIR", help="output folder")
     parser.add_argument(
         "--fresh", action="store_true", help="discard results already in --out (else resume)"

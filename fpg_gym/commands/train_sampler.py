@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from fpg_gym.commands.compare import add_backend_arguments
+
 NAME = "train-sampler"
 HELP = (
     "train a learned candidate sampler (supervised torch MLP or stable-baselines3 PPO/SAC) for "
@@ -174,22 +176,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=1,
         metavar="N",
-        help="processes (or Ray tasks) collecting the supervised data (1; the same data for "
-        "any N)",
+        help="processes (or Ray tasks) collecting the supervised data (1; the same data for any N)",
     )
-    parser.add_argument(
-        "--backend",
-        choices=["local", "ray"],
-        default="local",
-        help="where the supervised data is collected: local processes (default) or Ray "
-        "(pip install 'fpg-gym[distributed]')",
-    )
-    parser.add_argument(
-        "--address",
-        default=None,
-        metavar="HOST:PORT",
-        help="Ray cluster to use with --backend ray (default: RAY_ADDRESS, else a local Ray)",
-    )
+    add_backend_arguments(parser, "where the supervised data is collected: local processes")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--json", action="store_true", help="print a JSON summary last")
 
