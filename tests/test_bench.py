@@ -49,6 +49,14 @@ def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert report["read"][0]["frames"] == 1013
     assert "steps_per_second" in report["env"][0]
     assert any(line.startswith("| selection |") for line in lines)
+    streams = {row["run"]: row for row in report["streams"]}
+    assert streams["side by side"]["streams"] == 3 and streams["one by one"]["ratio"] == 1.0
+    assert all(row["frames_per_cpu_s"] > 0 for row in streams.values())
+    if "numba" in report["energy_kernels"]:  # the same compiled arithmetic, stream by stream
+        assert streams["side by side"]["max_difference_m"] == 0.0
+    else:
+        assert streams["side by side"]["max_difference_m"] < 1e-4
+    assert any(line.startswith("| side by side |") for line in lines)
 
 
 def test_bench_sections_subset_and_format() -> None:

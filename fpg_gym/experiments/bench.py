@@ -15,6 +15,11 @@ Sections (each a list of rows, see :func:`run_bench`):
     Median CPU time of selection per frame against graph size (graphs built with several
     ``thres1``): the graph walk (FPG §8: scores a neighbourhood), the ``auto`` selector, the
     exact brute force (one GEMV on augmented vectors) and the direct Eq. 9 score of every node.
+``streams``
+    Many streams (:func:`fpg_gym.reconstruct.batched.run_streams`): the same simulated
+    recordings reconstructed one by one and side by side in this process (local search, no
+    ragdoll), frames per CPU-second of each, interleaved, and the largest difference between
+    the two outputs.
 ``build``
     Graph build time (FPG Alg. 1–4) against the number of input poses.
 ``env``
@@ -62,6 +67,7 @@ from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1, FilteredPoseG
 from fpg_gym.holdout import holdout_indices
 from fpg_gym.io import load_clips, load_default_clips
 from fpg_gym.reconstruct import STAGES, Reconstructor
+from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.simulate import plan_episode, simulate_plan, unique_names
 
@@ -85,6 +91,8 @@ class BenchSettings:
         ``thres1`` of the graphs for the selection-vs-size rows (metres).
     env_steps : int
         Env steps timed.
+    streams : int
+        Recordings of the ``streams`` section.
     sections : tuple of str
         Which sections to run.
     blas_threads : int
@@ -97,7 +105,16 @@ class BenchSettings:
     max_frames: int = 90
     thresholds: tuple[float, ...] = (0.2, 0.1, 0.06, 0.04)
     env_steps: int = 200
-    sections: tuple[str, ...] = ("stages", "kernels", "selection", "build", "env", "read")
+    streams: int = 16
+    sections: tuple[str, ...] = (
+        "stages",
+        "kernels",
+        "selection",
+        "streams",
+        "build",
+        "env",
+        "read",
+    )
     blas_threads: int = 1
 
     @classmethod
@@ -112,6 +129,7 @@ class BenchSettings:
             settings.max_frames = 20
             settings.thresholds = settings.thresholds[:2]
             settings.env_steps = 20
+            settings.streams = 3
         return settings
 
     @property
@@ -155,13 +173,13 @@ def _load_data(settings: BenchSettings, progress: bool) -> _Data:
     return _Data(graph, held, source, seconds, frames)
 
 
-def _episodes(data: _Data, settings: BenchSettings) -> list[Any]:
+def _episodes(data: _Data, settings: BenchSettings, count: int | None = None) -> list[Any]:
 
     # Episode i: clip i and scenario i (cycling), user seed i, through the episode planner.
     names, scenarios = unique_names(c.name for c in data.episode_clips), DEFAULT_EPISODE_SCENARIOS
     plan = [
         plan_episode(names[i % len(names)], scenarios[i % len(scenarios)], i)
-        for i in range(settings.episodes)
+        for i in range(settings.episodes if count is None else count)
     ]
     by_name = dict(zip(names, data.episode_clips, strict=True))
     return simulate_plan(plan, by_name, max_frames=settings.max_frames)
@@ -266,6 +284,53 @@ def _kernels(graph: Any, recordings: list[Any], settings: BenchSettings) -> dict
     }
 
 
+def _streams(graph: Any, recordings: list[Any], repeats: int) -> list[dict[str, Any]]:
+    """Frames per CPU-second one by one and side by side (interleaved ``repeats`` rounds,
+    medians), the ratio, and the largest output difference (0 with the compiled kernel)."""
+    frames = sum(r.num_frames for r in recordings)
+    seeds = list(range(len(recordings)))
+    cpu: dict[str, list[float]] = {"one by one": [], "side by side": []}
+    difference = 0.0
+    alone = Reconstructor(graph, ragdoll=False)
+    together = [Reconstructor(graph, ragdoll=False) for _ in recordings]
+    try:
+        for _ in range(repeats):
+            start = time.process_time()
+            single = [
+                alone.reconstruct(r, "local-search", rng=s)
+                for r, s in zip(recordings, seeds, strict=True)
+            ]
+            cpu["one by one"].append(time.process_time() - start)
+            start = time.process_time()
+            batched = run_streams(together, recordings, "local-search", seeds)
+            cpu["side by side"].append(time.process_time() - start)
+            difference = max(
+                [
+                    difference,
+                    *(
+                        float(np.abs(a.poses - b.poses).max())
+                        for a, b in zip(single, batched, strict=True)
+                    ),
+                ]
+            )
+    finally:
+        for r in (alone, *together):
+            r.close()
+    base = frames / float(np.median(cpu["one by one"]))
+    return [
+        {
+            "run": name,
+            "streams": len(recordings),
+            "frames": frames,
+            "cpu_s": float(np.median(values)),
+            "frames_per_cpu_s": frames / float(np.median(values)),
+            "ratio": frames / float(np.median(values)) / base,
+            "max_difference_m": difference,
+        }
+        for name, values in cpu.items()
+    ]
+
+
 def _build_rows(data: _Data, settings: BenchSettings) -> list[dict[str, Any]]:
     clips = data.graph_clips
     thres1 = settings.graph_thres1
@@ -346,6 +411,7 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
             "max_frames": settings.max_frames,
             "thresholds": list(settings.thresholds),
             "env_steps": settings.env_steps,
+            "streams": settings.streams,
         },
         "interrupted": False,
     }
@@ -372,6 +438,12 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
                 report["kernels"] = _kernels(graph, recordings, settings)
             elif section == "selection":
                 report["selection"] = _selection(data, recordings, settings, mirror)
+            elif section == "streams":
+                if graph is None:
+                    graph, _ = _build(data.graph_clips, settings.graph_thres1, mirror)
+                    report["stages_graph"] = repr(graph)
+                streams = _episodes(data, settings, settings.streams)
+                report["streams"] = _streams(graph, streams, 1 if settings.quick else 3)
             elif section == "build":
                 report["build"] = _build_rows(data, settings)
             elif section == "env":
@@ -533,6 +605,27 @@ def format_bench(report: dict[str, Any]) -> str:
                         f"{r['gemv_speedup']:.1f}x",
                     ]
                     for r in report["selection"]
+                ],
+            ),
+            "",
+        ]
+    if "streams" in report:
+        rows = report["streams"]
+        out += [
+            f"Many streams: {rows[0]['streams']} recordings, {rows[0]['frames']} frames, local "
+            "search, no ragdoll (CPU time, median of interleaved rounds; largest output "
+            f"difference side by side vs alone: {rows[0]['max_difference_m']:.3g} m)",
+            "",
+            markdown_table(
+                ["run", "CPU s", "frames / CPU-s", "vs one by one"],
+                [
+                    [
+                        r["run"],
+                        f"{r['cpu_s']:.2f}",
+                        f"{r['frames_per_cpu_s']:.0f}",
+                        f"{r['ratio']:.2f}x",
+                    ]
+                    for r in rows
                 ],
             ),
             "",
