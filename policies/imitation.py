@@ -186,7 +186,7 @@ def _best_of(
 def _collect_episodes(
     graph: Any, chunk: _Chunk, job: _Collection, progress: Any = None
 ) -> ImitationData:
-    """The pairs of the chunk's episodes, ``job.batch`` side by side."""
+    """The pairs of the chunk's episodes (at least one), ``job.batch`` side by side."""
     recordings, episodes, caps, rngs = chunk.recordings, chunk.episodes, chunk.caps, chunk.rngs
     spec, target, follow = job.spec, job.target, job.follow
     layout, latent_dim, scale = spec.layout, spec.latent_dim, spec.action_scale
@@ -268,8 +268,6 @@ def _collect_episodes(
             np.asarray([episodes[i] for i in group], np.int64), [caps[i] for i in group]
         )
         parts.append(ImitationData(observations, actions, masks, labels, energies))
-    if not parts:
-        return ImitationData.empty(layout.size, latent_dim)
     return ImitationData.concatenate(parts)
 
 
@@ -401,8 +399,10 @@ def collect_imitation_data(
     caps = _frame_caps(recordings, frames)
     children = np.random.SeedSequence(seed).spawn(len(recordings))
     rngs = [np.random.default_rng(child) for child in children]
-    # Chunks of at most ``batch`` episodes, fewer when that keeps every worker busy.
     episodes = sum(n > 0 for n in caps)
+    if episodes == 0:  # no frame to collect, whatever the backend
+        return ImitationData.empty(spec.layout.size, spec.latent_dim)
+    # Chunks of at most ``batch`` episodes, fewer when that keeps every worker busy.
     size = max(1, min(batch, -(-episodes // workers)))
     bar = tqdm(
         total=sum(caps), desc="imitation data", unit="frame", leave=False, disable=not progress
@@ -412,11 +412,9 @@ def collect_imitation_data(
             return _collect_on_ray(
                 graph, _chunks(recordings, caps, rngs, size), job, workers, bar, address
             )
-        if workers == 1 or episodes <= 1:
-            whole = _chunks(recordings, caps, rngs, max(episodes, 1))
-            if not whole:
-                return ImitationData.empty(spec.layout.size, spec.latent_dim)
-            return _collect_episodes(graph, whole[0], job, bar)
+        if workers == 1 or episodes == 1:
+            (whole,) = _chunks(recordings, caps, rngs, episodes)  # one chunk, here
+            return _collect_episodes(graph, whole, job, bar)
         return _collect_in_pool(graph, _chunks(recordings, caps, rngs, size), job, workers, bar)
     finally:
         bar.close()

@@ -10,14 +10,13 @@ import numpy as np
 import pytest
 
 from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import default_graph
 from fpg_gym.io import load_default_clips
 from fpg_gym.ray_session import signal_handlers
 from fpg_gym.reconstruct.kernels import available_kernels
 from policies.imitation import ImitationData, collect_imitation_data
-from policies.sampler import SamplerSpec
 from policies.training import simulate_episodes
+from tests.test_truth_target import SPEC
 
 
 @pytest.fixture(scope="module")
@@ -31,16 +30,6 @@ def graph(tmp_path_factory: pytest.TempPathFactory) -> Any:
 def recordings() -> list[Any]:
     clips = load_default_clips(["walk", "punch"])
     return simulate_episodes(clips, ["front-many"], [0, 1], max_frames=5)  # 4 episodes
-
-
-SPEC = SamplerSpec(
-    kind="supervised",
-    algo="mlp",
-    latent_dim=20,
-    candidates=30,
-    observation_size=ObservationLayout(20, 30).size,
-    action_mode="absolute",
-)
 
 
 def _assert_same(a: ImitationData, b: ImitationData) -> None:

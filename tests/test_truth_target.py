@@ -20,6 +20,15 @@ from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from policies.sampler import SamplerSpec
 from policies.training import collect_imitation_data, truth_latent
 
+#: A supervised sampler of the env's default layout (20 latent axes, 30 candidates).
+SPEC = SamplerSpec(
+    kind="supervised",
+    algo="mlp",
+    latent_dim=20,
+    candidates=30,
+    observation_size=ObservationLayout(20, 30).size,
+    action_mode="absolute",
+)
 SWAPPED = (12, 13, 14, 27, 28)  # frames whose sensor labels are left/right mirrored
 NO_BODY = (20, 21)  # frames without a body
 
@@ -87,14 +96,7 @@ def test_truth_target_follows_the_reconstructors_heading(graph: Any) -> None:
 
 def test_follow_modes_need_no_search_and_check_their_arguments(graph: Any) -> None:
     recording = _recording()
-    spec = SamplerSpec(
-        kind="supervised",
-        algo="mlp",
-        latent_dim=20,
-        candidates=30,
-        observation_size=ObservationLayout(20, 30).size,
-        action_mode="absolute",
-    )
+    spec = SPEC
     data = collect_imitation_data(graph, [recording], spec, target="truth", follow="anchor")
     assert len(data) == recording.num_frames
     assert np.all(np.isfinite(data.actions))

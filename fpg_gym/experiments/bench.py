@@ -429,7 +429,7 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
         graph = None
         for section in settings.sections:
             bar.set_postfix_str(section)
-            if section in ("stages", "kernels") and graph is None:
+            if section in ("stages", "kernels", "streams") and graph is None:
                 graph, _ = _build(data.graph_clips, settings.graph_thres1, mirror)
                 report["stages_graph"] = repr(graph)
             if section == "stages":
@@ -439,9 +439,6 @@ def run_bench(settings: BenchSettings | None = None, *, progress: bool = True) -
             elif section == "selection":
                 report["selection"] = _selection(data, recordings, settings, mirror)
             elif section == "streams":
-                if graph is None:
-                    graph, _ = _build(data.graph_clips, settings.graph_thres1, mirror)
-                    report["stages_graph"] = repr(graph)
                 streams = _episodes(data, settings, settings.streams)
                 report["streams"] = _streams(graph, streams, 1 if settings.quick else 3)
             elif section == "build":

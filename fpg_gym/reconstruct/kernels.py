@@ -172,17 +172,20 @@ def numpy_energy(z: np.ndarray, tables: EnergyTables) -> np.ndarray:
     """The fused energy in numpy: points ``(n, d)`` -> ``(n,)`` in the tables' dtype, or
     ``(S, n, d)`` -> ``(S, n)`` with stacked tables."""
     d, k = tables.dim, tables.k
+
+    def per_frame(a: Any) -> Any:  # a frame's constant, broadcast over its points
+        return np.asarray(a)[:, None] if tables.stacked else a
+
     p = z @ tables.matrix
     energy = np.einsum("...nd,...nd->...n", p[..., :d], z)  # quadratic form (Ec, Em, Ep, |u|^2)
     energy += p[..., d]
-    energy += np.asarray(tables.c0)[..., None] if tables.stacked else tables.c0
-    ycst = tables.ycst[:, None] if tables.stacked else tables.ycst
-    energy += (p[..., d + 1 : d + 1 + k] + ycst).min(axis=-1)  # Es, Eq. 12
+    energy += per_frame(tables.c0)
+    energy += (p[..., d + 1 : d + 1 + k] + per_frame(tables.ycst)).min(axis=-1)  # Es, Eq. 12
     bones = p[..., d + 1 + k :]
-    bones += tables.b0[:, None] if tables.stacked else tables.b0
+    bones += per_frame(tables.b0)
     bones *= bones
     length = np.sqrt(bones.reshape(*z.shape[:-1], skeleton.NUM_BONES, 3).sum(axis=-1))
-    length -= tables.lengths[:, None] if tables.stacked else tables.lengths
+    length -= per_frame(tables.lengths)
     energy += tables.wk * np.einsum("...b,...b->...", length, length)  # Ek, Eq. 13
     return energy
 
