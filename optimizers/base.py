@@ -80,9 +80,11 @@ class BaseOptimizer:
 
     name = "base"
 
+    #: The generator of the current problem (set by :meth:`reset`).
+    rng: np.random.Generator
+
     def __init__(self) -> None:
         self.problem: Any = None
-        self.rng: np.random.Generator = np.random.default_rng(0)
         self.dim = 0
 
     def reset(self, problem: Any, rng: np.random.Generator) -> None:

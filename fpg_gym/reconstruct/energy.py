@@ -30,7 +30,6 @@ neighbour's unwhitened coordinates, ``r_n`` its residual outside the space), whi
 
 from __future__ import annotations
 
-import functools
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
@@ -43,7 +42,7 @@ from fpg_gym.poses import bone_lengths
 from fpg_gym.reconstruct.kernels import (
     KERNELS,
     EnergyTables,
-    fused_energy,
+    bind_energy,
     resolve_kernel,
     stack_tables,
 )
@@ -291,8 +290,8 @@ class EnergyModel:
         self.tables = self._tables(latent, y, np.einsum("kd,kd->k", centred, centred))
         if self.dtype != np.float64:
             self.tables = self.tables.astype(self.dtype)
-        self._energy: Callable[[np.ndarray, EnergyTables], np.ndarray] = functools.partial(
-            fused_energy, kernel=self.fused_kernel
+        self._energy: Callable[[np.ndarray], np.ndarray] = bind_energy(
+            self.tables, self.fused_kernel
         )
 
     def _tables(self, latent: LatentSpace, y: np.ndarray, centred_sq: np.ndarray) -> EnergyTables:
@@ -365,8 +364,7 @@ class EnergyModel:
         """``E`` for latent points ``(n, d) -> (n,)`` float64, by the fused kernel."""
         if self.kernel == "direct":
             return self._direct(z)
-        z = np.asarray(z, dtype=self.dtype)
-        energy = self._energy(z, self.tables)
+        energy = self._energy(np.asarray(z, dtype=self.dtype))
         return energy if energy.dtype == np.float64 else energy.astype(np.float64)
 
     def _direct(self, z: np.ndarray) -> np.ndarray:
@@ -399,6 +397,7 @@ class StackedEnergy:
     def __init__(self, tables: EnergyTables, kernel: str) -> None:
         self.tables = tables
         self.kernel = kernel
+        self._energy = bind_energy(tables, kernel)
 
     @classmethod
     def of(cls, models: Sequence[EnergyModel]) -> StackedEnergy:
@@ -431,7 +430,5 @@ class StackedEnergy:
 
     def total(self, z: np.ndarray) -> np.ndarray:
         """``E`` (Eq. 10) of points ``(S, n, d)`` -> ``(S, n)`` float64."""
-        energy = fused_energy(
-            np.asarray(z, dtype=self.tables.matrix.dtype), self.tables, self.kernel
-        )
+        energy = self._energy(np.asarray(z, dtype=self.tables.matrix.dtype))
         return energy if energy.dtype == np.float64 else energy.astype(np.float64)

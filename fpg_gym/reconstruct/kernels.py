@@ -39,6 +39,7 @@ __all__ = [
     "KERNELS",
     "EnergyTables",
     "available_kernels",
+    "bind_energy",
     "compile_kernels",
     "fused_energy",
     "numpy_energy",
@@ -245,6 +246,41 @@ def resolve_kernel(name: str) -> str:
     return name
 
 
+def bind_energy(tables: EnergyTables, kernel: str = "auto") -> Callable[[np.ndarray], np.ndarray]:
+    """:func:`fused_energy` of ``tables`` as a function of the points alone, with the kernel
+    resolved and its arguments converted once (the search calls it every iteration).
+
+    Parameters
+    ----------
+    tables : EnergyTables
+        One frame's, or S frames' stacked.
+    kernel : {"auto", "numba", "numpy"}
+
+    Returns
+    -------
+    callable
+        ``energy(z)``: points ``(n, d)`` -> ``(n,)``, or ``(S, n, d)`` -> ``(S, n)`` with
+        stacked tables, in the tables' dtype.
+    """
+    compiled = _numba_kernels() if resolve_kernel(kernel) == "numba" else None
+    if compiled is None:
+        return functools.partial(_numpy_energy_of, tables)
+    dtype = tables.matrix.dtype.type
+    function = compiled[1] if tables.stacked else compiled[0]
+    c0 = np.asarray(tables.c0) if tables.stacked else dtype(tables.c0)
+    arguments = (tables.matrix, c0, tables.ycst, tables.b0, tables.lengths, dtype(tables.wk))
+
+    def energy(z: np.ndarray) -> np.ndarray:
+        return function(np.ascontiguousarray(z), *arguments)
+
+    return energy
+
+
+def _numpy_energy_of(tables: EnergyTables, z: np.ndarray) -> np.ndarray:
+    """:func:`numpy_energy` with the tables first (for :func:`functools.partial`)."""
+    return numpy_energy(z, tables)
+
+
 def fused_energy(z: np.ndarray, tables: EnergyTables, kernel: str = "auto") -> np.ndarray:
     """Total energy (Shum Eq. 10) of latent points ``(n, d)`` -> ``(n,)``, or of S frames'
     points ``(S, n, d)`` -> ``(S, n)`` with stacked tables (:func:`stack_tables`).
@@ -261,26 +297,4 @@ def fused_energy(z: np.ndarray, tables: EnergyTables, kernel: str = "auto") -> n
     ndarray, shape (n,) or (S, n)
         In the tables' dtype.
     """
-    compiled = _numba_kernels() if resolve_kernel(kernel) == "numba" else None
-    if compiled is None:
-        return numpy_energy(z, tables)
-    dtype = tables.matrix.dtype.type
-    if tables.stacked:
-        return compiled[1](
-            np.ascontiguousarray(z),
-            tables.matrix,
-            np.asarray(tables.c0),
-            tables.ycst,
-            tables.b0,
-            tables.lengths,
-            dtype(tables.wk),
-        )
-    return compiled[0](
-        np.ascontiguousarray(z),
-        tables.matrix,
-        dtype(tables.c0),
-        tables.ycst,
-        tables.b0,
-        tables.lengths,
-        dtype(tables.wk),
-    )
+    return bind_energy(tables, kernel)(z)
