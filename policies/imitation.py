@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import copy
 import multiprocessing
-from collections.abc import Sequence
+from collections.abc import Callable, Collection, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Any
@@ -303,6 +303,8 @@ def collect_imitation_data(
     workers: int = 1,
     backend: str = "local",
     address: str | None = None,
+    skip: Collection[int] = (),
+    on_chunk: Callable[[list[int], ImitationData], object] | None = None,
 ) -> ImitationData:
     """Roll ``recordings`` through the reconstructor and record (observation, target) pairs.
 
@@ -355,13 +357,25 @@ def collect_imitation_data(
     address : str, optional
         Ray cluster (``backend="ray"``); None: ``RAY_ADDRESS``, an instance already started
         in this process, or a local one.
+    skip : collection of int
+        Episodes (recording indices) not to collect, e.g. those a stopped run saved already;
+        the others' pairs are the same as when nothing is skipped (each episode has its own
+        generator, and the frame cap counts the skipped episodes' frames).
+    on_chunk : callable, optional
+        Receives each finished chunk of at most ``batch`` episodes, ``(episodes, pairs)``, as
+        soon as it is done (:class:`policies.checkpoints.RunCheckpoints` saves them).
+
+    Returns
+    -------
+    ImitationData
+        The pairs of the episodes not skipped, in episode order.
 
     Raises
     ------
     ValueError
         On an unknown ``target``, ``follow`` or ``backend``, ``follow`` other than
-        ``"search"`` without ``target="truth"``, ``"truth"`` without ground truth, or
-        ``batch``/``workers`` < 1.
+        ``"search"`` without ``target="truth"``, ``"truth"`` without ground truth,
+        ``batch``/``workers`` < 1, or an episode of ``skip`` out of range.
     RayUnavailable
         ``backend="ray"`` without Ray installed.
     """
@@ -397,6 +411,10 @@ def collect_imitation_data(
     }
     job = _Collection(spec, target, follow, options, batch)
     caps = _frame_caps(recordings, frames)
+    for episode in skip:
+        if not 0 <= episode < len(recordings):
+            raise ValueError(f"skip: episode {episode} is not in 0..{len(recordings) - 1}")
+        caps[episode] = 0
     children = np.random.SeedSequence(seed).spawn(len(recordings))
     rngs = [np.random.default_rng(child) for child in children]
     episodes = sum(n > 0 for n in caps)
@@ -407,21 +425,31 @@ def collect_imitation_data(
     bar = tqdm(
         total=sum(caps), desc="imitation data", unit="frame", leave=False, disable=not progress
     )
+    report = on_chunk or (lambda _episodes, _pairs: None)
     try:
         if backend == "ray":
             return _collect_on_ray(
-                graph, _chunks(recordings, caps, rngs, size), job, workers, bar, address
+                graph, _chunks(recordings, caps, rngs, size), job, workers, bar, address, report
             )
-        if workers == 1 or episodes == 1:
-            (whole,) = _chunks(recordings, caps, rngs, episodes)  # one chunk, here
-            return _collect_episodes(graph, whole, job, bar)
-        return _collect_in_pool(graph, _chunks(recordings, caps, rngs, size), job, workers, bar)
+        if workers == 1 or episodes == 1:  # here, chunk after chunk
+            parts = []
+            for chunk in _chunks(recordings, caps, rngs, batch):
+                parts.append(_collect_episodes(graph, chunk, job, bar))
+                report(chunk.episodes, parts[-1])
+            return ImitationData.concatenate(parts)
+        chunks = _chunks(recordings, caps, rngs, size)
+        return _collect_in_pool(graph, chunks, job, workers, bar, report)
     finally:
         bar.close()
 
 
 def _collect_in_pool(
-    graph: Any, chunks: Sequence[_Chunk], job: _Collection, workers: int, bar: Any
+    graph: Any,
+    chunks: Sequence[_Chunk],
+    job: _Collection,
+    workers: int,
+    bar: Any,
+    report: Callable[[list[int], ImitationData], object],
 ) -> ImitationData:
     """The chunks in ``workers`` spawned processes; the pairs put back in episode order."""
     context = multiprocessing.get_context("spawn")
@@ -437,6 +465,7 @@ def _collect_in_pool(
                 n = pending.pop(future)
                 results[n] = future.result()
                 bar.update(len(results[n]))
+                report(chunks[n].episodes, results[n])
     except BaseException:
         pool.shutdown(wait=False, cancel_futures=True)  # Ctrl-C or a failing chunk: stop now
         raise
@@ -460,6 +489,7 @@ def _collect_on_ray(
     workers: int,
     bar: Any,
     address: str | None,
+    report: Callable[[list[int], ImitationData], object],
 ) -> ImitationData:
     """The chunks as Ray tasks (``workers``: the CPUs of a local instance started here), the
     graph in the object store once; the pairs put back in episode order."""
@@ -475,6 +505,7 @@ def _collect_on_ray(
                     n = pending.pop(ref)
                     results[n] = task_result(ray, ref)
                     bar.update(len(results[n]))
+                    report(chunks[n].episodes, results[n])
         except BaseException:
             for ref in pending:
                 ray.cancel(ref, force=True)

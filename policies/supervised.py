@@ -32,9 +32,11 @@ Saved as ``MODEL.pt`` (``torch.save`` of the ``state_dict``: tensors only; loade
 from __future__ import annotations
 
 import functools
+import json
 import os
 import time
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -42,8 +44,10 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from fpg_gym.errors import DataFormatError
+from fpg_gym.jsonable import jsonable
 from fpg_gym.outputs import atomic_path
 from policies.sampler import (
+    WEIGHTS_SUFFIX,
     GaussianSampler,
     SamplerSpec,
     check_layer_widths,
@@ -53,12 +57,17 @@ from policies.sampler import (
 )
 
 __all__ = [
+    "FIT_STATE_FORMAT",
     "LOSSES",
     "SUPERVISED_DEFAULTS",
+    "FitState",
     "SupervisedSampler",
     "fit_supervised",
     "gaussian_nll",
 ]
+
+#: ``format`` of a :class:`FitState` JSON.
+FIT_STATE_FORMAT = "fpg-gym-supervised-fit-state"
 
 #: Losses of :func:`fit_supervised`.
 LOSSES: tuple[str, ...] = ("mse", "nll")
@@ -229,6 +238,104 @@ def _build(spec: SamplerSpec, in_size: int, source: str | os.PathLike[str] = "")
         raise DataFormatError(source, f"bad network description ({error})") from None
 
 
+@dataclass
+class FitState:
+    """:func:`fit_supervised` after a finished epoch: what it needs to go on exactly.
+
+    Attributes
+    ----------
+    epoch : int
+        Epochs finished.
+    module : dict
+        The network's ``state_dict``.
+    optimiser : dict
+        Adam's ``state_dict``.
+    shuffling : dict
+        The shuffling generator's ``bit_generator.state`` (plain ints and strings).
+    best_mse : float
+        Lowest validation MSE so far (``inf`` without validation).
+    best_epoch : int or None
+        Its epoch.
+    best_module : dict or None
+        The network's ``state_dict`` at that epoch.
+    history : list of dict
+        The epoch records so far.
+    """
+
+    epoch: int
+    module: dict[str, Any]
+    optimiser: dict[str, Any]
+    shuffling: dict[str, Any]
+    best_mse: float
+    best_epoch: int | None
+    best_module: dict[str, Any] | None
+    history: list[dict[str, Any]]
+
+    def save(self, stem: str | os.PathLike[str]) -> Path:
+        """Write ``STEM.pt`` (tensors: network, Adam, best network; ``torch.save``) and then
+        ``STEM.json`` (the rest), each atomically; returns the JSON's path (written last, so a
+        JSON on disk always has its tensors)."""
+        torch = import_learn("torch")
+        stem = Path(stem)
+        tensors = {"module": self.module, "optimiser": self.optimiser}
+        if self.best_module is not None:
+            tensors["best_module"] = self.best_module
+        with atomic_path(stem.with_suffix(WEIGHTS_SUFFIX)) as temporary:
+            torch.save(tensors, temporary)
+        description = {
+            "format": FIT_STATE_FORMAT,
+            "epoch": self.epoch,
+            "shuffling": self.shuffling,
+            "best_mse": None if not np.isfinite(self.best_mse) else self.best_mse,
+            "best_epoch": self.best_epoch,
+            "history": self.history,
+        }
+        target = stem.with_suffix(".json")
+        with atomic_path(target) as temporary:
+            temporary.write_text(json.dumps(jsonable(description), indent=1) + "\n")
+        return target
+
+    @classmethod
+    def load(cls, stem: str | os.PathLike[str]) -> FitState:
+        """Read :meth:`save`'s files (tensors with ``torch.load(..., weights_only=True)``).
+
+        Raises
+        ------
+        DataFormatError
+            Naming the file, when it is not a fit state.
+        """
+        torch = import_learn("torch")
+        stem = Path(stem)
+        source = stem.with_suffix(".json")
+        try:
+            data = json.loads(source.read_text(encoding="utf-8"))
+        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise DataFormatError(source, f"not a readable JSON file ({error})") from None
+        if not isinstance(data, dict) or data.get("format") != FIT_STATE_FORMAT:
+            raise DataFormatError(source, f"expected format {FIT_STATE_FORMAT!r}", field="format")
+        weights = stem.with_suffix(WEIGHTS_SUFFIX)
+        try:
+            tensors = torch.load(weights, map_location="cpu", weights_only=True)
+        except Exception as error:  # torch raises several kinds on a bad file
+            raise DataFormatError(weights, f"not a fit-state tensor file ({error})") from None
+        if not isinstance(tensors, dict) or not {"module", "optimiser"} <= set(tensors):
+            raise DataFormatError(weights, "expected the entries 'module' and 'optimiser'")
+        best = data.get("best_mse")
+        try:
+            return cls(
+                epoch=int(data["epoch"]),
+                module=tensors["module"],
+                optimiser=tensors["optimiser"],
+                shuffling=dict(data["shuffling"]),
+                best_mse=float("inf") if best is None else float(best),
+                best_epoch=None if data.get("best_epoch") is None else int(data["best_epoch"]),
+                best_module=tensors.get("best_module"),
+                history=list(data["history"]),
+            )
+        except (KeyError, TypeError, ValueError) as error:
+            raise DataFormatError(source, f"bad fit state ({error!r})") from None
+
+
 def fit_supervised(
     sampler: SupervisedSampler,
     observations: np.ndarray,
@@ -249,6 +356,8 @@ def fit_supervised(
     shrink: bool = True,
     progress: bool = False,
     transformed: tuple[np.ndarray, np.ndarray] | None = None,
+    state: FitState | None = None,
+    on_state: Callable[[FitState], None] | None = None,
 ) -> list[dict[str, Any]]:
     """Fit ``sampler``'s network to target ``actions`` (see the module docstring).
 
@@ -292,6 +401,11 @@ def fit_supervised(
     transformed : (features, anchor), optional
         ``sampler.features.transform(observations)`` when the caller has it already (it is
         computed here otherwise).
+    state : FitState, optional
+        Go on from this state (a run with the same data and settings that stopped after
+        ``state.epoch`` epochs): the result is the same as that of the uninterrupted run.
+    on_state : callable, optional
+        Receives the :class:`FitState` after every epoch (after ``on_epoch``), e.g. to save it.
 
     Returns
     -------
@@ -349,13 +463,28 @@ def fit_supervised(
     optimiser = torch.optim.Adam(module.parameters(), lr=learning_rate, weight_decay=weight_decay)
     rng = np.random.default_rng(seed)
     history: list[dict[str, Any]] = []
-    best_mse, best_state, best_record = np.inf, None, None
+    best_mse, best_state, best_epoch = np.inf, None, None
+    if state is not None:
+        if not 0 <= state.epoch <= epochs:
+            raise ValueError(f"state: {state.epoch} epochs done, expected 0..{epochs}")
+        module.load_state_dict(state.module)
+        optimiser.load_state_dict(state.optimiser)
+        rng.bit_generator.state = state.shuffling
+        history = [dict(record) for record in state.history]
+        best_mse, best_state, best_epoch = state.best_mse, state.best_module, state.best_epoch
+    first_epoch = 1 if state is None else state.epoch + 1
     bar = None
     if progress:
-        bar = tqdm(total=epochs, desc="train supervised", unit="epoch", leave=False)
+        bar = tqdm(
+            total=epochs,
+            initial=first_epoch - 1,
+            desc="train supervised",
+            unit="epoch",
+            leave=False,
+        )
     start = time.perf_counter()
     try:
-        for epoch in range(1, epochs + 1):
+        for epoch in range(first_epoch, epochs + 1):
             module.train()
             order = torch.as_tensor(rng.permutation(len(x)))
             total = 0.0
@@ -376,7 +505,7 @@ def fit_supervised(
                     record["val_mse"] = float(masked_mse(mean, val[1], val[2]))
             record["seconds"] = time.perf_counter() - start
             if restore_best and val is not None and record["val_mse"] < best_mse:
-                best_mse, best_record = record["val_mse"], record
+                best_mse, best_epoch = record["val_mse"], epoch
                 best_state = {k: v.detach().clone() for k, v in module.state_dict().items()}
             history.append(record)
             if bar is not None:
@@ -384,13 +513,26 @@ def fit_supervised(
                 bar.set_postfix({k: f"{v:.3f}" for k, v in record.items() if "loss" in k})
             if on_epoch is not None:
                 on_epoch(record)
+            if on_state is not None:
+                on_state(
+                    FitState(
+                        epoch=epoch,
+                        module=module.state_dict(),
+                        optimiser=optimiser.state_dict(),
+                        shuffling=dict(rng.bit_generator.state),
+                        best_mse=float(best_mse),
+                        best_epoch=best_epoch,
+                        best_module=best_state,
+                        history=history,
+                    )
+                )
     finally:
         if bar is not None:
             bar.close()
         module.eval()
-    if best_state is not None and best_record is not None:
+    if best_state is not None and best_epoch is not None:
         module.load_state_dict(best_state)
-        best_record["best"] = True
+        history[best_epoch - 1]["best"] = True
     if shrink and val is not None:
         # The learned offset, scaled by the factor in [0, 1] that fits the validation targets
         # best (least squares): 0 when nothing learned carries over, i.e. the anchor alone.

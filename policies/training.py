@@ -14,6 +14,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import importlib.metadata as md
 import importlib.util
 import time
@@ -36,6 +37,7 @@ from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.simulate import simulate_clips
 from optimizers.random_search import RandomSearch
+from policies.checkpoints import RunCheckpoints
 from policies.imitation import (
     BACKENDS,
     FOLLOW,
@@ -230,6 +232,20 @@ def format_evaluation(table: dict[str, dict[str, float]]) -> str:
 # --------------------------------------------------------------------------- driver
 
 
+#: :class:`TrainConfig` fields that change neither the data nor the weights.
+_RUN_INDEPENDENT = (
+    "out",
+    "tensorboard",
+    "workers",
+    "backend",
+    "address",
+    "progress",
+    "restart",
+    "eval_every",
+    "eval_episodes",
+)
+
+
 @dataclass
 class TrainConfig:
     """Settings of :func:`train_sampler` (``fpg-gym train-sampler``'s arguments).
@@ -297,6 +313,10 @@ class TrainConfig:
     address : str, optional
         Ray cluster address (``backend="ray"``; None: ``RAY_ADDRESS`` or a local instance).
     progress : bool
+    restart : bool
+        Supervised: start over instead of going on from the checkpoints of a stopped run with
+        the same settings (:mod:`policies.checkpoints`); needed when the folder holds a run
+        with other settings.
     """
 
     kind: str
@@ -332,6 +352,7 @@ class TrainConfig:
     backend: str = "local"
     address: str | None = None
     progress: bool = True
+    restart: bool = False
 
     def __post_init__(self) -> None:
         if self.kind not in ("supervised", "rl"):
@@ -366,6 +387,17 @@ class TrainConfig:
                 "backend and workers: they split the supervised data collection; "
                 "--kind rl runs one environment here"
             )
+
+    def run_settings(self) -> dict[str, Any]:
+        """The settings that decide a supervised run's data and weights (what its checkpoints
+        must match): every field but where and how it runs (output, progress, TensorBoard,
+        workers, backend, periodic evaluation), with the graph file's SHA-256."""
+        settings = asdict(self)
+        for name in _RUN_INDEPENDENT:
+            settings.pop(name)
+        if self.graph != "default" and Path(self.graph).is_file():
+            settings["graph_sha256"] = hashlib.sha256(Path(self.graph).read_bytes()).hexdigest()
+        return settings
 
     @property
     def total_timesteps(self) -> int:
@@ -594,6 +626,8 @@ def _train_supervised(
     recordings = simulate_episodes(train_clips, scenarios, seeds, max_frames=config.max_frames)
     order = np.random.default_rng(config.seed).permutation(len(recordings))
     recordings = [recordings[i] for i in order]
+    run = RunCheckpoints(checkpoints, config.run_settings(), restart=config.restart, log=say)
+    collected = run.collected_episodes()
     data = collect_imitation_data(
         graph,
         recordings,
@@ -606,7 +640,10 @@ def _train_supervised(
         workers=config.workers,
         backend=config.backend,
         address=config.address,
+        skip=collected,
+        on_chunk=run.save_chunk,
     )
+    data = run.merged_data(data)
     seconds["data"] = time.perf_counter() - t0
     say(
         f"imitation data: {len(data)} frames from {len(set(data.episodes.tolist()))} episodes "
@@ -666,6 +703,8 @@ def _train_supervised(
             on_epoch=on_epoch,
             progress=config.progress,
             transformed=transformed,
+            state=run.load_fit(),
+            on_state=run.save_fit,
             **fit_args,
         )
     finally:

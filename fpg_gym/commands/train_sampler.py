@@ -16,7 +16,10 @@ _EPILOG = """\
 The model is written as MODEL.json (hyper-parameters, observation layout, training summary)
 beside MODEL.pt (the network's weights: a torch state dict of tensors, loaded with
 weights_only=True; no pickle);
-checkpoints go to MODEL.checkpoints/. Use it with
+checkpoints go to MODEL.checkpoints/. A supervised run stopped at any point (Ctrl-C, kill) goes
+on where it stopped when the same command is run again: its collected episodes and its last
+finished epoch are kept there (the same model as an uninterrupted run); --restart starts over.
+Use it with
   fpg-gym compare --optimizers local-search,learned:MODEL,learned+search:MODEL ...
 
 hold-out: train on the takes the graph is built from, never on evaluated takes. --graph default
@@ -179,6 +182,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="processes (or Ray tasks) collecting the supervised data (1; the same data for any N)",
     )
     add_backend_arguments(parser, "where the supervised data is collected: local processes")
+    parser.add_argument(
+        "--restart",
+        action="store_true",
+        help="supervised: start over instead of going on from MODEL.checkpoints/ (removes its "
+        "data and fit checkpoints)",
+    )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--json", action="store_true", help="print a JSON summary last")
 
@@ -231,6 +240,7 @@ def run(args: argparse.Namespace) -> int:
         backend=args.backend,
         address=args.address,
         progress=not args.quiet,
+        restart=args.restart,
     )
     result = train_sampler(config)
     if args.json:

@@ -1,0 +1,207 @@
+"""A supervised training run's resumable files: the imitation data by chunk, the fit's state.
+
+``fpg-gym train-sampler --kind supervised --out MODEL`` writes into ``MODEL.checkpoints/``, as it
+goes:
+
+* ``run.json``: the run's settings (those that decide the data and the weights) and their
+  digest;
+* ``data-EEEEE-FFFFF.npz``: the (observation, target) pairs of episodes ``E`` to ``F``, one file
+  per finished chunk of episodes (``np.savez``, read with ``allow_pickle=False``);
+* ``fit.json`` and ``fit.pt``: the fit after its last finished epoch
+  (:class:`~policies.supervised.FitState`: network, Adam, the shuffling generator, the best
+  epoch so far and the epoch records);
+* ``epoch-NNNN.json`` / ``.pt``: the sampler at each periodic evaluation (as before).
+
+Every file is written to a temporary name and renamed, so a run stopped at any point (Ctrl-C,
+kill, a crash) leaves only whole files. Running the same command again goes on from them:
+the episodes already collected are read back, the others collected (each episode has its own
+generator, so the pairs are the same as an uninterrupted run's) and the fit goes on from its
+last epoch (the same weights, tested). A run with other settings refuses the folder unless
+told to start over (``--restart``), which removes these files (and only these).
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import re
+from collections.abc import Callable, Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fpg_gym.errors import DataFormatError
+from fpg_gym.jsonable import jsonable
+from fpg_gym.outputs import atomic_path
+from policies.imitation import ImitationData
+from policies.supervised import FitState
+
+__all__ = ["RunCheckpoints", "settings_digest"]
+
+#: ``format`` of ``run.json``.
+RUN_FORMAT = "fpg-gym-training-run"
+_DATA_NAME = re.compile(r"^data-(\d{5,})-(\d{5,})\.npz$")
+_FIT_STEM = "fit"
+_DATA_FIELDS = ("observations", "actions", "masks", "episodes", "search_energies")
+
+
+def settings_digest(settings: Mapping[str, Any]) -> str:
+    """SHA-256 of the settings' canonical JSON (sorted keys)."""
+    text = json.dumps(jsonable(settings), sort_keys=True, separators=(",", ":"))
+    return hashlib.sha256(text.encode("utf-8")).hexdigest()
+
+
+class RunCheckpoints:
+    """The checkpoint folder of one training run (see the module docstring).
+
+    Parameters
+    ----------
+    folder : path
+        ``MODEL.checkpoints``.
+    settings : mapping
+        The settings that decide the data and the weights (JSON values).
+    restart : bool
+        Start over: remove this module's files from ``folder`` first.
+    log : callable, optional
+        Receives a line when the run goes on from earlier files or starts over.
+
+    Raises
+    ------
+    ValueError
+        When ``folder`` holds a run with other settings and ``restart`` is False (naming the
+        settings that differ).
+    DataFormatError
+        When ``run.json`` is not a run description.
+    """
+
+    def __init__(
+        self,
+        folder: str | os.PathLike[str],
+        settings: Mapping[str, Any],
+        *,
+        restart: bool = False,
+        log: Callable[[str], None] | None = None,
+    ) -> None:
+        self.folder = Path(folder)
+        self.settings = jsonable(dict(settings))
+        self.digest = settings_digest(self.settings)
+        say = log or (lambda _text: None)
+        earlier = self._read_run()
+        if restart:
+            removed = self._remove_own_files()
+            if removed:
+                say(f"{self.folder}: started over ({removed} checkpoint files removed)")
+        elif earlier is not None and earlier.get("digest") != self.digest:
+            old = earlier.get("settings", {})
+            changed = sorted(
+                key
+                for key in set(old) | set(self.settings)
+                if old.get(key) != self.settings.get(key)
+            )
+            raise ValueError(
+                f"{self.folder}: checkpoints of a run with other settings ({', '.join(changed)}"
+                " differ); give the same settings to go on, or --restart to start over "
+                "(removes its data and fit checkpoints)"
+            )
+        self.folder.mkdir(parents=True, exist_ok=True)
+        with atomic_path(self.folder / "run.json") as temporary:
+            description = {"format": RUN_FORMAT, "digest": self.digest, "settings": self.settings}
+            temporary.write_text(json.dumps(description, indent=1) + "\n")
+        done = self.collected_episodes()
+        fit = self.load_fit()
+        if not restart and (done or fit is not None):
+            say(
+                f"{self.folder}: going on from {len(done)} collected episodes"
+                + (f" and {fit.epoch} fitted epochs" if fit is not None else "")
+            )
+
+    # ------------------------------------------------------------------ files
+
+    def _read_run(self) -> dict[str, Any] | None:
+        path = self.folder / "run.json"
+        if not path.is_file():
+            return None
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (json.JSONDecodeError, UnicodeDecodeError) as error:
+            raise DataFormatError(path, f"not a JSON file ({error})") from None
+        if not isinstance(data, dict) or data.get("format") != RUN_FORMAT:
+            raise DataFormatError(path, f"expected format {RUN_FORMAT!r}", field="format")
+        return data
+
+    def _data_files(self) -> list[tuple[int, int, Path]]:
+        """``(first, last, path)`` of the data files, by first episode."""
+        if not self.folder.is_dir():
+            return []
+        found = []
+        for path in self.folder.iterdir():
+            match = _DATA_NAME.match(path.name)
+            if match:
+                found.append((int(match[1]), int(match[2]), path))
+        return sorted(found)
+
+    def _remove_own_files(self) -> int:
+        """Remove the data files, the fit state and ``run.json`` (nothing else); their number."""
+        own = [path for _, _, path in self._data_files()]
+        own += [self.folder / f"{_FIT_STEM}{suffix}" for suffix in (".json", ".pt")]
+        own.append(self.folder / "run.json")
+        removed = 0
+        for path in own:
+            if path.is_file():
+                path.unlink()
+                removed += 1
+        return removed
+
+    # ------------------------------------------------------------------ data
+
+    def collected_episodes(self) -> set[int]:
+        """Episodes whose pairs are on disk."""
+        done: set[int] = set()
+        for first, last, path in self._data_files():
+            with np.load(path, allow_pickle=False) as archive:
+                done.update(int(e) for e in archive["chunk"])
+            if not done >= {first, last}:
+                raise DataFormatError(path, "the episodes of its name are not in its 'chunk'")
+        return done
+
+    def save_chunk(self, episodes: Sequence[int], data: ImitationData) -> Path:
+        """Write the pairs of one finished chunk of ``episodes`` (ascending)."""
+        chunk = np.asarray(episodes, dtype=np.int64)
+        path = self.folder / f"data-{int(chunk[0]):05d}-{int(chunk[-1]):05d}.npz"
+        arrays = {name: getattr(data, name) for name in _DATA_FIELDS}
+        with atomic_path(path) as temporary, open(temporary, "xb") as stream:
+            np.savez(stream, chunk=chunk, **arrays)
+        return path
+
+    def merged_data(self, new: ImitationData) -> ImitationData:
+        """``new`` (the pairs collected by this run, saved or not) and the pairs on disk of the
+        other episodes, in episode order."""
+        fresh = set(np.unique(new.episodes).tolist())
+        parts = []
+        for _, _, path in self._data_files():
+            with np.load(path, allow_pickle=False) as archive:
+                if fresh.isdisjoint(archive["chunk"].tolist()):
+                    parts.append(ImitationData(*(archive[f] for f in _DATA_FIELDS)))
+        if not parts:
+            return new
+        # Each episode's rows are contiguous and in frame order: a stable sort by episode gives
+        # the uninterrupted run's order.
+        merged = ImitationData.concatenate([*parts, new])
+        order = np.argsort(merged.episodes, kind="stable")
+        return ImitationData(*(getattr(merged, f)[order] for f in _DATA_FIELDS))
+
+    # ------------------------------------------------------------------ fit
+
+    def load_fit(self) -> FitState | None:
+        """The fit state on disk, or None."""
+        stem = self.folder / _FIT_STEM
+        if not stem.with_suffix(".json").is_file():
+            return None
+        return FitState.load(stem)
+
+    def save_fit(self, state: FitState) -> None:
+        """Write the fit's state (replacing the previous one)."""
+        state.save(self.folder / _FIT_STEM)
+
