@@ -6,7 +6,7 @@ goes:
 * ``run.json``: the run's settings (those that decide the data and the weights) and their
   digest;
 * ``data-EEEEE-FFFFF.npz``: the (observation, target) pairs of episodes ``E`` to ``F``, one file
-  per finished chunk of episodes (``np.savez``, read with ``allow_pickle=False``);
+  per finished chunk of episodes (compressed ``.npz``, read with ``allow_pickle=False``);
 * ``fit.json`` and ``fit.pt``: the fit after its last finished epoch
   (:class:`~policies.supervised.FitState`: network, Adam, the shuffling generator, the best
   epoch so far and the epoch records);
@@ -34,7 +34,7 @@ import numpy as np
 
 from fpg_gym.errors import DataFormatError
 from fpg_gym.jsonable import jsonable
-from fpg_gym.outputs import atomic_path
+from fpg_gym.outputs import atomic_path, save_npz
 from policies.imitation import ImitationData
 from policies.supervised import FitState
 
@@ -171,9 +171,7 @@ class RunCheckpoints:
         chunk = np.asarray(episodes, dtype=np.int64)
         path = self.folder / f"data-{int(chunk[0]):05d}-{int(chunk[-1]):05d}.npz"
         arrays = {name: getattr(data, name) for name in _DATA_FIELDS}
-        with atomic_path(path) as temporary, open(temporary, "xb") as stream:
-            np.savez(stream, chunk=chunk, **arrays)
-        return path
+        return save_npz(path, {"chunk": chunk, **arrays}, compressed=True)
 
     def merged_data(self, new: ImitationData) -> ImitationData:
         """``new`` (the pairs collected by this run, saved or not) and the pairs on disk of the
