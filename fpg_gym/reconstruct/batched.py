@@ -40,7 +40,14 @@ from fpg_gym.reconstruct.reconstructor import (
 )
 from optimizers import Optimizer, OptimizerRun, make
 
-__all__ = ["reconstruct_many", "run_streams", "search_together"]
+__all__ = [
+    "OptimizerSpec",
+    "make_generators",
+    "make_optimizers",
+    "reconstruct_many",
+    "run_streams",
+    "search_together",
+]
 
 OptimizerSpec = str | Optimizer | Callable[[], Optimizer]
 
@@ -48,8 +55,26 @@ OptimizerSpec = str | Optimizer | Callable[[], Optimizer]
 STACK_SIZE = 8
 
 
-def _optimizers(optimizer: OptimizerSpec, count: int) -> list[Optimizer]:
-    """One optimiser object per stream (a name is made, a factory called, an object copied)."""
+def make_optimizers(optimizer: OptimizerSpec, count: int) -> list[Optimizer]:
+    """One optimiser object per stream: a name is made, a factory called, an object copied.
+
+    Parameters
+    ----------
+    optimizer : str, Optimizer or callable
+        A registered name, an optimiser object (deep-copied per stream) or a factory.
+    count : int
+        Streams.
+
+    Returns
+    -------
+    list of Optimizer
+        ``count`` distinct objects.
+
+    Raises
+    ------
+    ValueError
+        If ``optimizer`` is none of these.
+    """
     if isinstance(optimizer, str):
         return [make(optimizer) for _ in range(count)]
     if isinstance(optimizer, Optimizer):
@@ -59,8 +84,25 @@ def _optimizers(optimizer: OptimizerSpec, count: int) -> list[Optimizer]:
     raise ValueError(f"optimizer: expected a name, an optimiser or a factory, got {optimizer!r}")
 
 
-def _generators(rngs: Any, count: int) -> list[np.random.Generator]:
-    """One generator per stream from a sequence of seeds/generators (or None: unseeded)."""
+def make_generators(rngs: Any, count: int) -> list[np.random.Generator]:
+    """One generator per stream from a sequence of seeds or generators (None: unseeded).
+
+    Parameters
+    ----------
+    rngs : sequence of int or numpy.random.Generator, or None
+        One per stream; a generator is used as is, a seed starts a new one.
+    count : int
+        Streams.
+
+    Returns
+    -------
+    list of numpy.random.Generator
+
+    Raises
+    ------
+    ValueError
+        If ``rngs`` is a single seed or generator, or does not hold ``count`` items.
+    """
     if rngs is None:
         return [np.random.default_rng() for _ in range(count)]
     if isinstance(rngs, (int, np.integer, np.random.Generator)):
@@ -226,8 +268,8 @@ def run_streams(
         _stream_arrays(rec, i, r.config.frame_dt)
         for i, (rec, r) in enumerate(zip(recordings, reconstructors, strict=True))
     ]
-    optimizers = _optimizers(optimizer, count)
-    generators = _generators(rngs, count)
+    optimizers = make_optimizers(optimizer, count)
+    generators = make_generators(rngs, count)
     lengths = [len(a[0]) for a in arrays]
     outputs = [np.zeros((n, skeleton.NUM_JOINTS, 3), dtype=np.float32) for n in lengths]
     records: list[list[FrameRecord]] = [[] for _ in range(count)]
