@@ -538,6 +538,13 @@ class Reconstructor:
         self.config = config
         self.graph = graph
         self.database = NodeDatabase(np.asarray(graph.poses))
+        # The energy weights of every frame: the motion term scaled by the temporal stage.
+        scale = config.temporal.motion_scale
+        self._weights = (
+            config.weights
+            if scale == 1.0
+            else replace(config.weights, motion=config.weights.motion * scale)
+        )
         kwargs: dict[str, Any] = (
             {
                 "recovery_factor": config.recovery_factor,
@@ -801,9 +808,6 @@ class Reconstructor:
         if cfg.temporal.align_basis:
             latent = align_basis(latent, self._previous_latent)
         self._previous_latent = latent
-        weights = cfg.weights
-        if cfg.temporal.motion_scale != 1.0:
-            weights = replace(weights, motion=weights.motion * cfg.temporal.motion_scale)
         energy = EnergyModel(
             latent,
             kinect,
@@ -811,7 +815,7 @@ class Reconstructor:
             selection.poses,
             lengths,
             prediction,
-            weights,
+            self._weights,
             dtype=cfg.energy_dtype,
             kernel=cfg.energy_kernel,
         )
