@@ -35,7 +35,7 @@ from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
-from fpg_gym.metrics import frame_error
+from fpg_gym.metrics import acceleration, frame_error
 from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem, TemporalConfig
 from fpg_gym.rendering import HumanWindow, render_panels
@@ -55,7 +55,7 @@ __all__ = [
 #: The registered id.
 ENV_ID = "fpg_gym/KinectPose-v0"
 #: Values of ``reward_mode``.
-REWARD_MODES: tuple[str, ...] = ("energy", "error", "combined")
+REWARD_MODES: tuple[str, ...] = ("energy", "error", "combined", "smooth")
 #: Values of ``action_mode``.
 ACTION_MODES: tuple[str, ...] = ("delta", "absolute")
 #: Values of ``observation_mode``.
@@ -245,13 +245,20 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     19 bones of the bone-vector distance, metres) of the output (after the ragdoll) against the
     ground truth. ``"combined"``: ``-(E + error_weight * e)`` (``error_weight`` 1.0: on the
     embedded episodes E is about 0.03 after the paper's search and 0.3 without, e about
-    0.1-0.15 m). ``info`` holds the four negated
+    0.1-0.15 m). ``"smooth"``: ``-(e + smooth_weight * a)``, the error and the output's jitter:
+    ``a`` is the mean over the joints of the output's acceleration (m/s²,
+    :func:`fpg_gym.metrics.acceleration` of this output and the two before it; 0 on an
+    episode's first two frames). ``smooth_weight`` 0.002 by default: a jitter of 10 m/s² (the
+    papers' reconstruction of UI-PRMD's real streams shakes at 7-8 m/s²) then weighs as 2 cm of
+    error. ``info`` holds the four negated
     weighted terms ``reward_control`` (``-w_c Ec``), ``reward_style`` (``-w_s Es``),
     ``reward_bone`` (``-w_k Ek``), ``reward_temporal`` (``-w_m Em``) and ``reward_prior``
     (``-w_p Ep``, 0 unless the latent prior is switched on), which sum to ``-E``; and
     ``energy``, and ``frame_error`` / ``raw_frame_error`` (of the sensor stream) when the episode
-    has ground truth. The error modes raise ``ValueError`` at construction (recordings) or reset
-    (a recording given in ``options``) when an episode has no ground truth.
+    has ground truth; and ``acceleration`` (``a`` above) in every mode. The error modes
+    (``"error"``, ``"combined"``, ``"smooth"``) raise ``ValueError`` at construction
+    (recordings) or reset (a recording given in ``options``) when an episode has no ground
+    truth.
 
     ## Starting State
 
@@ -287,10 +294,10 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     front-many, left45-many, right45-many).
     ``selector`` ``"graph"`` (FPG) or ``"brute-force"`` (Shum); ``k`` = 30 candidates;
     ``latent_dim`` = 20; ``energy_weights`` (an ``EnergyWeights``, a mapping or 4 numbers; 1.0,
-    0.5, 1.5, 0.25); ``reward_mode``, ``error_weight``; ``action_mode``, ``action_scale``,
-    ``clip_actions``; ``observation_mode`` ``"vector"`` or ``"dict"``; ``ragdoll`` (True, False,
-    or a mapping of :class:`~fpg_gym.physics.ragdoll.Ragdoll` keyword arguments);
-    ``max_episode_steps``;
+    0.5, 1.5, 0.25); ``reward_mode``, ``error_weight``, ``smooth_weight``; ``action_mode``,
+    ``action_scale``, ``clip_actions``; ``observation_mode`` ``"vector"`` or ``"dict"``;
+    ``ragdoll`` (True, False, or a mapping of :class:`~fpg_gym.physics.ragdoll.Ragdoll`
+    keyword arguments); ``max_episode_steps``;
     ``simulator_seeds`` (None: any episode seed; n: seeds 0..n-1, simulated streams cached);
     ``max_evaluations`` (energy evaluations an optimiser may spend per frame, 2,000);
     ``render_mode`` ``"rgb_array"`` or ``"human"``; ``cache_dir`` for the default graph;
@@ -323,6 +330,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         energy_weights: EnergyWeights | Mapping[str, float] | Sequence[float] | None = None,
         reward_mode: str = "energy",
         error_weight: float = 1.0,
+        smooth_weight: float = 0.002,
         action_mode: str = "delta",
         action_scale: float = 3.0,
         clip_actions: bool = True,
@@ -347,6 +355,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             energy_weights=energy_weights,
             reward_mode=reward_mode,
             error_weight=error_weight,
+            smooth_weight=smooth_weight,
             action_mode=action_mode,
             action_scale=action_scale,
             clip_actions=clip_actions,
@@ -368,6 +377,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         check_choice(observation_mode, "observation_mode", OBSERVATION_MODES)
         check_number(action_scale, "action_scale", low=0.0, low_open=True)
         check_number(error_weight, "error_weight", low=0.0)
+        check_number(smooth_weight, "smooth_weight", low=0.0)
         check_integer(latent_dim, "latent_dim", low=1)
         if max_episode_steps is not None:
             check_integer(max_episode_steps, "max_episode_steps", low=1)
@@ -381,6 +391,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self.render_mode = render_mode
         self.reward_mode = reward_mode
         self.error_weight = float(error_weight)
+        self.smooth_weight = float(smooth_weight)
         self.action_mode = action_mode
         self.action_scale = float(action_scale)
         self.clip_actions = bool(clip_actions)
@@ -459,6 +470,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._elapsed = 0
         self._last_obs: np.ndarray | None = None
         self._last_pose: np.ndarray | None = None
+        # The last three outputs and their timestamps (the "smooth" reward's acceleration).
+        self._outputs: list[tuple[np.ndarray, float]] = []
         self._render_centre: np.ndarray | None = None
         self._window: HumanWindow | None = None
         self._prepare_ms = self._observation_ms = 0.0
@@ -593,6 +606,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._t = 0
         self._elapsed = 0
         self._last_pose = None
+        self._outputs = []
         root = recording.positions[:, skeleton.ROOT]
         self._render_centre = np.array([np.median(root[:, 0]), np.median(root[:, 1])])
         # Reconstructor.reset() starts a stream that does not depend on earlier episodes (same
@@ -614,7 +628,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         ``energy_x0``, ``reliability`` (20,), ``nodes`` (K,) (-1 padded), ``recovered``,
         ``full_search``, ``first``, ``no_body``, ``labelling``, ``evaluations`` (energy
         evaluations the agent spent on ``problem``), ``action_clipped``, ``ragdoll_resets``,
-        ``ragdoll_divergences``, ``ragdoll_builds`` (counts in this step) and ``timings``
+        ``ragdoll_divergences``, ``ragdoll_builds`` (counts in this step), ``acceleration`` (the
+        output's mean joint acceleration over this and the two previous outputs, m/s²; 0 before)
+        and ``timings``
         (:class:`StageTimes`, ms: the frame's ``normalise`` ... ``ragdoll`` stages and ``total``,
         whose ``search`` is the agent's time between the observation and this call; then this
         step's ``prepare_next`` (the next frame's normalise ... latent), ``observation`` and
@@ -657,10 +673,17 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             errors = frame_error(truth[[t, t]], np.stack([pose, recording.positions[t]]))
             info["frame_error"] = float(errors[0])
             info["raw_frame_error"] = float(errors[1])
+        self._outputs = [*self._outputs[-2:], (pose.astype(np.float64), float(record.timestamp))]
+        info["acceleration"] = 0.0
+        if len(self._outputs) == 3:
+            poses, times = zip(*self._outputs, strict=True)
+            info["acceleration"] = float(acceleration(np.stack(poses), timestamps=times).mean())
         if self.reward_mode == "energy":
             reward = -float(record.energy)
         elif self.reward_mode == "error":
             reward = -info["frame_error"]
+        elif self.reward_mode == "smooth":
+            reward = -(info["frame_error"] + self.smooth_weight * info["acceleration"])
         else:
             reward = -(float(record.energy) + self.error_weight * info["frame_error"])
         info.update(

@@ -221,10 +221,12 @@ def make_training_env(
     max_frames: int | None = None,
     reward_mode: str = "energy",
     error_weight: float = 1.0,
+    smooth_weight: float = 0.002,
 ) -> Any:
     """The training env: ``KinectPoseEnv`` with the ``reward_mode`` reward (the energy by
-    default; ``"error"``, or ``"combined"`` with ``error_weight``, learn the simulated ground
-    truth), no ragdoll (the compared methods run without one), episodes from ``clips`` x
+    default; ``"error"``, ``"combined"`` with ``error_weight`` or ``"smooth"`` with
+    ``smooth_weight`` learn the simulated ground truth), no ragdoll (the compared methods run
+    without one), episodes from ``clips`` x
     ``scenarios``, unclipped actions (the policy's action is added to the sampler's anchor,
     :meth:`FeatureMap.wrap`)."""
 
@@ -238,6 +240,7 @@ def make_training_env(
         action_mode=action_mode,
         reward_mode=reward_mode,
         error_weight=error_weight,
+        smooth_weight=smooth_weight,
         clip_actions=False,
         ragdoll=False,
         max_episode_steps=max_frames,
@@ -263,6 +266,7 @@ def train_rl(
     hyperparameters: dict[str, Any] | None = None,
     reward_mode: str = "energy",
     error_weight: float = 1.0,
+    smooth_weight: float = 0.002,
     evaluate: Callable[[GaussianSampler], dict[str, Any]] | None = None,
     eval_every: int | None = None,
     checkpoints: str | os.PathLike[str] | None = None,
@@ -290,10 +294,10 @@ def train_rl(
         an offset from it.
     hyperparameters : dict, optional
         Overrides of :data:`RL_DEFAULTS`.
-    reward_mode : {"energy", "error", "combined"}
+    reward_mode : {"energy", "error", "combined", "smooth"}
         The env's reward (:class:`~fpg_gym.env.KinectPoseEnv`); ``error_weight`` weighs the
-        error in ``"combined"``.
-    error_weight : float
+        error in ``"combined"``, ``smooth_weight`` the output's acceleration in ``"smooth"``.
+    error_weight, smooth_weight : float
     evaluate : callable, optional
         ``evaluate(sampler) -> {"mean": {...}}`` run every ``eval_every`` steps (a checkpoint
         is saved then too, in ``checkpoints``).
@@ -336,6 +340,7 @@ def train_rl(
         max_frames=max_frames,
         reward_mode=reward_mode,
         error_weight=error_weight,
+        smooth_weight=smooth_weight,
     )
     spec = SamplerSpec.for_env(
         env,

@@ -27,6 +27,7 @@ import numpy as np
 
 from fpg_gym import metrics
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.env import REWARD_MODES
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, resolve_clips
@@ -161,8 +162,9 @@ def evaluate_agents(
     """Reconstruct ``recordings`` with each agent (an optimiser name or object) and summarise.
 
     Returns, per agent: ``mean_energy``, ``mean_error`` (FPG Eq. 13, m), ``err02`` (share of
-    frames with error >= 0.2 m), ``evaluations`` and ``ms`` per frame, ``frames``. Errors need
-    ground truth (NaN otherwise).
+    frames with error >= 0.2 m), ``jitter`` (the output's mean joint acceleration, m/s²,
+    :func:`fpg_gym.metrics.jitter`, averaged over the recordings), ``evaluations`` and ``ms``
+    per frame, ``frames``. Errors need ground truth (NaN otherwise).
     """
 
     # One reconstructor per recording: the recordings run side by side, their searches batched
@@ -178,6 +180,7 @@ def evaluate_agents(
         for name, agent in agents.items():
             energies: list[np.ndarray] = []
             errors: list[np.ndarray] = []
+            jitters: list[float] = []
             evaluations: list[np.ndarray] = []
             ms: list[np.ndarray] = []
             seeds = [seed + i for i in range(len(recordings))]
@@ -187,6 +190,10 @@ def evaluate_agents(
                 energies.append(arrays["energy"])
                 evaluations.append(arrays["evaluations"])
                 ms.append(arrays["ms_per_frame"])
+                if len(result.poses) >= 3:
+                    jitters.append(
+                        float(np.nanmean(metrics.jitter(result.poses, fps=recording.fps)))
+                    )
                 truth = recording.head(len(result.poses)).ground_truth
                 if truth is not None:
                     errors.append(metrics.frame_error(truth, result.poses))
@@ -195,6 +202,7 @@ def evaluate_agents(
                 "mean_energy": float(np.mean(np.concatenate(energies))),
                 "mean_error": float(np.mean(err)),
                 "err02": metrics.err_ratio(err) if errors else np.nan,
+                "jitter": float(np.mean(jitters)) if jitters else np.nan,
                 "evaluations": float(np.mean(np.concatenate(evaluations))),
                 "ms": float(np.mean(np.concatenate(ms))),
                 "frames": int(sum(len(e) for e in energies)),
@@ -210,7 +218,8 @@ def evaluate_agents(
 def _format_row(name: str, row: dict[str, float]) -> str:
     return (
         f"  {name:<22} energy {row['mean_energy']:.4f}  error {row['mean_error']:.4f} m  "
-        f"Err0.2 {100 * row['err02']:.1f} %  evals {row['evaluations']:.0f}  "
+        f"Err0.2 {100 * row['err02']:.1f} %  jitter {row['jitter']:.2f} m/s²  "
+        f"evals {row['evaluations']:.0f}  "
         f"{row['ms']:.2f} ms/frame"
     )
 
@@ -218,13 +227,15 @@ def _format_row(name: str, row: dict[str, float]) -> str:
 def format_evaluation(table: dict[str, dict[str, float]]) -> str:
     """A markdown table of :func:`evaluate_agents`' output."""
     lines = [
-        "| agent | mean energy | mean error (m) | Err0.2 (%) | evaluations/frame | ms/frame |",
-        "| --- | --- | --- | --- | --- | --- |",
+        "| agent | mean energy | mean error (m) | Err0.2 (%) | jitter (m/s²) | evaluations/frame "
+        "| ms/frame |",
+        "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for name, row in table.items():
         lines.append(
             f"| {name} | {row['mean_energy']:.4f} | {row['mean_error']:.4f} | "
-            f"{100 * row['err02']:.1f} | {row['evaluations']:.0f} | {row['ms']:.2f} |"
+            f"{100 * row['err02']:.1f} | {row['jitter']:.2f} | {row['evaluations']:.0f} | "
+            f"{row['ms']:.2f} |"
         )
     return "\n".join(lines)
 
@@ -275,10 +286,13 @@ class TrainConfig:
     follow : {"search", "anchor", "truth"}
         What the supervised data's stream continues from (:func:`collect_imitation_data`;
         ``"anchor"`` and ``"truth"`` need ``target="truth"`` and run no search).
-    reward : {"energy", "error", "combined"}
-        The RL env's reward (rl; ``"error"`` learns the simulated ground truth).
+    reward : {"energy", "error", "combined", "smooth"}
+        The RL env's reward (rl; the error modes learn the simulated ground truth; see
+        :class:`~fpg_gym.env.KinectPoseEnv`).
     error_weight : float
         Weight of the error in the ``"combined"`` reward.
+    smooth_weight : float
+        Weight of the output's acceleration (m/s²) in the ``"smooth"`` reward.
     epochs : int
         Supervised epochs.
     eval_every : int, optional
@@ -333,6 +347,7 @@ class TrainConfig:
     follow: str = "search"
     reward: str = "energy"
     error_weight: float = 1.0
+    smooth_weight: float = 0.002
     epochs: int = 40
     eval_every: int | None = None
     eval_episodes: int = 6
@@ -366,10 +381,8 @@ class TrainConfig:
                 f"follow: expected one of {FOLLOW} ('anchor' and 'truth' with target 'truth'), "
                 f"got {self.follow!r} with target {self.target!r}"
             )
-        if self.reward not in ("energy", "error", "combined"):
-            raise ValueError(
-                f"reward: expected 'energy', 'error' or 'combined', got {self.reward!r}"
-            )
+        if self.reward not in REWARD_MODES:
+            raise ValueError(f"reward: expected one of {REWARD_MODES}, got {self.reward!r}")
         if self.timesteps is not None and self.timesteps < 1:
             raise ValueError(f"timesteps: expected >= 1, got {self.timesteps}")
         if self.epochs < 1:
@@ -551,6 +564,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             hyperparameters=config.hyperparameters,
             reward_mode=config.reward,
             error_weight=config.error_weight,
+            smooth_weight=config.smooth_weight,
             evaluate=evaluate,
             eval_every=config.eval_every or max(config.total_timesteps // 10, 1),
             checkpoints=checkpoints,
@@ -562,6 +576,8 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         training_info["reward"] = config.reward
         if config.reward == "combined":
             training_info["error_weight"] = config.error_weight
+        if config.reward == "smooth":
+            training_info["smooth_weight"] = config.smooth_weight
     sampler.spec.training = {**training_info, "seconds": dict(seconds), "history": history}
     t0 = time.perf_counter()
 

@@ -450,6 +450,42 @@ def test_rl_training_env_takes_the_error_reward(graph: Any) -> None:
         env.close()
 
 
+def test_rl_training_env_takes_the_smooth_reward(graph: Any) -> None:
+    """``--reward smooth``: minus the error and ``smooth_weight`` x the output's acceleration,
+    the second difference of the last three outputs over their timestamps (by hand)."""
+    from policies.rl import make_training_env
+
+    clips = load_default_clips(["run"])
+    env = make_training_env(
+        graph,
+        clips,
+        ["front-many"],
+        action_mode="absolute",
+        reward_mode="smooth",
+        smooth_weight=0.01,
+        **SMALL,
+    )
+    try:
+        env.reset(seed=0)
+        outputs = []
+        for step in range(4):
+            _, reward, _, _, info = env.step(np.zeros(env.action_space.shape))
+            outputs.append((info["pose"].astype(np.float64), info["timestamp"]))
+            if step < 2:  # no acceleration before three outputs
+                assert info["acceleration"] == 0.0
+                assert reward == pytest.approx(-info["frame_error"])
+                continue
+            (p0, t0), (p1, t1), (p2, t2) = outputs[-3:]
+            second = 2.0 * ((p2 - p1) / (t2 - t1) - (p1 - p0) / (t1 - t0)) / (t2 - t0)
+            expected = float(np.linalg.norm(second, axis=1).mean())
+            assert info["acceleration"] == pytest.approx(expected, rel=1e-6) and expected > 0
+            assert reward == pytest.approx(-(info["frame_error"] + 0.01 * expected))
+        with pytest.raises(ValueError, match="smooth_weight"):
+            make_training_env(graph, clips, ["front-many"], reward_mode="smooth", smooth_weight=-1)
+    finally:
+        env.close()
+
+
 # --------------------------------------------------------------------------- extra, CLI
 
 

@@ -116,13 +116,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--reward",
-        choices=["energy", "error", "combined"],
+        choices=["energy", "error", "combined", "smooth"],
         default="energy",
-        help="RL reward: the energy (default), the simulated ground truth's error, or "
-        "energy + --error-weight x error",
+        help="RL reward: the energy (default), the simulated ground truth's error, "
+        "energy + --error-weight x error, or error + --smooth-weight x the output's "
+        "acceleration (m/s^2)",
     )
     parser.add_argument(
         "--error-weight", type=float, default=1.0, help="error weight of --reward combined (1)"
+    )
+    parser.add_argument(
+        "--smooth-weight",
+        type=float,
+        default=0.002,
+        help="acceleration weight of --reward smooth (0.002: 10 m/s^2 weighs as 2 cm of error)",
     )
     parser.add_argument("--epochs", type=int, default=40, help="supervised epochs (40)")
     parser.add_argument(
@@ -223,6 +230,7 @@ def run(args: argparse.Namespace) -> int:
         follow=args.follow,
         reward=args.reward,
         error_weight=args.error_weight,
+        smooth_weight=args.smooth_weight,
         epochs=args.epochs,
         eval_every=args.eval_every,
         eval_episodes=args.eval_episodes,
