@@ -1,11 +1,13 @@
 """Shared fixtures: the real data folder ``../shared/data`` (skipped when absent), a seeded RNG,
-and a cache folder of the session's own (the tests never touch the user's ``~/.cache/fpg-gym``)."""
+a cache folder of the session's own (the tests never touch the user's ``~/.cache/fpg-gym``), the
+embedded default graph without the held-out clips and a few short simulated streams."""
 
 from __future__ import annotations
 
 import os
 from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -74,3 +76,23 @@ def shared_data() -> Path:
 def rng() -> np.random.Generator:
     """A seeded random generator."""
     return np.random.default_rng(12345)
+
+
+@pytest.fixture(scope="session")
+def graph(_session_cache: None) -> Any:
+    """The embedded default graph without the held-out clips (``DEFAULT_HOLDOUT_CLIPS``), built
+    once per session into the session's cache; a module may define a ``graph`` of its own."""
+    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.graph import default_graph
+
+    return default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)
+
+
+@pytest.fixture(scope="session")
+def short_streams() -> list[Any]:
+    """Four simulated streams of 5 frames (walk and punch, ``front-many``, seeds 0 and 1)."""
+    from fpg_gym.io import load_default_clips
+    from policies.training import simulate_episodes
+
+    clips = load_default_clips(["walk", "punch"])
+    return simulate_episodes(clips, ["front-many"], [0, 1], max_frames=5)

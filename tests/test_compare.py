@@ -119,14 +119,6 @@ def recording() -> Any:
     return simulate(clip, "front-many", seed=3).head(16)
 
 
-@pytest.fixture(scope="module")
-def graph() -> Any:
-    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-    from fpg_gym.graph import default_graph
-
-    return default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)
-
-
 def test_filter_methods_match_the_filters(recording: Any) -> None:
     from fpg_gym.filters import make_filter
 

@@ -9,27 +9,15 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-from fpg_gym.graph import default_graph
-from fpg_gym.io import load_default_clips
 from fpg_gym.ray_session import signal_handlers
 from fpg_gym.reconstruct.kernels import available_kernels
 from policies.imitation import ImitationData, collect_imitation_data
-from policies.training import simulate_episodes
 from tests.test_truth_target import SPEC
 
 
-@pytest.fixture(scope="module")
-def graph(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    return default_graph(
-        exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=tmp_path_factory.mktemp("fpg-cache")
-    )
-
-
-@pytest.fixture(scope="module")
-def recordings() -> list[Any]:
-    clips = load_default_clips(["walk", "punch"])
-    return simulate_episodes(clips, ["front-many"], [0, 1], max_frames=5)  # 4 episodes
+@pytest.fixture
+def recordings(short_streams: list[Any]) -> list[Any]:
+    return short_streams
 
 
 def _assert_same(a: ImitationData, b: ImitationData) -> None:

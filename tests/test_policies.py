@@ -13,10 +13,8 @@ import numpy as np
 import pytest
 
 import optimizers
-from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.env import KinectPoseEnv
 from fpg_gym.env_observation import CONTEXT_NAMES, LATENT_LIMIT
-from fpg_gym.graph import default_graph
 from fpg_gym.io import load_default_clips
 from policies.loading import load_sampler
 from policies.sampler import (
@@ -31,13 +29,6 @@ pytest.importorskip("torch")
 
 SMALL = {"k": 8, "latent_dim": 7}
 EPISODE = {"clip": "run", "scenario": "front-many", "seed": 1}
-
-
-@pytest.fixture(scope="module")
-def graph(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    return default_graph(
-        exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=tmp_path_factory.mktemp("fpg-cache")
-    )
 
 
 def make_env(graph: Any, **kwargs: Any) -> KinectPoseEnv:

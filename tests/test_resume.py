@@ -10,12 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-from fpg_gym.graph import default_graph
-from fpg_gym.io import load_default_clips
 from policies.checkpoints import RunCheckpoints
 from policies.imitation import ImitationData, collect_imitation_data
-from policies.training import simulate_episodes
 from tests.test_truth_target import SPEC
 
 torch = pytest.importorskip("torch")
@@ -27,17 +23,9 @@ class Stop(Exception):
     """Stands for Ctrl-C or a kill between two checkpoints."""
 
 
-@pytest.fixture(scope="module")
-def graph(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    return default_graph(
-        exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=tmp_path_factory.mktemp("fpg-cache")
-    )
-
-
-@pytest.fixture(scope="module")
-def recordings() -> list[Any]:
-    clips = load_default_clips(["walk", "punch"])
-    return simulate_episodes(clips, ["front-many"], [0, 1], max_frames=4)  # 4 episodes
+@pytest.fixture
+def recordings(short_streams: list[Any]) -> list[Any]:
+    return short_streams
 
 
 def _same_pairs(a: ImitationData, b: ImitationData) -> None:
@@ -48,7 +36,7 @@ def _same_pairs(a: ImitationData, b: ImitationData) -> None:
 def test_stopped_collection_goes_on_to_the_same_pairs(
     graph: Any, recordings: list[Any], tmp_path: Path
 ) -> None:
-    kwargs: dict[str, Any] = {"target": "search", "seed": 5, "batch": 1, "frames": 14}
+    kwargs: dict[str, Any] = {"target": "search", "seed": 5, "batch": 1, "frames": 17}
     whole = collect_imitation_data(graph, recordings, SPEC, **kwargs)
     run = RunCheckpoints(tmp_path / "run.checkpoints", SETTINGS)
     saved: list[list[int]] = []

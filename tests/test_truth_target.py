@@ -11,9 +11,7 @@ import pytest
 
 from fpg_gym import metrics, skeleton
 from fpg_gym import poses as pose_utils
-from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.env_observation import ObservationLayout
-from fpg_gym.graph import default_graph
 from fpg_gym.io import load_default_clips
 from fpg_gym.io.recording import Recording
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
@@ -31,13 +29,6 @@ SPEC = SamplerSpec(
 )
 SWAPPED = (12, 13, 14, 27, 28)  # frames whose sensor labels are left/right mirrored
 NO_BODY = (20, 21)  # frames without a body
-
-
-@pytest.fixture(scope="module")
-def graph(tmp_path_factory: pytest.TempPathFactory) -> Any:
-    return default_graph(
-        exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=tmp_path_factory.mktemp("fpg-cache")
-    )
 
 
 def _recording() -> Recording:
