@@ -323,10 +323,14 @@ def test_best_k_kernel_orders_by_score_then_node() -> None:
     nodes = np.array([7, 3, 9, 1, 4, 8], dtype=np.int64)
     scores = np.array([5.0, 1.0, 3.0, 2.0, 3.0, np.nan])
     out, kept, tied = compiled_selection._best(nodes, scores, 3)
-    assert out.tolist() == [3, 1, 4] and kept.tolist() == [1.0, 2.0, 3.0]  # tie 9/4: node 4
-    assert tied  # ... across the cut: the caller runs the numpy path
+    assert tied and out.size == 0  # 9 and 4 tie across the cut: the caller runs numpy
+    out, kept, tied = compiled_selection._best(nodes, scores, 2)
+    assert out.tolist() == [3, 1] and kept.tolist() == [1.0, 2.0] and not tied
     out, kept, tied = compiled_selection._best(nodes, scores, 4)
-    assert out.tolist() == [3, 1, 4, 9] and not tied
+    assert out.tolist() == [3, 1, 4, 9] and not tied  # the tie inside: by node id
+    many = np.zeros(100_000)  # a large tie: no quadratic sort
+    out, _, tied = compiled_selection._best(np.arange(100_000), many, 30)
+    assert tied and out.size == 0
     out, kept, tied = compiled_selection._best(nodes, scores, 10)  # k >= n: all, NaN last
     assert out.tolist() == [3, 1, 4, 9, 7, 8] and np.isnan(kept[-1]) and not tied
     out, _, _ = compiled_selection._best(nodes[:0], scores[:0], 3)

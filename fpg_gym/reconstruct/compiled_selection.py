@@ -76,9 +76,10 @@ def _kth(scores, k):
 def _best(nodes, scores, k):
     """The ``k`` nodes of least score, ordered by (score, node id); ``(nodes, scores, tied)``.
 
-    The nodes at or below the ``k``-th score (:func:`_kth`; ties included, NaN last) are sorted
-    by (score, node id); ``tied`` when more than ``k`` of them are (a tie across the cut, where
-    the numpy path keeps whichever tied nodes its partition leaves: the caller runs it then).
+    The nodes at or below the ``k``-th score (:func:`_kth`; NaN last) are sorted by (score,
+    node id). ``tied`` (and empty arrays) when more than ``k`` of them are: a tie across the
+    cut, where the numpy path keeps whichever tied nodes its partition leaves, so the caller
+    runs it then.
     """
     kth = _kth(scores, k)
     count = scores.shape[0]
@@ -86,6 +87,8 @@ def _best(nodes, scores, k):
     for i in range(count):
         if scores[i] <= kth or kth == np.inf:
             taken += 1
+    if taken > k:  # the caller runs the numpy path (and no quadratic sort of a large tie)
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.float64), True
     out = np.empty(taken, dtype=np.int64)
     kept = np.empty(taken, dtype=np.float64)
     taken = 0
@@ -108,7 +111,7 @@ def _best(nodes, scores, k):
             j -= 1
         out[j + 1] = node
         kept[j + 1] = value
-    return out[:k].copy(), kept[:k].copy(), taken > k
+    return out, kept, False
 
 
 @numba.njit(cache=True, nogil=True)
