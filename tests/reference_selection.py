@@ -28,3 +28,14 @@ def reference_best_k(
         scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
     best = _best_k(scores, k)
     return best, scores[best].astype(np.float64)
+
+
+def reference_walk(
+    database: NodeDatabase, pool: np.ndarray, query: SelectionQuery, k: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The previous graph walk's K best of a sorted neighbourhood ``pool``: every pool node
+    retargeted with ``poses_for`` and scored with FPG's S; nodes, poses, scores."""
+    candidates = database.poses_for(pool, query.lengths)
+    scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
+    best = _best_k(scores, k)
+    return pool[best], candidates[best], scores[best].astype(np.float64)

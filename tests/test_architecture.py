@@ -38,7 +38,10 @@ LAZY_EXTERNALS = (
 LAZY_MODULES = ("fpg_gym/commands/",)
 #: The project's own modules that exist for an optional extra (and import it at their top, which
 #: the last test checks): imported inside functions like the extra itself.
-EXTRA_MODULES = {"fpg_gym.reconstruct.compiled_kernels": "numba"}
+EXTRA_MODULES = {
+    "fpg_gym.reconstruct.compiled_kernels": "numba",
+    "fpg_gym.reconstruct.compiled_selection": "numba",
+}
 
 
 def _inner_imports(path: Path) -> list[tuple[int, str]]:

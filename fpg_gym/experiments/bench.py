@@ -14,7 +14,8 @@ Sections (each a list of rows, see :func:`run_bench`):
 ``selection``
     Median CPU time of selection per frame against graph size (graphs built with several
     ``thres1``): the graph walk (FPG §8: scores a neighbourhood), the ``auto`` selector, the
-    exact brute force (one GEMV on augmented vectors) and the direct Eq. 9 score of every node.
+    exact brute force (compiled with numba, else one GEMV on augmented vectors) and the direct
+    Eq. 9 score of every node.
 ``streams``
     Many streams (:func:`fpg_gym.reconstruct.batched.run_streams`): the same simulated
     recordings reconstructed one by one and side by side in this process (local search, no
@@ -583,9 +584,9 @@ def format_bench(report: dict[str, Any]) -> str:
                     "walk scored",
                     "auto",
                     "auto full",
-                    "brute force (GEMV)",
+                    "brute force (exact)",
                     "brute force (direct)",
-                    "GEMV speed-up",
+                    "exact speed-up",
                 ],
                 [
                     [

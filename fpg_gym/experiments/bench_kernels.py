@@ -12,7 +12,8 @@ the alternatives interleaved, so that ratios are comparable on a busy machine:
 * **floor**: the floating-point operations of a frame's 2,000 evaluations divided by this
   machine's measured small-matrix product rate;
 * **selection** per frame against graph size: the graph walk, the ``auto`` selector, the exact
-  brute force (one GEMV on augmented vectors) and the direct Eq. 9 score of every node.
+  brute force (:func:`~fpg_gym.reconstruct.selection.shum_best_k`: compiled with numba, else
+  one GEMV on augmented vectors) and the direct Eq. 9 score of every node.
 """
 
 from __future__ import annotations

@@ -78,10 +78,12 @@ class NodeDatabase:
             raise ValueError("poses: the database is empty (0 nodes)")
         self._directions = bone_directions(self.poses).astype(np.float32)
         self._roots = self.poses[:, skeleton.ROOT].copy()
+        self._root_max = float(np.abs(self._roots).max())
         self._path = skeleton.PATH_MATRIX.astype(np.float32)
         self.refresh_tolerance_m = refresh_tolerance_m
         self._cache_lengths: np.ndarray | None = None
         self._cache: np.ndarray | None = None
+        self._cache_key = b""
         self._augmented: dict[bool, np.ndarray] = {}
         self._column_max: dict[bool, np.ndarray] = {}
         self.refreshes = 0
@@ -103,10 +105,41 @@ class NodeDatabase:
         np.add(joints, self._roots[nodes, None, :], out=out)
         return out
 
+    @property
+    def directions(self) -> np.ndarray:
+        """Unit bone directions ``(N, 19, 3)`` float32 (read-only view)."""
+        view = self._directions.view()
+        view.flags.writeable = False
+        return view
+
+    @property
+    def roots(self) -> np.ndarray:
+        """Root positions ``(N, 3)`` float32 (read-only view)."""
+        view = self._roots.view()
+        view.flags.writeable = False
+        return view
+
+    def retarget_error_bound(self, lengths: np.ndarray) -> float:
+        """Bound on ``|poses_for(nodes, lengths) - exact|`` for every coordinate of every node.
+
+        ``exact`` is the root plus the sum of the (float32) directions times the float32
+        lengths along the path, in exact arithmetic. :meth:`poses_for` rounds each product and
+        a sum of at most 20 terms in float32, in any order (``gamma_21`` of the terms'
+        magnitudes, Higham); doubled for safety, plus as much for a float64 evaluation.
+        """
+        terms = skeleton.NUM_BONES + 2
+        magnitude = self._root_max + 1.001 * float(
+            np.abs(np.asarray(lengths, dtype=np.float32)).sum()
+        )
+        u64 = float(np.finfo(np.float64).eps) / 2
+        gamma = terms * _U32 / (1.0 - terms * _U32) + terms * u64 / (1.0 - terms * u64)
+        return 2.0 * gamma * magnitude
+
     def clear_cache(self) -> None:
         """Forget the cached retargeted database (a new stream starts from scratch)."""
         self._cache = None
         self._cache_lengths = None
+        self._cache_key = b""
         self._augmented.pop(True, None)
 
     def all_poses(self, lengths: np.ndarray | None) -> np.ndarray:
@@ -114,6 +147,8 @@ class NodeDatabase:
         if lengths is None:
             return self.poses
         lengths = np.asarray(lengths, dtype=np.float64)
+        if self._cache is not None and lengths.tobytes() == self._cache_key:
+            return self._cache  # the same lengths as last time (settled), no arithmetic
         if (
             self._cache is None
             or self._cache_lengths is None
@@ -123,6 +158,7 @@ class NodeDatabase:
             self._cache_lengths = lengths.copy()
             self._augmented.pop(True, None)
             self.refreshes += 1
+        self._cache_key = lengths.tobytes()
         return self._cache
 
     def augmented(self, lengths: np.ndarray | None) -> np.ndarray:

@@ -21,11 +21,30 @@ search over all nodes with the same score ``S`` and records ``recovered=True``.
 All candidate poses are *normalised* (root at the origin, facing +Z) and, when reference bone
 lengths are given, retargeted to them, so that the sensor pose is compared with database poses of
 the user's proportions (:class:`NodeDatabase`).
+
+Compiled kernels (:mod:`fpg_gym.reconstruct.compiled_selection`, with ``fpg-gym[fast]``) run
+the full searches and the graph walk in one pass each, without materialising poses (the walk
+retargets each node on the fly in float64), and keep the K best by (score, node id). They select
+what the numpy paths select: the scores agree to rounding (float64 sums of the same terms on the
+same float32 poses; for the walk, float64 rather than float32 retargeting, within
+:meth:`NodeDatabase.retarget_error_bound`), so the nodes and their order are the same except
+between nodes whose scores agree to that rounding. There the numpy order is itself an artefact
+of rounding that depends on a node's position in its batch (BLAS products round a row
+differently by position: ``poses_for`` of a subset differs in the last bits from the same
+nodes' rows of a larger call), while the compiled score depends on the pose alone: identical
+poses tie exactly and are ordered by node id; a tie across the K-th place (every node scores 0
+when no joint is reliable and there is no prediction) runs the numpy path, which keeps the tied
+nodes its partition leaves, as before. The walk's K poses come from
+:meth:`NodeDatabase.poses_for` as before. Without numba the numpy paths run (the previous
+implementation, unchanged). ``tests/test_fast_selection.py`` compares both with the reference
+of ``tests/reference_selection.py``.
 """
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, replace
+from types import ModuleType
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -96,6 +115,42 @@ def _best_k(scores: np.ndarray, k: int) -> np.ndarray:
     else:
         part = np.arange(len(scores))
     return part[np.lexsort((part, scores[part]))]
+
+
+# --------------------------------------------------------------------------- compiled kernels
+
+
+@functools.lru_cache(maxsize=1)
+def _compiled() -> ModuleType | None:
+    """The compiled selection kernels, or None without numba (compiled on first use, cached
+    on disk)."""
+    try:
+        import fpg_gym.reconstruct.compiled_selection as compiled  # needs numba: fpg-gym[fast]
+    except ImportError:
+        return None
+    return compiled
+
+
+def compiled_available() -> bool:
+    """Whether selection runs the compiled kernels (numba installed)."""
+    return _compiled() is not None
+
+
+def _fpg_weights(
+    reliability: np.ndarray, dtype: np.dtype, prediction: bool
+) -> tuple[np.ndarray, np.ndarray]:
+    """``R / 20`` and ``(1 - R) / 20`` as :func:`fpg_score` forms them (in ``dtype``), float64."""
+    r = np.asarray(reliability, dtype=dtype)
+    ws = (r / skeleton.NUM_JOINTS).astype(np.float64)
+    wc = ((1.0 - r) / skeleton.NUM_JOINTS).astype(np.float64) if prediction else np.zeros_like(ws)
+    return ws, wc
+
+
+def _as_joints(pose: np.ndarray | None, like: np.ndarray) -> np.ndarray:
+    """``pose`` (or ``like`` when None) as a C-contiguous float64 ``(20, 3)`` array."""
+    return np.ascontiguousarray(like if pose is None else pose, dtype=np.float64).reshape(
+        skeleton.NUM_JOINTS, 3
+    )
 
 
 # --------------------------------------------------------------------------- interface
@@ -221,7 +276,10 @@ def shum_best_k(
     bound ``e``; the nodes within ``2 e`` of the ``k``-th approximate score (a few more than
     ``k``) are re-scored exactly with :func:`shum_score`. The result equals scoring every node
     with :func:`shum_score`: same nodes, same order, same ties. Databases of fewer than
-    :data:`GEMV_MIN_NODES` nodes are scored directly.
+    :data:`GEMV_MIN_NODES` nodes are scored directly. With numba, one compiled pass scores
+    every node in float64 and keeps the ``k`` best instead: the same nodes and order up to
+    near-ties within rounding (module docstring); on an exact tie across the ``k``-th place the
+    numpy path runs.
 
     Returns
     -------
@@ -229,6 +287,15 @@ def shum_best_k(
     scores : ndarray, shape (k,) float64
     """
     reliability = np.asarray(query.reliability, dtype=np.float64)
+    compiled = _compiled()
+    if compiled is not None:  # Shum Eq. 9 of every node
+        nodes, scores, tied = compiled.shum_full_best(
+            database.all_poses(query.lengths), _as_joints(query.pose, query.pose), reliability, k
+        )
+        if not tied:
+            return nodes, scores
+        # a tie across the cut (e.g. only the root, at the origin in every pose, is reliable):
+        # the numpy path below, whose partition picks the tied nodes kept
     if not reliability.any():  # every score is 0: a tie of all nodes, keep the first k
         first = np.arange(min(k, len(database)))
         return first, np.zeros(len(first))
@@ -256,19 +323,36 @@ def fpg_best_k(
 ) -> tuple[np.ndarray, np.ndarray]:
     """The ``k`` nodes of least FPG score ``S = Ss + Sc`` over the whole database, best first.
 
-    Scores every node with :func:`fpg_score`. (``S`` sums joint distances, not squares, so it
-    is no inner product; a shortlist from bounds by weighted squared distances,
-    ``sqrt(sum a^2 d^2) <= sum a d <= sqrt(sum a) sqrt(sum a d^2)``, was measured: the bounds
-    differ by up to ``sqrt(20)`` and kept nearly every node, 0.5-0.9x the direct score.)
+    Scores every node with :func:`fpg_score` (with numba: one compiled pass, module
+    docstring). (``S`` sums joint distances, not squares, so it is no inner product; a
+    shortlist from bounds by weighted squared distances, ``sqrt(sum a^2 d^2) <= sum a d <=
+    sqrt(sum a) sqrt(sum a d^2)``, was measured: the bounds differ by up to ``sqrt(20)`` and
+    kept nearly every node, 0.5-0.9x the direct score.)
 
     Returns
     -------
     nodes : ndarray, shape (k,)
     scores : ndarray, shape (k,) float64
     """
-    scores = fpg_score(
-        query.pose, query.reliability, database.all_poses(query.lengths), query.prediction
-    )
+    poses = database.all_poses(query.lengths)
+    compiled = _compiled()
+    if compiled is not None:
+        pose = np.asarray(query.pose)
+        ws, wc = _fpg_weights(query.reliability, poses.dtype, query.prediction is not None)
+        nodes, scores, tied = compiled.fpg_full_best(  # FPG Eq. 5-7 of every node
+            poses,
+            _as_joints(pose, pose),
+            _as_joints(query.prediction, pose),
+            ws,
+            wc,
+            query.prediction is not None,
+            k,
+        )
+        if not tied:
+            return nodes, scores
+    # without numba, or a tie across the cut (e.g. no reliable joint and no prediction: every
+    # node scores 0): the numpy path, whose partition picks the tied nodes kept
+    scores = fpg_score(query.pose, query.reliability, poses, query.prediction)
     best = _best_k(scores, k)
     return best, scores[best].astype(np.float64)
 
@@ -278,6 +362,21 @@ def fpg_best_k(
 WALK_NODE_COST = 2.5
 #: Fixed cost of a walk (the neighbourhood union), in the same units.
 WALK_FIXED_COST = 200.0
+#: The same two costs for the compiled kernels: a walked node (random access, retargeted on
+#: the fly) cost 3-4x a node of the compiled full search (sequential, cached poses) on a
+#: 99k-node graph (about 300 vs 77 ns); the fixed cost is the union and the Python around it.
+COMPILED_WALK_NODE_COST = 3.5
+COMPILED_WALK_FIXED_COST = 500.0
+
+_BONES = np.ascontiguousarray(skeleton.BONES, dtype=np.int64)
+
+
+def walk_cost(pool_size: int, compiled: bool) -> float:
+    """Estimated cost of a graph walk over ``pool_size`` nodes, in full-search node units (the
+    ``auto`` strategy searches every node when this is at least the database size)."""
+    if compiled:
+        return COMPILED_WALK_NODE_COST * pool_size + COMPILED_WALK_FIXED_COST
+    return WALK_NODE_COST * pool_size + WALK_FIXED_COST
 
 
 class GraphSelector:
@@ -301,8 +400,8 @@ class GraphSelector:
         Share one database between selectors.
     strategy : {"walk", "auto"}
         ``"walk"`` (FPG): score the neighbourhood. ``"auto"``: score the neighbourhood unless
-        a full search costs less by the estimate ``WALK_NODE_COST * |neighbourhood| +
-        WALK_FIXED_COST`` against ``|nodes|`` (deterministic, from sizes only); the full
+        a full search costs less by the estimate :func:`walk_cost` of the neighbourhood
+        against ``|nodes|`` (deterministic, from sizes only); the full
         search then gives the best K of all nodes by the same score (``full_search=True``).
         Dense graphs (a large mean degree) and small ones favour the full search.
     """
@@ -335,6 +434,7 @@ class GraphSelector:
         self.recovery_factor = recovery_factor
         self.recovery_min_score = recovery_min_score
         self.recovery_smoothing = recovery_smoothing
+        self._marks: np.ndarray | None = None
         self.reset()
 
     def reset(self) -> None:
@@ -345,7 +445,25 @@ class GraphSelector:
 
     def neighbourhood(self, nodes: np.ndarray) -> np.ndarray:
         """``nodes`` and all their graph neighbours, sorted and unique."""
+        return np.sort(self._pool(nodes))
+
+    def _csr(self) -> tuple[np.ndarray, np.ndarray] | None:
+        """The graph's CSR arrays ``(indptr, indices)`` when it has them."""
+        indptr = getattr(self.graph, "indptr", None)
+        indices = getattr(self.graph, "indices", None)
+        if indptr is None or indices is None:
+            return None
+        return np.asarray(indptr), np.asarray(indices)
+
+    def _pool(self, nodes: np.ndarray) -> np.ndarray:
+        """``nodes`` and all their graph neighbours, unique (sorted unless compiled)."""
         nodes = np.asarray(nodes, dtype=np.int64)
+        compiled, csr = _compiled(), self._csr()
+        if compiled is not None and csr is not None:  # a marker array, no sort
+            if self._marks is None:
+                self._marks = np.zeros(len(csr[0]) - 1, dtype=np.bool_)
+            pool: np.ndarray = compiled.neighbourhood(nodes, csr[0], csr[1], self._marks)
+            return pool
         graph = self.graph
         if hasattr(graph, "neighbors_of"):
             neighbours = np.asarray(graph.neighbors_of(nodes), dtype=np.int64)
@@ -362,20 +480,27 @@ class GraphSelector:
         if self._previous is None:
             selection = self.full_search.select(query)
         else:
-            pool = self.neighbourhood(self._previous)
-            walk_cost = WALK_NODE_COST * len(pool) + WALK_FIXED_COST
-            if self.strategy == "auto" and walk_cost >= len(self.database):
+            compiled = _compiled()
+            pool = self._pool(self._previous)
+            if self.strategy == "auto" and walk_cost(len(pool), compiled is not None) >= len(
+                self.database
+            ):
                 return self._finish(self.full_search.select(query))
-            candidates = self.database.poses_for(pool, query.lengths)
-            scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
-            best = _best_k(scores, self.k)
-            selection = Selection(
-                nodes=pool[best],
-                poses=candidates[best],
-                scores=scores[best].astype(np.float64),
-                num_scored=len(pool),
-                full_search=False,
-            )
+            walked = None if compiled is None else self._walk_compiled(compiled, pool, query)
+            if walked is not None:
+                selection = walked
+            else:  # without numba, or a tie across the cut
+                pool = np.sort(pool)
+                candidates = self.database.poses_for(pool, query.lengths)
+                scores = fpg_score(query.pose, query.reliability, candidates, query.prediction)
+                best = _best_k(scores, self.k)
+                selection = Selection(
+                    nodes=pool[best],
+                    poses=candidates[best],
+                    scores=scores[best].astype(np.float64),
+                    num_scored=len(pool),
+                    full_search=False,
+                )
             if (
                 self.recovery_factor is not None
                 and self._average is not None
@@ -386,6 +511,46 @@ class GraphSelector:
                 selection = replace(full, num_scored=len(pool) + full.num_scored, recovered=True)
                 self.recoveries += 1
         return self._finish(selection)
+
+    def _walk_compiled(
+        self, compiled: ModuleType, pool: np.ndarray, query: SelectionQuery
+    ) -> Selection | None:
+        """The walk's K best: FPG's ``S`` of every pool node in one compiled pass, retargeted on
+        the fly (module docstring); their poses from :meth:`NodeDatabase.poses_for`. None on a
+        tie across the cut (the numpy walk then picks the tied nodes kept, as before)."""
+        database = self.database
+        retarget = query.lengths is not None
+        dtype = np.dtype(np.float32) if retarget else database.poses.dtype
+        pose = np.asarray(query.pose)
+        has_prediction = query.prediction is not None
+        ws, wc = _fpg_weights(query.reliability, dtype, has_prediction)
+        lengths = np.asarray(
+            query.lengths if retarget else np.ones(skeleton.NUM_BONES), dtype=np.float32
+        )
+        nodes, scores, tied = compiled.fpg_walk_best(  # FPG Eq. 5-7 of every pool node
+            pool,
+            database.poses,
+            database.directions,
+            database.roots,
+            lengths,
+            _BONES,
+            retarget,
+            _as_joints(pose, pose),
+            _as_joints(query.prediction, pose),
+            ws,
+            wc,
+            has_prediction,
+            self.k,
+        )
+        if tied:
+            return None
+        return Selection(
+            nodes=nodes,
+            poses=database.poses_for(nodes, query.lengths),
+            scores=scores,
+            num_scored=len(pool),
+            full_search=False,
+        )
 
     def _finish(self, selection: Selection) -> Selection:
         """Remember the frame's nodes and best score; float32 poses."""
