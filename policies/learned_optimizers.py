@@ -30,6 +30,7 @@ Examples
 
 from __future__ import annotations
 
+import copy
 import os
 from typing import Any
 
@@ -49,6 +50,11 @@ def _sampler(model: Any) -> Any:
             f"model: expected a sampler path or a policies.GaussianSampler, got {model!r}"
         )
     return model
+
+
+#: Attributes a copy of a learned optimiser shares with the original (the model, the frame's
+#: problem).
+_SHARED = frozenset({"model", "sampler", "problem"})
 
 
 class LearnedSampler(BaseOptimizer):
@@ -76,6 +82,18 @@ class LearnedSampler(BaseOptimizer):
         self.sampler = _sampler(model)
         self.samples = int(samples)
         self.std_scale = float(std_scale)
+
+    def __deepcopy__(self, memo: dict[int, Any]) -> LearnedSampler:
+        """A copy with its own search state that shares the model (read-only while searching):
+        streams searched side by side (:func:`fpg_gym.reconstruct.batched.make_optimizers`)
+        need one optimiser each, not one network each, and a trained torch module holding
+        tensors of its last backward pass cannot be deep-copied at all."""
+        clone = copy.copy(self)
+        memo[id(self)] = clone
+        for name, value in self.__dict__.items():
+            if name not in _SHARED:
+                setattr(clone, name, copy.deepcopy(value, memo))
+        return clone
 
     def params(self) -> dict[str, Any]:
         """Constructor parameters."""

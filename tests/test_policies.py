@@ -547,6 +547,40 @@ def test_cli_trains_a_tiny_supervised_sampler(tmp_path: Path, capsys: Any) -> No
     assert load_sampler(out).spec.training["frames"] == 12
 
 
+def test_cli_trains_a_tiny_rl_sampler_and_evaluates_it(tmp_path: Path) -> None:
+    """The whole RL command, final evaluation included: its learned optimisers are copied per
+    evaluated stream, and a trained SB3 policy cannot be deep-copied (it is shared)."""
+    from fpg_gym.cli import main
+
+    out = tmp_path / "rl_model"
+    code = main(
+        [
+            "train-sampler", "--kind", "rl", "--clips", "run", "--val-clips", "jump",
+            "--scenarios", "front-many", "--timesteps", "64", "--k", "8", "--latent-dim", "7",
+            "--max-frames", "6", "--eval-episodes", "1", "--no-mirror", "--quiet",
+            "--reward", "smooth", "--out", str(out),
+        ]
+    )  # fmt: skip
+    assert code == 0
+    sampler = load_sampler(out)
+    assert sampler.spec.training["smooth_weight"] == 0.002
+    evaluation = sampler.spec.training["evaluation"]
+    assert {"learned (200)", "learned+search (200)"} <= set(evaluation)
+    assert all(np.isfinite(row["jitter"]) for row in evaluation.values())
+
+
+def test_learned_optimiser_copies_share_the_model(trained: dict[str, Any]) -> None:
+    import copy
+
+    from policies.learned_optimizers import LearnedSearch
+
+    search = LearnedSearch(trained["sampler"])
+    twin = copy.deepcopy(search)
+    assert twin.sampler is search.sampler and twin is not search
+    twin.samples = 7
+    assert search.samples != 7
+
+
 def test_cli_trains_on_the_ground_truth_without_search(tmp_path: Path, capsys: Any) -> None:
     from fpg_gym.cli import main
 
