@@ -50,7 +50,7 @@ from reference_selection import reference_best_k  # noqa: E402
 
 import optimizers  # noqa: E402
 from fpg_gym import metrics  # noqa: E402
-from fpg_gym.experiments.bench_kernels import interleaved_cpu_us  # noqa: E402
+from fpg_gym.experiments.bench_kernels import interleaved_cpu_us, recorded_queries  # noqa: E402
 from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
 from fpg_gym.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes  # noqa: E402
 from fpg_gym.io import load_clips  # noqa: E402
@@ -186,23 +186,6 @@ def brute_force_table(
             }
         )
     return rows
-
-
-def recorded_queries(graph: Any, recordings: list[Any]) -> list[SelectionQuery]:
-    """The selection queries of a graph-selection reconstruction (no search) of ``recordings``
-    (pose, reliability, continuity prediction, settled bone lengths), in stream order."""
-    queries: list[SelectionQuery] = []
-    reconstructor = Reconstructor(graph, selector="graph")
-    select = reconstructor.selector.select
-
-    def spy(query: SelectionQuery) -> Any:
-        queries.append(query)
-        return select(query)
-
-    setattr(reconstructor.selector, "select", spy)  # noqa: B010 - record real queries
-    for i, recording in enumerate(recordings):
-        reconstructor.reconstruct(recording, "none", rng=i)
-    return queries
 
 
 def scale_table(

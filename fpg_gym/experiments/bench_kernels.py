@@ -171,14 +171,9 @@ def floor_row(dim: int = 20, k: int = 30, evaluations: int = 2000) -> dict[str, 
     }
 
 
-def selection_rows(
-    graph: Any, recordings: list[Any], k: int = 30, quick: bool = False
-) -> dict[str, Any]:
-    """CPU milliseconds per frame of each selector on the queries of ``recordings``.
-
-    The queries are those of a graph-selection reconstruction (no search); the stateful
-    selectors (``graph``, ``auto``) replay them in order, the full searches score each alone.
-    """
+def recorded_queries(graph: Any, recordings: list[Any]) -> list[SelectionQuery]:
+    """The selection queries of a graph-selection reconstruction (no search) of ``recordings``
+    (pose, reliability, continuity prediction, settled bone lengths), in stream order."""
     queries: list[SelectionQuery] = []
     reconstructor = Reconstructor(graph, selector="graph")
     select = reconstructor.selector.select
@@ -187,9 +182,21 @@ def selection_rows(
         queries.append(query)
         return select(query)
 
-    setattr(reconstructor.selector, "select", spy)  # noqa: B010 - record the queries
+    setattr(reconstructor.selector, "select", spy)  # noqa: B010 - record real queries
     for i, recording in enumerate(recordings):
         reconstructor.reconstruct(recording, "none", rng=i)
+    return queries
+
+
+def selection_rows(
+    graph: Any, recordings: list[Any], k: int = 30, quick: bool = False
+) -> dict[str, Any]:
+    """CPU milliseconds per frame of each selector on the queries of ``recordings``.
+
+    The queries are those of a graph-selection reconstruction (no search); the stateful
+    selectors (``graph``, ``auto``) replay them in order, the full searches score each alone.
+    """
+    queries = recorded_queries(graph, recordings)
     queries = [q for q in queries if np.any(q.reliability)] or queries
     database = NodeDatabase(np.asarray(graph.poses))
     row: dict[str, Any] = {"nodes": len(database), "queries": len(queries)}
