@@ -47,7 +47,6 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import FpgGymError
 from fpg_gym.reconstruct import Reconstructor
-from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.validation import check_integer, check_number
 from optimizers import make
 
@@ -370,9 +369,9 @@ class ReconstructorStep:
         self.optimizer = make(optimizer)
         self.rng = np.random.default_rng(seed)
         self.reconstructor.reset()
-        # The energy kernels load (numba: import and disk cache, about 1 s) now, before the
-        # stream, not on its first frame, where they would stall it and drop frames.
-        compile_kernels()
+        # The compiled kernels load (numba: import and disk cache, about 1 s) now, before the
+        # stream, not on its first frames, where they would stall it and drop frames.
+        self.reconstructor.warm_up(self.optimizer)
 
     def __call__(self, frame: LiveFrame) -> np.ndarray:
         pose, _ = self.reconstructor.reconstruct_frame(

@@ -292,3 +292,13 @@ def test_any_line_parses_or_raises_frame_error(value: object, raw: bytes) -> Non
         assert frame.positions.shape == (20, 3) and np.all(np.isfinite(frame.positions))
         assert frame.states.shape == (20,)
         live.is_end(line)  # never raises either
+
+
+def test_warm_up_leaves_no_trace_on_the_stream() -> None:
+    """``Reconstructor.warm_up`` (what ``fpg-gym live`` runs before its stream) reconstructs
+    two frames and starts a new stream: the stream after it equals a fresh reconstructor's."""
+    rec = recording().head(20)
+    fresh = Reconstructor(graph(), ragdoll=False).reconstruct(rec, "local-search", rng=3)
+    warmed = Reconstructor(graph(), ragdoll=False)
+    warmed.warm_up()
+    np.testing.assert_array_equal(warmed.reconstruct(rec, "local-search", rng=3).poses, fresh.poses)

@@ -81,6 +81,7 @@ from fpg_gym.reconstruct.energy import (
     EnergyWeights,
     motion_target,
 )
+from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
 from fpg_gym.reconstruct.reliability import (
@@ -1034,6 +1035,24 @@ class Reconstructor:
             self._pending = None
             raise
         return self.finish(found.x)
+
+    def warm_up(self, optimizer: Optimizer | str = "local-search") -> None:
+        """Load what a stream's first frames would otherwise load, then start a new stream.
+
+        Compiles (or loads from numba's disk cache) the energy and selection kernels and runs
+        two frames of a still database pose standing 2.5 m in front of the sensor, a full search
+        then a graph walk, with ``optimizer`` (and the ragdoll, when configured); then
+        :meth:`reset`, after which the output does not depend on these frames. For a live
+        stream, whose first frames would stall for tens of milliseconds otherwise.
+        """
+        compile_kernels()
+        pose = np.asarray(self.graph.poses[0], dtype=np.float64) + np.array([0.0, 1.0, 2.5])
+        states = np.full(skeleton.NUM_JOINTS, skeleton.TRACKED)
+        try:
+            for timestamp in (0.0, self.config.frame_dt):
+                self.reconstruct_frame(pose, states, timestamp, optimizer, 0)
+        finally:
+            self.reset()
 
     def _prepared(self, caller: str) -> _Pending:
         """The prepared frame, or a RuntimeError naming ``caller``."""
