@@ -13,7 +13,8 @@ goes:
 * ``epoch-NNNN.json`` / ``.pt``: the sampler at each periodic evaluation (as before).
 
 Every file is written to a temporary name and renamed, so a run stopped at any point (Ctrl-C,
-kill, a crash) leaves only whole files. Running the same command again goes on from them:
+kill, a crash) leaves only whole files; a run that ends with its model written removes them
+(:meth:`RunCheckpoints.finish`). Running the same command again goes on from them:
 the episodes already collected are read back, the others collected (each episode has its own
 generator, so the pairs are the same as an uninterrupted run's) and the fit goes on from its
 last epoch (the same weights, tested). A run with other settings refuses the folder unless
@@ -202,4 +203,10 @@ class RunCheckpoints:
     def save_fit(self, state: FitState) -> None:
         """Write the fit's state (replacing the previous one)."""
         state.save(self.folder / _FIT_STEM)
+
+    def finish(self) -> int:
+        """The run is over and its model written: remove the data, the fit's state and
+        ``run.json`` (the default run's data take about 150 MB); the number of files removed.
+        The periodic samplers (``epoch-NNNN``) stay."""
+        return self._remove_own_files()
 

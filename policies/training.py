@@ -510,6 +510,13 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     ]
     out_json, stem = model_paths(config.out)
     checkpoints = stem.with_name(stem.name + ".checkpoints")
+    # A supervised run goes on from a stopped one's files (or refuses other settings) now,
+    # before any work.
+    run = (
+        RunCheckpoints(checkpoints, config.run_settings(), restart=config.restart, log=say)
+        if config.kind == "supervised"
+        else None
+    )
     training_info: dict[str, Any] = {
         "graph": config.graph,
         "clips": [c.name for c in train_clips],
@@ -532,7 +539,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         )
         return table
 
-    if config.kind == "supervised":
+    if run is not None:
         sampler, history = _train_supervised(
             config,
             graph,
@@ -541,6 +548,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             training_info,
             evaluate,
             checkpoints,
+            run,
             seconds,
             say,
         )
@@ -598,6 +606,8 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     sampler.spec.training["seconds"] = dict(seconds)
     sampler.spec.training["evaluation"] = final
     path = sampler.save(out_json)
+    if run is not None:
+        run.finish()  # the model is written: its data and fit state are no longer needed
     say(f"saved {path} ({sampler.spec.weights})")
     say(f"final evaluation on {len(validation)} held-out episodes:\n" + format_evaluation(final))
     return TrainResult(str(path), sampler, history, final, seconds)
@@ -611,6 +621,7 @@ def _train_supervised(
     training_info: dict[str, Any],
     evaluate: Callable[..., dict[str, Any]],
     checkpoints: Path,
+    run: RunCheckpoints,
     seconds: dict[str, float],
     say: Callable[[str], None],
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
@@ -642,7 +653,6 @@ def _train_supervised(
     recordings = simulate_episodes(train_clips, scenarios, seeds, max_frames=config.max_frames)
     order = np.random.default_rng(config.seed).permutation(len(recordings))
     recordings = [recordings[i] for i in order]
-    run = RunCheckpoints(checkpoints, config.run_settings(), restart=config.restart, log=say)
     collected = run.collected_episodes()
     data = collect_imitation_data(
         graph,

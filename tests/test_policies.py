@@ -539,9 +539,9 @@ def test_cli_trains_a_tiny_supervised_sampler(tmp_path: Path, capsys: Any) -> No
     assert code == 0
     assert Path(f"{out}.json").is_file() and Path(f"{out}.pt").is_file()
     checkpoints = sorted(p.name for p in Path(f"{out}.checkpoints").iterdir())
-    epochs = [f"epoch-000{e}.{x}" for e in (1, 2) for x in ("json", "pt")]
-    # The evaluated samplers, and what a stopped run goes on from (tests/test_resume.py).
-    assert checkpoints == ["data-00000-00001.npz", *epochs, "fit.json", "fit.pt", "run.json"]
+    # The evaluated samplers; what a stopped run goes on from is removed once the model is
+    # written (tests/test_resume.py).
+    assert checkpoints == [f"epoch-000{e}.{x}" for e in (1, 2) for x in ("json", "pt")]
     summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert {"learned (200)", "local-search (2000)"} <= set(summary["evaluation"])
     assert load_sampler(out).spec.training["frames"] == 12

@@ -129,6 +129,9 @@ def test_a_stopped_training_goes_on_to_the_same_weights(tmp_path: Path) -> None:
     resumed = _train(tmp_path, "stopped")  # the same command again
     _same_weights(resumed.sampler, whole.sampler)
     assert resumed.sampler.spec.training["frames"] == 12  # the stored pairs, once
+    # The model written, its data and fit state are removed; the evaluated samplers stay.
+    left = sorted(p.name for p in (tmp_path / "stopped.checkpoints").iterdir())
+    assert left and all(name.startswith("epoch-") for name in left)
     losses = [r["train_loss"] for r in whole.history]
     assert [r["train_loss"] for r in resumed.history] == losses
     # Starting over trains from scratch: the same weights again, by the long road.
