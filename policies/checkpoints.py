@@ -206,7 +206,8 @@ class RunCheckpoints:
 
     def finish(self) -> int:
         """The run is over and its model written: remove the data, the fit's state and
-        ``run.json`` (the default run's data take about 150 MB); the number of files removed.
+        ``run.json`` (the default run's 20,000 observations of 2,304 float32 values are 184 MB
+        before compression); the number of files removed.
         The periodic samplers (``epoch-NNNN``) stay."""
         return self._remove_own_files()
 
