@@ -469,8 +469,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._t = 0
         self._elapsed = 0
         self._last_obs: np.ndarray | None = None
-        self._last_pose: np.ndarray | None = None
-        # The last three outputs and their timestamps (the "smooth" reward's acceleration).
+        # The last three outputs and their timestamps (the drawing shows the newest; the
+        # "smooth" reward's acceleration needs three).
         self._outputs: list[tuple[np.ndarray, float]] = []
         self._render_centre: np.ndarray | None = None
         self._window: HumanWindow | None = None
@@ -605,7 +605,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             self._counts[key] = 0
         self._t = 0
         self._elapsed = 0
-        self._last_pose = None
         self._outputs = []
         root = recording.positions[:, skeleton.ROOT]
         self._render_centre = np.array([np.median(root[:, 0]), np.median(root[:, 1])])
@@ -652,7 +651,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         if record.ragdoll:
             self._counts["ragdoll_divergences"] += int(record.ragdoll.get("new_divergences", 0))
         t = self._t
-        self._last_pose = pose
 
         w = problem.weights
         terms = record.terms
@@ -673,11 +671,12 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             errors = frame_error(truth[[t, t]], np.stack([pose, recording.positions[t]]))
             info["frame_error"] = float(errors[0])
             info["raw_frame_error"] = float(errors[1])
-        self._outputs = [*self._outputs[-2:], (pose.astype(np.float64), float(record.timestamp))]
+        self._outputs = [*self._outputs[-2:], (pose, float(record.timestamp))]
         info["acceleration"] = 0.0
         if len(self._outputs) == 3:
             poses, times = zip(*self._outputs, strict=True)
-            info["acceleration"] = float(acceleration(np.stack(poses), timestamps=times).mean())
+            outputs = np.stack(poses).astype(np.float64)
+            info["acceleration"] = float(acceleration(outputs, timestamps=times).mean())
         if self.reward_mode == "energy":
             reward = -float(record.energy)
         elif self.reward_mode == "error":
@@ -807,13 +806,14 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         recording = self._recording
         if recording is None:
             return render_panels(None, None, None, None)
-        shown = self._t - 1 if self._last_pose is not None else self._t
+        last = self._outputs[-1][0] if self._outputs else None
+        shown = self._t - 1 if last is not None else self._t
         shown = min(max(shown, 0), recording.num_frames - 1)
         name = self._episode.get("recording", "")
         return render_panels(
             recording.positions[shown],
             recording.states[shown],
-            self._last_pose,
+            last,
             None if recording.ground_truth is None else recording.ground_truth[shown],
             centre=self._render_centre,
             caption=f"{name}  frame {shown + 1}/{recording.num_frames}",

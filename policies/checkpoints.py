@@ -66,7 +66,7 @@ class RunCheckpoints:
     restart : bool
         Start over: remove this module's files from ``folder`` first.
     log : callable, optional
-        Receives a line when the run goes on from earlier files or starts over.
+        Receives a line when the run starts over.
 
     Raises
     ------
@@ -110,13 +110,6 @@ class RunCheckpoints:
         with atomic_path(self.folder / "run.json") as temporary:
             description = {"format": RUN_FORMAT, "digest": self.digest, "settings": self.settings}
             temporary.write_text(json.dumps(description, indent=1) + "\n")
-        done = self.collected_episodes()
-        fit = self.load_fit()
-        if not restart and (done or fit is not None):
-            say(
-                f"{self.folder}: going on from {len(done)} collected episodes"
-                + (f" and {fit.epoch} fitted epochs" if fit is not None else "")
-            )
 
     # ------------------------------------------------------------------ files
 

@@ -128,7 +128,6 @@ class _Collection:
     target: str
     follow: str
     options: dict[str, Any]
-    batch: int
 
 
 @dataclass(frozen=True)
@@ -186,7 +185,7 @@ def _best_of(
 def _collect_episodes(
     graph: Any, chunk: _Chunk, job: _Collection, progress: Any = None
 ) -> ImitationData:
-    """The pairs of the chunk's episodes (at least one), ``job.batch`` side by side."""
+    """The pairs of the chunk's episodes (at least one, at most ``batch``), side by side."""
     recordings, episodes, caps, rngs = chunk.recordings, chunk.episodes, chunk.caps, chunk.rngs
     spec, target, follow = job.spec, job.target, job.follow
     layout, latent_dim, scale = spec.layout, spec.latent_dim, spec.action_scale
@@ -195,80 +194,70 @@ def _collect_episodes(
     anchored = None
     if target == "best" and spec.anchor != "none":
         anchored = LearnedSearch(AnchorSampler(spec), samples=1, iterations=20, search_samples=100)
-    parts = []
-    for first in range(0, len(recordings), job.batch):
-        group = range(first, min(first + job.batch, len(recordings)))
-        reconstructors = [Reconstructor(graph, **job.options) for _ in group]
-        # One optimiser object per stream, reset on every frame.
-        searches = [make("local-search") for _ in group]
-        anchored_searches = [copy.deepcopy(anchored) for _ in group] if anchored else []
-        length = max((caps[i] for i in group), default=0)
-        count = sum(caps[i] for i in group)
-        observations = np.zeros((count, layout.size), np.float32)
-        actions = np.zeros((count, latent_dim), np.float32)
-        masks = np.zeros((count, latent_dim), np.float32)
-        energies = np.zeros(count)
-        # Each episode's rows are contiguous: episode i's frame t goes to row start[i] + t.
-        start = dict(zip(group, np.cumsum([0] + [caps[i] for i in group])[:-1], strict=True))
-        try:
-            for t in range(length):
-                active = [i for i in group if t < caps[i]]
-                own = [reconstructors[i - first] for i in active]
-                problems = [
-                    r.prepare(
-                        recordings[i].positions[t],
-                        recordings[i].states[t],
-                        float(recordings[i].timestamps[t]),
-                    )
-                    for r, i in zip(own, active, strict=True)
-                ]
-                streams = [rngs[i] for i in active]
-                if follow == "search":
-                    found = _best_of(problems, [searches[i - first] for i in active], streams)
-                    if anchored_searches:
-                        others = _best_of(
-                            problems, [anchored_searches[i - first] for i in active], streams
-                        )
-                        # The best of both searches (the lowest energy found).
-                        found = [
-                            o if o.energy < f.energy else f
-                            for f, o in zip(found, others, strict=True)
-                        ]
-                else:
+    streams = range(len(recordings))
+    reconstructors = [Reconstructor(graph, **job.options) for _ in streams]
+    # One optimiser object per stream, reset on every frame.
+    searches = [make("local-search") for _ in streams]
+    anchored_searches = [copy.deepcopy(anchored) for _ in streams] if anchored else []
+    observations = np.zeros((sum(caps), layout.size), np.float32)
+    actions = np.zeros((sum(caps), latent_dim), np.float32)
+    masks = np.zeros((sum(caps), latent_dim), np.float32)
+    energies = np.zeros(sum(caps))
+    # Each episode's rows are contiguous: stream i's frame t goes to row start[i] + t.
+    start = np.cumsum([0, *caps])[:-1]
+    try:
+        for t in range(max(caps)):
+            active = [i for i in streams if t < caps[i]]
+            problems = [
+                reconstructors[i].prepare(
+                    recordings[i].positions[t],
+                    recordings[i].states[t],
+                    float(recordings[i].timestamps[t]),
+                )
+                for i in active
+            ]
+            generators = [rngs[i] for i in active]
+            if follow == "search":
+                found = _best_of(problems, [searches[i] for i in active], generators)
+                if anchored_searches:
+                    others = _best_of(problems, [anchored_searches[i] for i in active], generators)
+                    # The best of both searches (the lowest energy found).
                     found = [
-                        run_optimizer(p, anchor_only, r)
-                        for p, r in zip(problems, streams, strict=True)
+                        o if o.energy < f.energy else f for f, o in zip(found, others, strict=True)
                     ]
-                for r, i, problem, result in zip(own, active, problems, found, strict=True):
-                    z = result.x
-                    d = min(problem.dim, latent_dim)
-                    if target == "truth":
-                        truth = recordings[i].ground_truth
-                        assert truth is not None and r.placement is not None
-                        z_target = truth_latent(problem, r.placement, truth[t])
-                        if follow == "truth":
-                            z = z_target
-                    else:
-                        z_target = z
-                    row = start[i] + t
-                    origin = problem.x0 if delta else 0.0
-                    actions[row, :d] = ((z_target - origin) / scale)[:d]
-                    masks[row, :d] = 1.0
-                    observations[row] = problem_observation(
-                        problem, layout, action_scale=scale, delta=delta, frame_dt=spec.frame_dt
-                    )
-                    energies[row] = result.energy
-                    r.finish(z)
-                if progress is not None:
-                    progress.update(len(active))
-        finally:
-            for r in reconstructors:
-                r.close()
-        labels = np.repeat(
-            np.asarray([episodes[i] for i in group], np.int64), [caps[i] for i in group]
-        )
-        parts.append(ImitationData(observations, actions, masks, labels, energies))
-    return ImitationData.concatenate(parts)
+            else:
+                found = [
+                    run_optimizer(p, anchor_only, r)
+                    for p, r in zip(problems, generators, strict=True)
+                ]
+            for i, problem, result in zip(active, problems, found, strict=True):
+                reconstructor = reconstructors[i]
+                z = result.x
+                d = min(problem.dim, latent_dim)
+                if target == "truth":
+                    truth = recordings[i].ground_truth
+                    assert truth is not None and reconstructor.placement is not None
+                    z_target = truth_latent(problem, reconstructor.placement, truth[t])
+                    if follow == "truth":
+                        z = z_target
+                else:
+                    z_target = z
+                row = start[i] + t
+                origin = problem.x0 if delta else 0.0
+                actions[row, :d] = ((z_target - origin) / scale)[:d]
+                masks[row, :d] = 1.0
+                observations[row] = problem_observation(
+                    problem, layout, action_scale=scale, delta=delta, frame_dt=spec.frame_dt
+                )
+                energies[row] = result.energy
+                reconstructor.finish(z)
+            if progress is not None:
+                progress.update(len(active))
+    finally:
+        for reconstructor in reconstructors:
+            reconstructor.close()
+    labels = np.repeat(np.asarray(episodes, np.int64), caps)
+    return ImitationData(observations, actions, masks, labels, energies)
 
 
 #: The graph of this worker process (set once by the pool's initializer).
@@ -409,7 +398,7 @@ def collect_imitation_data(
         **(reconstructor_options or {}),
         "max_evaluations": None,
     }
-    job = _Collection(spec, target, follow, options, batch)
+    job = _Collection(spec, target, follow, options)
     caps = _frame_caps(recordings, frames)
     for episode in skip:
         if not 0 <= episode < len(recordings):

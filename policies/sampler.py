@@ -477,6 +477,21 @@ class SamplerSpec:
             )
 
     @classmethod
+    def for_layout(
+        cls, kind: str, algo: str, latent_dim: int = 20, candidates: int = 30, **kwargs: Any
+    ) -> SamplerSpec:
+        """The spec of a model for the env's observation layout of ``latent_dim`` axes and
+        ``candidates`` candidates (its ``observation_size`` follows from them)."""
+        return cls(
+            kind=kind,
+            algo=algo,
+            latent_dim=latent_dim,
+            candidates=candidates,
+            observation_size=ObservationLayout(latent_dim, candidates).size,
+            **kwargs,
+        )
+
+    @classmethod
     def for_env(cls, env: Any, kind: str, algo: str, **kwargs: Any) -> SamplerSpec:
         """The spec of a model for ``env`` (a :class:`~fpg_gym.env.KinectPoseEnv`, wrapped or
         not)."""

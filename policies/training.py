@@ -28,7 +28,6 @@ import numpy as np
 from fpg_gym import metrics
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.env import REWARD_MODES
-from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, resolve_clips
 from fpg_gym.poses import mirror
@@ -626,12 +625,11 @@ def _train_supervised(
     say: Callable[[str], None],
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
 
-    spec = SamplerSpec(
-        kind="supervised",
-        algo="mlp",
-        latent_dim=config.latent_dim,
-        candidates=config.k,
-        observation_size=ObservationLayout(config.latent_dim, config.k).size,
+    spec = SamplerSpec.for_layout(
+        "supervised",
+        "mlp",
+        config.latent_dim,
+        config.k,
         features=list(config.features),
         anchor=config.anchor,
         anchor_style=config.anchor_style,
@@ -654,6 +652,8 @@ def _train_supervised(
     order = np.random.default_rng(config.seed).permutation(len(recordings))
     recordings = [recordings[i] for i in order]
     collected = run.collected_episodes()
+    if collected:
+        say(f"{checkpoints}: going on from {len(collected)} collected episodes")
     data = collect_imitation_data(
         graph,
         recordings,
@@ -714,6 +714,9 @@ def _train_supervised(
                 tensorboard.add_scalar("eval/mean_energy", table["mean_energy"], epoch)
                 tensorboard.add_scalar("eval/mean_error", table["mean_error"], epoch)
 
+    fit = run.load_fit()
+    if fit is not None:
+        say(f"{checkpoints}: going on from epoch {fit.epoch}")
     t0 = time.perf_counter()
     try:
         history = fit_supervised(
@@ -729,7 +732,7 @@ def _train_supervised(
             on_epoch=on_epoch,
             progress=config.progress,
             transformed=transformed,
-            state=run.load_fit(),
+            state=fit,
             on_state=run.save_fit,
             **fit_args,
         )

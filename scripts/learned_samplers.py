@@ -52,7 +52,6 @@ import real_kinect  # scripts/real_kinect.py: the UI-PRMD leave-subjects-out mac
 
 import optimizers
 from fpg_gym import metrics
-from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.holdout import split_takes
 from fpg_gym.io import load_clips
@@ -298,12 +297,9 @@ def _oracle(graph: Any, options: dict[str, Any], recording: Any) -> np.ndarray:
 def _spec(task: dict[str, Any]) -> Any:
     """The supervised sampler's description (ground-truth target, the env's layout)."""
 
-    return SamplerSpec(
-        kind="supervised",
-        algo="mlp",
-        latent_dim=20,
-        candidates=30,
-        observation_size=ObservationLayout(20, 30).size,
+    return SamplerSpec.for_layout(
+        "supervised",
+        "mlp",
         action_mode="absolute",
         features=list(FEATURE_SETS[task["features"]]),
         hyperparameters={"hidden": task["hidden"], "target": "truth", "epochs": task["epochs"]},

@@ -262,7 +262,7 @@ def test_compiled_graph_walk_equals_the_reference_walk(
             assert selection.num_scored == len(pool) and not selection.full_search
             tol = 1e-12
             if lengths:
-                tol = float(np.sqrt(3.0) * database.retarget_error_bound(query.lengths))
+                tol = float(np.sqrt(3.0) * retarget_error_bound(database, query.lengths))
             assert_same_selection(selection.nodes, selection.scores, nodes, scores, tol)
             if not lengths:  # no retargeting: the same poses, the same scores to rounding
                 assert_same_selection(selection.nodes, selection.scores, nodes, scores, 1e-12)
@@ -272,13 +272,31 @@ def test_compiled_graph_walk_equals_the_reference_walk(
         previous = selection.nodes
 
 
+
+def retarget_error_bound(database: NodeDatabase, lengths: np.ndarray) -> float:
+    """Bound on ``|poses_for(nodes, lengths) - exact|`` for every coordinate of every node.
+
+    ``exact`` is the root plus the sum of the (float32) directions times the float32 lengths
+    along the path, in exact arithmetic. ``poses_for`` rounds each product and a sum of at most
+    20 terms in float32, in any order (``gamma_21`` of the terms' magnitudes, Higham); doubled
+    for safety, plus as much for a float64 evaluation (the compiled walk's).
+    """
+    terms = skeleton.NUM_BONES + 2
+    magnitude = float(np.abs(database.roots).max()) + 1.001 * float(
+        np.abs(np.asarray(lengths, dtype=np.float32)).sum()
+    )
+    u32 = float(np.finfo(np.float32).eps) / 2
+    u64 = float(np.finfo(np.float64).eps) / 2
+    gamma = terms * u32 / (1.0 - terms * u32) + terms * u64 / (1.0 - terms * u64)
+    return 2.0 * gamma * magnitude
+
 @needs_numba
 def test_retarget_error_bound_covers_float32_retargeting(rng: np.random.Generator) -> None:
     """poses_for's float32 poses stay within the bound of the walk's float64 retargeting."""
     data = random_database(rng, 3000, spread=0.4)
     database = NodeDatabase(data)
     lengths = poses.DEFAULT_BONE_LENGTHS * 1.07
-    bound = database.retarget_error_bound(lengths)
+    bound = retarget_error_bound(database, lengths)
     retargeted = database.poses_for(np.arange(len(data)), lengths).astype(np.float64)
     vectors = database.directions.astype(np.float64) * np.asarray(lengths, np.float32)[:, None]
     tree = np.zeros_like(retargeted)

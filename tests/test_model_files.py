@@ -18,7 +18,6 @@ import numpy as np
 import pytest
 
 import optimizers
-from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.errors import DataFormatError, FpgGymError
 from policies.loading import load_sampler
 from policies.sampler import FORMAT, SamplerSpec
@@ -40,15 +39,7 @@ class _Payload:
 
 
 def _spec(kind: str = "rl", algo: str = "ppo", **kwargs: Any) -> SamplerSpec:
-    return SamplerSpec(
-        kind=kind,
-        algo=algo,
-        latent_dim=LATENT,
-        candidates=CANDIDATES,
-        observation_size=ObservationLayout(LATENT, CANDIDATES).size,
-        action_mode="absolute",
-        **kwargs,
-    )
+    return SamplerSpec.for_layout(kind, algo, LATENT, CANDIDATES, action_mode="absolute", **kwargs)
 
 
 def _write_json(path: Path, spec: SamplerSpec, weights: str, version: int = 1) -> Path:

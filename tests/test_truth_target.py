@@ -11,7 +11,6 @@ import pytest
 
 from fpg_gym import metrics, skeleton
 from fpg_gym import poses as pose_utils
-from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.io import load_default_clips
 from fpg_gym.io.recording import Recording
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
@@ -19,14 +18,7 @@ from policies.sampler import SamplerSpec
 from policies.training import collect_imitation_data, truth_latent
 
 #: A supervised sampler of the env's default layout (20 latent axes, 30 candidates).
-SPEC = SamplerSpec(
-    kind="supervised",
-    algo="mlp",
-    latent_dim=20,
-    candidates=30,
-    observation_size=ObservationLayout(20, 30).size,
-    action_mode="absolute",
-)
+SPEC = SamplerSpec.for_layout("supervised", "mlp", action_mode="absolute")
 SWAPPED = (12, 13, 14, 27, 28)  # frames whose sensor labels are left/right mirrored
 NO_BODY = (20, 21)  # frames without a body
 

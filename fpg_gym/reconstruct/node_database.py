@@ -78,7 +78,6 @@ class NodeDatabase:
             raise ValueError("poses: the database is empty (0 nodes)")
         self._directions = bone_directions(self.poses).astype(np.float32)
         self._roots = self.poses[:, skeleton.ROOT].copy()
-        self._root_max = float(np.abs(self._roots).max())
         self._path = skeleton.PATH_MATRIX.astype(np.float32)
         self.refresh_tolerance_m = refresh_tolerance_m
         self._cache_lengths: np.ndarray | None = None
@@ -118,22 +117,6 @@ class NodeDatabase:
         view = self._roots.view()
         view.flags.writeable = False
         return view
-
-    def retarget_error_bound(self, lengths: np.ndarray) -> float:
-        """Bound on ``|poses_for(nodes, lengths) - exact|`` for every coordinate of every node.
-
-        ``exact`` is the root plus the sum of the (float32) directions times the float32
-        lengths along the path, in exact arithmetic. :meth:`poses_for` rounds each product and
-        a sum of at most 20 terms in float32, in any order (``gamma_21`` of the terms'
-        magnitudes, Higham); doubled for safety, plus as much for a float64 evaluation.
-        """
-        terms = skeleton.NUM_BONES + 2
-        magnitude = self._root_max + 1.001 * float(
-            np.abs(np.asarray(lengths, dtype=np.float32)).sum()
-        )
-        u64 = float(np.finfo(np.float64).eps) / 2
-        gamma = terms * _U32 / (1.0 - terms * _U32) + terms * u64 / (1.0 - terms * u64)
-        return 2.0 * gamma * magnitude
 
     def clear_cache(self) -> None:
         """Forget the cached retargeted database (a new stream starts from scratch)."""

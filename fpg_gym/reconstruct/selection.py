@@ -22,22 +22,22 @@ All candidate poses are *normalised* (root at the origin, facing +Z) and, when r
 lengths are given, retargeted to them, so that the sensor pose is compared with database poses of
 the user's proportions (:class:`NodeDatabase`).
 
-Compiled kernels (:mod:`fpg_gym.reconstruct.compiled_selection`, with ``fpg-gym[fast]``) run
-the full searches and the graph walk in one pass each, without materialising poses (the walk
-retargets each node on the fly in float64), and keep the K best by (score, node id). They select
-what the numpy paths select: the scores agree to rounding (float64 sums of the same terms on the
-same float32 poses; for the walk, float64 rather than float32 retargeting, within
-:meth:`NodeDatabase.retarget_error_bound`), so the nodes and their order are the same except
-between nodes whose scores agree to that rounding. There the numpy order is itself an artefact
-of rounding that depends on a node's position in its batch (BLAS products round a row
-differently by position: ``poses_for`` of a subset differs in the last bits from the same
-nodes' rows of a larger call), while the compiled score depends on the pose alone: identical
-poses tie exactly and are ordered by node id; a tie across the K-th place (every node scores 0
-when no joint is reliable and there is no prediction) runs the numpy path, which keeps the tied
-nodes its partition leaves, as before. The walk's K poses come from
-:meth:`NodeDatabase.poses_for` as before. Without numba the numpy paths run (the previous
-implementation, unchanged). ``tests/test_fast_selection.py`` compares both with the reference
-of ``tests/reference_selection.py``.
+Compiled kernels (:mod:`fpg_gym.reconstruct.compiled_selection`, with ``fpg-gym[fast]``) run the
+full searches and the graph walk in one pass each, without materialising poses (the walk retargets
+each node on the fly in float64), and keep the K best by (score, node id). They select what the
+numpy paths select: the scores agree to rounding (float64 sums of the same terms on the same float32
+poses; for the walk, float64 rather than float32 retargeting, within a bound of float32 rounding
+that ``tests/test_fast_selection.py`` states and checks), so the nodes and their order are the same
+except between nodes whose scores agree to that rounding. There the numpy order is itself an
+artefact of rounding that depends on a node's position in its batch (BLAS products round a row
+differently by position: ``poses_for`` of a subset differs in the last bits from the same nodes'
+rows of a larger call), while the compiled score depends on the pose alone: identical poses tie
+exactly and are ordered by node id; a tie across the K-th place (every node scores 0 when no joint
+is reliable and there is no prediction) runs the numpy path, which keeps the tied nodes its
+partition leaves, as before. The walk's K poses come from :meth:`NodeDatabase.poses_for` as before.
+Without numba the numpy paths run (the previous implementation, unchanged).
+``tests/test_fast_selection.py`` compares both with the reference of
+``tests/reference_selection.py``.
 """
 
 from __future__ import annotations
