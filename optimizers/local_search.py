@@ -129,12 +129,18 @@ class LocalSearch(BaseOptimizer):
             self.current_step *= self.shrink
             self.done = self.current_step < self.min_step
 
-    def _from_table(self) -> np.ndarray:
-        """``step * N(0, I)`` rows ``(samples, dim)`` from the pre-drawn table."""
+    def proposal_table(self) -> np.ndarray:
+        """The pre-drawn N(0, I) rows ``(rows, dim)`` of ``proposals="table"``: drawn from the
+        generator now when there are none yet for this dimension, else the same rows."""
         rows = max(TABLE_ROWS, 4 * self.samples)
         table = self._table
         if table is None or table.shape[1] != self.dim or len(table) < rows:
             table = self._table = self.rng.standard_normal((rows, self.dim))
+        return table
+
+    def _from_table(self) -> np.ndarray:
+        """``step * N(0, I)`` rows ``(samples, dim)`` from the pre-drawn table."""
+        table = self.proposal_table()
         uniform = self.rng.random(self.dim + 1)  # the offset and a sign per axis
         start = int(uniform[0] * (len(table) - self.samples + 1))
         return table[start : start + self.samples] * np.copysign(

@@ -111,6 +111,14 @@ class OptimizerRun:
     problem, optimizer, rng, max_evaluations, time_budget_s, max_asks
         As :func:`run_optimizer`; ``problem`` needs ``dim`` and ``x0`` only (the caller
         evaluates).
+
+    Attributes
+    ----------
+    optimizer : Optimizer
+    rng : numpy.random.Generator
+        The optimiser's generator.
+    max_evaluations, time_budget_s, max_asks
+        The budget.
     """
 
     def __init__(
@@ -140,6 +148,7 @@ class OptimizerRun:
         self._asked: np.ndarray | None = None  # the optimiser's whole last batch
         self._admitted = 0
         self.done = self.dim <= 0
+        self.rng = generator
         self.optimizer.reset(problem, generator)
 
     def propose(self) -> np.ndarray | None:
@@ -193,6 +202,22 @@ class OptimizerRun:
         if admitted < len(z):
             values = np.concatenate([values, np.full(len(z) - admitted, np.inf)])
         self.optimizer.tell(z, values)
+
+    def complete(self, result: SearchResult) -> None:
+        """End the run with ``result``: the same search run elsewhere (a compiled twin of the
+        optimiser on the same generator), before this run proposed anything.
+
+        Raises
+        ------
+        RuntimeError
+            If this run has already proposed a batch.
+        """
+        if self.asks or self._asked is not None:
+            raise RuntimeError("complete: the run has already proposed (a search runs once)")
+        self.best_x = np.array(result.x, dtype=np.float64)
+        self.best = float(result.energy)
+        self.evaluations, self.asks = int(result.evaluations), int(result.asks)
+        self.done = True
 
     def result(self) -> SearchResult:
         """The best point found so far and the evaluations and asks spent."""

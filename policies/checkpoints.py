@@ -203,4 +203,3 @@ class RunCheckpoints:
         before compression); the number of files removed.
         The periodic samplers (``epoch-NNNN``) stay."""
         return self._remove_own_files()
-

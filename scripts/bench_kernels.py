@@ -11,11 +11,15 @@ process, interleaved, in CPU time (``time.process_time``), with BLAS on one thre
    0.2`` from the other takes, simulated ``front-many``): the pipeline with the previous energy
    model against the new one, with and without local search's proposal table; mean error and
    median energy of each, so that equal results can be seen.
-3. **Exact brute force** (Shum Eq. 9, K = 30) against the previous direct score on databases of
+3. **Local search alone** (2,000 evaluations) on frame problems of those takes: the ask/tell
+   loop of ``optimizers.run_optimizer`` against the compiled search of
+   ``fpg_gym.reconstruct.search.run_search``, with normal draws and with the proposal table;
+   the results are checked equal.
+4. **Exact brute force** (Shum Eq. 9, K = 30) against the previous direct score on databases of
    1k to 100k nodes: the Bandai graph's nodes (``thres1`` 0.2 and 0.04), and for larger sizes
    copies of the 0.04 graph's nodes with 1 cm of noise; the same K nodes are checked for every
    query.
-4. **Selection at scale** (``--graph FILE``, a prebuilt graph of ~100k nodes, or
+5. **Selection at scale** (``--graph FILE``, a prebuilt graph of ~100k nodes, or
    ``--scale-thres1`` to build one from the training takes of dataset-1 and dataset-2, ~10-20
    min): the ``graph``, ``auto`` and ``brute-force`` selectors (and the full FPG search of first
    frames and recoveries) on the queries of held-out takes (same split over both datasets),
@@ -25,7 +29,7 @@ process, interleaved, in CPU time (``time.process_time``), with BLAS on one thre
 Usage::
 
     python scripts/bench_kernels.py                 # ~20 min: 'scale' builds a 99k-node graph
-    python scripts/bench_kernels.py --sections energy,frame,brute   # ~5 min
+    python scripts/bench_kernels.py --sections energy,frame,search,brute   # ~5 min
     python scripts/bench_kernels.py --clips 2 --frames 90 --sizes 1000,24000
     python scripts/bench_kernels.py --sections brute,scale --graph /tmp/graph_100k.npz
 """
@@ -58,6 +62,7 @@ from fpg_gym.reconstruct import Reconstructor  # noqa: E402
 from fpg_gym.reconstruct import reconstructor as reconstructor_module  # noqa: E402
 from fpg_gym.reconstruct import selection as selection_module  # noqa: E402
 from fpg_gym.reconstruct.kernels import compile_kernels  # noqa: E402
+from fpg_gym.reconstruct.search import run_search  # noqa: E402
 from fpg_gym.reconstruct.selection import (  # noqa: E402
     NodeDatabase,
     SelectionQuery,
@@ -117,6 +122,52 @@ def frame_table(graph: Any, recordings: list[Any], repeats: int) -> list[dict[st
                 "mean_error_m": float(errors.mean()),
                 "err02_pct": 100.0 * metrics.err_ratio(errors),
                 "median_energy": float(np.median(np.concatenate(s["energies"]))),
+            }
+        )
+    return rows
+
+
+def search_table(graph: Any, recordings: list[Any], frames: int = 30) -> list[dict[str, Any]]:
+    """CPU ms of local search alone (2,000 evaluations) on recorded frame problems: the
+    ask/tell loop (``optimizers.run_optimizer``) against the compiled search
+    (``fpg_gym.reconstruct.search.run_search``), interleaved problem by problem, for both
+    proposal sources; the results are checked equal (point, energy, counts)."""
+    problems = []
+    for recording in recordings:
+        reconstructor = Reconstructor(graph)
+        step = max(1, recording.num_frames // frames)
+        for t in range(recording.num_frames):
+            problem = reconstructor.prepare(
+                recording.positions[t], recording.states[t], recording.timestamps[t]
+            )
+            if t % step == 0:
+                problems.append(problem)
+            reconstructor.finish(reconstructor.search("local-search", t).x)
+    rows = []
+    for proposals in ("normal", "table"):
+        cpu = {"loop": 0.0, "compiled": 0.0}
+        differ = 0
+        for i, problem in enumerate(problems * 3):
+            found = {}
+            for name, run in (("loop", optimizers.run_optimizer), ("compiled", run_search)):
+                optimizer = optimizers.make("local-search", proposals=proposals)
+                generator = np.random.default_rng(i)
+                if proposals == "table":  # drawn once per stream, not per frame: not timed
+                    optimizer.reset(problem, generator)
+                    optimizer.proposal_table()
+                start = time.process_time()
+                found[name] = run(problem, optimizer, generator, max_evaluations=2000)
+                cpu[name] += time.process_time() - start
+            a, b = found["loop"], found["compiled"]
+            differ += not (np.array_equal(a.x, b.x) and (a.energy, a.asks) == (b.energy, b.asks))
+        count = 3 * len(problems)
+        rows.append(
+            {
+                "proposals": proposals,
+                "problems": count,
+                "loop_ms": 1e3 * cpu["loop"] / count,
+                "compiled_ms": 1e3 * cpu["compiled"] / count,
+                "differ": differ,
             }
         )
     return rows
@@ -281,8 +332,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sizes", default="24000,72000,100000", help="synthetic database sizes")
     parser.add_argument(
         "--sections",
-        default="energy,frame,brute,scale",
-        help="comma-separated: energy, frame, brute, scale",
+        default="energy,frame,search,brute,scale",
+        help="comma-separated: energy, frame, search, brute, scale",
     )
     parser.add_argument("--graph", type=Path, default=None, help="prebuilt graph for 'scale'")
     parser.add_argument(
@@ -301,7 +352,7 @@ def main(argv: list[str] | None = None) -> int:
     limits = threadpool_limits(limits=1, user_api="blas")
     print(f"energy kernels: {', '.join(compile_kernels())}; BLAS threads: 1")
     print(f"selection kernels: {'compiled' if selection_module.compiled_available() else 'numpy'}")
-    if sections & {"energy", "frame", "brute"}:
+    if sections & {"energy", "frame", "search", "brute"}:
         files = sorted(folder.glob("*.bvh"))
         train, held = split_takes(files, HOLDOUT_SHARE, HOLDOUT_SEED)
         clips = load_clips(train, progress=False)
@@ -328,6 +379,17 @@ def main(argv: list[str] | None = None) -> int:
             print(
                 f"| {r['configuration']} | {r['cpu_ms_per_frame']:.3f} | {r['speedup']:.2f}x | "
                 f"{r['mean_error_m']:.4f} | {r['err02_pct']:.1f} | {r['median_energy']:.5f} |"
+            )
+
+    if "search" in sections:
+        header = "| local search (2,000 evaluations) | problems | ask/tell loop ms | compiled ms "
+        print("\n" + header + "| speed-up | results differ |")
+        print("| --- | --- | --- | --- | --- | --- |")
+        for r in search_table(graph, recordings):
+            print(
+                f"| proposals {r['proposals']} | {r['problems']} | {r['loop_ms']:.3f} | "
+                f"{r['compiled_ms']:.3f} | {r['loop_ms'] / r['compiled_ms']:.2f}x | "
+                f"{r['differ']} |"
             )
 
     if "brute" in sections:

@@ -41,6 +41,7 @@ LAZY_MODULES = ("fpg_gym/commands/",)
 EXTRA_MODULES = {
     "fpg_gym.reconstruct.compiled_kernels": "numba",
     "fpg_gym.reconstruct.compiled_selection": "numba",
+    "fpg_gym.reconstruct.compiled_search": "numba",
 }
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from fpg_gym.reconstruct import STAGES, EnergyWeights, Reconstructor
+from fpg_gym.reconstruct import search as search_module
 from fpg_gym.reconstruct.batched import reconstruct_many, run_streams, search_together
 from fpg_gym.reconstruct.energy import StackedEnergy
 from fpg_gym.reconstruct.kernels import available_kernels, stack_tables
@@ -26,9 +27,15 @@ def _short(rec: SimpleNamespace, frames: int) -> SimpleNamespace:
     )
 
 
-def test_each_stream_equals_its_single_stream_run() -> None:
+@pytest.mark.parametrize("compiled_search", [True, False])
+def test_each_stream_equals_its_single_stream_run(
+    compiled_search: bool, monkeypatch: pytest.MonkeyPatch
+) -> None:
     # Streams of different lengths (one leaves the batch early) and one with another energy
-    # (the prior term: another stack key, evaluated in its own group).
+    # (the prior term: another stack key, evaluated in its own group). Without the compiled
+    # local search (fpg_gym.reconstruct.search) the streams' batches are stacked.
+    if not compiled_search:
+        monkeypatch.setattr(search_module, "_compiled", lambda: None)
     recs = [
         _short(recording("punch", seed=1), 24),
         _short(recording("walk", seed=2), 16),

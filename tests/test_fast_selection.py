@@ -272,7 +272,6 @@ def test_compiled_graph_walk_equals_the_reference_walk(
         previous = selection.nodes
 
 
-
 def retarget_error_bound(database: NodeDatabase, lengths: np.ndarray) -> float:
     """Bound on ``|poses_for(nodes, lengths) - exact|`` for every coordinate of every node.
 
@@ -289,6 +288,7 @@ def retarget_error_bound(database: NodeDatabase, lengths: np.ndarray) -> float:
     u64 = float(np.finfo(np.float64).eps) / 2
     gamma = terms * u32 / (1.0 - terms * u32) + terms * u64 / (1.0 - terms * u64)
     return 2.0 * gamma * magnitude
+
 
 @needs_numba
 def test_retarget_error_bound_covers_float32_retargeting(rng: np.random.Generator) -> None:

@@ -9,6 +9,7 @@ from fpg_gym import poses, skeleton
 from fpg_gym.reconstruct.reliability import (
     ReliabilityConfig,
     ReliabilityEstimator,
+    SortedWindow,
     behaviour_angles,
     is_neutral_pose,
     kinematic_reliability,
@@ -278,3 +279,19 @@ def test_no_body_frame_is_unreliable_everywhere_and_restarts_behaviour() -> None
     assert np.all(terms["reliability"][5] == 0.0)
     # The jump to (0, 0, 0) and back is not taken for vibration once the body is back.
     assert np.all(terms["behaviour"][6:] == 1.0)
+
+
+def test_sorted_window_median_equals_nanmedian_of_its_rows() -> None:
+    rng = np.random.default_rng(7)
+    window, cap, ring = SortedWindow(), 12, []
+    for step in range(80):  # rows with NaN gaps and repeated values, the oldest leaving
+        row = np.round(rng.normal(1.0, 0.1, 19), 2)
+        row[rng.random(19) < 0.3] = np.nan
+        if len(ring) == cap:
+            window.remove(ring.pop(0))
+        ring.append(row)
+        window.add(row)
+        expected = np.nanmedian(np.stack(ring))
+        assert window.median() == expected, step  # to the last bit
+        assert len(window) == np.isfinite(np.stack(ring)).sum()
+    assert np.isnan(SortedWindow().median())

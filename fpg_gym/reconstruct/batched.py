@@ -38,6 +38,7 @@ from fpg_gym.reconstruct.reconstructor import (
     Reconstructor,
     ReconstructorConfig,
 )
+from fpg_gym.reconstruct.search import complete_compiled
 from optimizers import Optimizer, OptimizerRun, make
 
 __all__ = [
@@ -146,7 +147,9 @@ def _own_search_time(record: FrameRecord, search_ms: float) -> FrameRecord:
 def search_together(problems: Sequence[Any], runs: Sequence[OptimizerRun]) -> np.ndarray:
     """Run the searches ``runs[i]`` on ``problems[i]`` side by side until all are over.
 
-    Each round, every search still running proposes a batch; the batches of problems whose
+    A local search that runs compiled (:func:`fpg_gym.reconstruct.search.complete_compiled`)
+    runs first, alone: it does not leave the kernel between batches. Then each round, every
+    search still running proposes a batch; the batches of problems whose
     energies stack (:class:`SearchProblem` with equal :meth:`EnergyModel.stack_key` and batch
     size) are evaluated with one :class:`StackedEnergy` call, the others one by one with
     ``problem.evaluate``. Each :class:`SearchProblem` counts its rows in ``evaluations``.
@@ -164,9 +167,24 @@ def search_together(problems: Sequence[Any], runs: Sequence[OptimizerRun]) -> np
     """
     if len(problems) != len(runs):
         raise ValueError(f"runs: expected {len(problems)} (one per problem), got {len(runs)}")
+    seconds = np.zeros(len(problems))
+    clock = time.perf_counter
+    live = []
+    for i, (problem, run) in enumerate(zip(problems, runs, strict=True)):
+        start = clock()
+        try:
+            compiled = complete_compiled(problem, run)  # a compiled local search runs alone
+        except ValueError as error:
+            raise ValueError(
+                f"stream {i}: the optimiser proposed non-finite latent points"
+            ) from error
+        if not compiled:
+            live.append(i)
+        seconds[i] += clock() - start
     stacks: dict[tuple[Any, ...], tuple[StackedEnergy, dict[int, int]]] = {}
     members: dict[tuple[Any, ...], list[int]] = {}
-    for i, problem in enumerate(problems):
+    for i in live:
+        problem = problems[i]
         energy = getattr(problem, "energy", None)
         if (
             isinstance(problem, SearchProblem)
@@ -184,9 +202,6 @@ def search_together(problems: Sequence[Any], runs: Sequence[OptimizerRun]) -> np
             stacks[(*key, first)] = (stack, {stream: row for row, stream in enumerate(chunk)})
             key_of.update((i, (*key, first)) for i in chunk)
 
-    seconds = np.zeros(len(problems))
-    clock = time.perf_counter
-    live = list(range(len(problems)))
     while live:
         groups: dict[tuple[Any, ...], list[tuple[int, np.ndarray]]] = {}
         still: list[int] = []

@@ -41,6 +41,7 @@ __all__ = [
     "available_kernels",
     "bind_energy",
     "compile_kernels",
+    "compiled_arguments",
     "fused_energy",
     "numpy_energy",
     "resolve_kernel",
@@ -265,15 +266,21 @@ def bind_energy(tables: EnergyTables, kernel: str = "auto") -> Callable[[np.ndar
     compiled = _numba_kernels() if resolve_kernel(kernel) == "numba" else None
     if compiled is None:
         return functools.partial(_numpy_energy_of, tables)
-    dtype = tables.matrix.dtype.type
     function = compiled[1] if tables.stacked else compiled[0]
-    c0 = np.asarray(tables.c0) if tables.stacked else dtype(tables.c0)
-    arguments = (tables.matrix, c0, tables.ycst, tables.b0, tables.lengths, dtype(tables.wk))
+    arguments = compiled_arguments(tables)
 
     def energy(z: np.ndarray) -> np.ndarray:
         return function(np.ascontiguousarray(z), *arguments)
 
     return energy
+
+
+def compiled_arguments(tables: EnergyTables) -> tuple[Any, ...]:
+    """``(matrix, c0, ycst, b0, lengths, wk)`` as the compiled kernels take them: the scalars
+    in the tables' dtype (``c0`` an array for stacked tables)."""
+    dtype = tables.matrix.dtype.type
+    c0 = np.asarray(tables.c0) if tables.stacked else dtype(tables.c0)
+    return (tables.matrix, c0, tables.ycst, tables.b0, tables.lengths, dtype(tables.wk))
 
 
 def _numpy_energy_of(tables: EnergyTables, z: np.ndarray) -> np.ndarray:

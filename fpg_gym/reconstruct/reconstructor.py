@@ -89,6 +89,7 @@ from fpg_gym.reconstruct.reliability import (
     ReliabilityEstimator,
     ReliabilityTerms,
 )
+from fpg_gym.reconstruct.search import run_search
 from fpg_gym.reconstruct.selection import (
     CandidateSelector,
     NodeDatabase,
@@ -103,7 +104,7 @@ from fpg_gym.reconstruct.temporal import (
     align_basis,
 )
 from fpg_gym.validation import check_choice, check_integer, check_number
-from optimizers import Optimizer, SearchResult, make, run_optimizer
+from optimizers import Optimizer, SearchResult, make
 
 STAGES: tuple[str, ...] = (
     "normalise",
@@ -1068,8 +1069,9 @@ class Reconstructor:
         """Run ``optimizer`` on the prepared frame's problem within the configured budget.
 
         The budget is the config's ``max_evaluations`` and ``time_budget_s``
-        (:func:`optimizers.run_optimizer` enforces it); :meth:`finish` without a point then
-        uses the best point found.
+        (:func:`optimizers.run_optimizer` enforces it; local search runs compiled where it
+        can, :func:`fpg_gym.reconstruct.search.run_search`); :meth:`finish` without a point
+        then uses the best point found.
 
         Raises
         ------
@@ -1077,7 +1079,7 @@ class Reconstructor:
             If no frame was prepared.
         """
         pending = self._prepared("search")
-        found = run_optimizer(
+        found = run_search(
             pending.problem,
             make(optimizer),
             rng,

@@ -278,6 +278,43 @@ class _History:
     minima: list[np.ndarray] = field(default_factory=list)  # last smoothing_frames minima
 
 
+class SortedWindow:
+    """The finite values of a window of rows, kept sorted, for the window's median each frame.
+
+    :meth:`median` equals ``np.nanmedian`` of the rows added and not removed, to the last bit
+    (the middle value, or the mean of the two middle values); adding or removing a row costs a
+    search and a copy instead of a partition of the whole window.
+    """
+
+    def __init__(self) -> None:
+        self.values = np.empty(0)
+
+    def __len__(self) -> int:
+        return len(self.values)
+
+    def add(self, row: np.ndarray) -> None:
+        """Add the finite values of ``row``."""
+        new = np.sort(row[np.isfinite(row)])
+        self.values = np.insert(self.values, np.searchsorted(self.values, new), new)
+
+    def remove(self, row: np.ndarray) -> None:
+        """Remove the finite values of ``row``, added before (each value once per occurrence)."""
+        old = np.sort(row[np.isfinite(row)])
+        # Equal values of the row take consecutive places: the k-th copy the k-th one found.
+        rank = np.arange(len(old)) - np.searchsorted(old, old)
+        self.values = np.delete(self.values, np.searchsorted(self.values, old) + rank)
+
+    def median(self) -> float:
+        """The median of the values (NaN when there are none)."""
+        n = len(self.values)
+        if n == 0:
+            return float("nan")
+        middle = n // 2
+        if n % 2:
+            return float(self.values[middle])
+        return float((self.values[middle - 1] + self.values[middle]) / 2.0)
+
+
 class ReliabilityEstimator:
     """Online per-joint reliability of a Kinect stream, one frame at a time.
 
@@ -338,6 +375,7 @@ class ReliabilityEstimator:
             self._neutral_count = 0
             self._tracked = np.full((cap, skeleton.NUM_BONES), np.nan)
             self._tracked_count = 0
+            self._ratios = SortedWindow()  # the finite values of _tracked / _prior
             self._reference: np.ndarray | None = None
             self._source = "given" if self._fixed is not None else "prior-height"
 
@@ -382,20 +420,25 @@ class ReliabilityEstimator:
             self._neutral_count += 1
         both = tracked[skeleton.BONES[:, 0]] & tracked[skeleton.BONES[:, 1]] & (lengths > 1e-6)
         if both.any():
-            self._tracked[self._tracked_count % cap] = np.where(both, lengths, np.nan)
+            slot = self._tracked_count % cap
+            if self._tracked_count >= cap:  # the ring's oldest row leaves the window
+                self._ratios.remove(self._tracked[slot] / self._prior)
+            self._tracked[slot] = np.where(both, lengths, np.nan)
+            self._ratios.add(self._tracked[slot] / self._prior)
             self._tracked_count += 1
         if self._neutral_count:
-            self._reference = np.median(self._neutral[: min(self._neutral_count, cap)], axis=0)
+            if calibration or self._source != "neutral":  # else the same rows, the same median
+                self._reference = np.median(self._neutral[: min(self._neutral_count, cap)], axis=0)
             self._source = "neutral"
             return calibration
         prior = self._prior
         if self._tracked_count:
-            rows = self._tracked[: min(self._tracked_count, cap)]
-            seen = np.any(np.isfinite(rows), axis=0)
             # One size factor for the whole body: the median ratio of every tracked bone sample
             # to the prior (robust to a minority of wrong samples, needs no bone seen often).
-            scale = float(np.nanmedian(rows[:, seen] / prior[seen]))
+            scale = self._ratios.median()
             if self.config.fallback == "tracked-median":
+                rows = self._tracked[: min(self._tracked_count, cap)]
+                seen = np.any(np.isfinite(rows), axis=0)
                 median = np.full(skeleton.NUM_BONES, np.nan)
                 median[seen] = np.nanmedian(rows[:, seen], axis=0)
                 self._reference = np.where(seen, median, prior * scale)

@@ -1,0 +1,158 @@
+"""The paper's local search compiled (numba) as one kernel; imported only when ``fpg-gym[fast]``
+is installed (:mod:`fpg_gym.reconstruct.search` falls back to the ask/tell loop without it).
+
+:func:`local_search` is :class:`optimizers.local_search.LocalSearch` run by
+:func:`optimizers.run_optimizer` on a frame's fused energy (:mod:`fpg_gym.reconstruct.kernels`),
+step for step: the same draws from the same generator (numba runs numpy's algorithms on the
+generator's own bit generator, so the generator ends in the same state), the same rows of the
+proposal table, the same budget rule (a batch larger than the evaluations left is clipped, its
+other rows count as ``+inf``), the same energies (:func:`energy_rows` on ``z @ matrix``, as
+:func:`fpg_gym.reconstruct.compiled_kernels.fused_kernel`) and the same ``argmin`` (the first
+NaN, else the first minimum). Its best point equals the ask/tell loop's to the last bit; the
+tests check it. What it saves is the interpreter: about 40 numpy calls per batch of 100 points.
+
+Module-level functions so that numba's disk cache (``cache=True``) finds them in a new process.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+from fpg_gym.reconstruct.compiled_kernels import energy_rows
+
+__all__ = ["local_search"]
+
+#: :func:`local_search`'s status: the search ended normally.
+STATUS_OK = 0
+#: :func:`local_search`'s status: a proposed point was not finite (the search stopped there).
+STATUS_NON_FINITE = 1
+
+
+@numba.njit(cache=True, nogil=True)
+def _first_min(values):
+    """``np.argmin``: the index of the first NaN, else of the first smallest value."""
+    best = 0
+    for i in range(values.shape[0]):
+        v = values[i]
+        if np.isnan(v):
+            return i
+        if v < values[best]:
+            best = i
+    return best
+
+
+@numba.njit(cache=True, nogil=True)
+def _proposals(generator, table, center, step, samples):
+    """``samples`` points ``center + step * N(0, I)``: drawn now, or a block of ``table``'s
+    rows at a uniform offset with a random sign per axis (``LocalSearch._from_table``)."""
+    d = center.shape[0]
+    if table.shape[0] == 0:
+        z = generator.standard_normal((samples, d))
+        z *= step
+    else:
+        uniform = generator.random(d + 1)  # the offset and a sign per axis
+        start = int(uniform[0] * (table.shape[0] - samples + 1))
+        z = np.empty((samples, d))
+        for j in range(d):
+            signed = np.copysign(step, uniform[1 + j] - 0.5)
+            for i in range(samples):
+                z[i, j] = table[start + i, j] * signed
+    z += center
+    return z
+
+
+@numba.njit(cache=True, nogil=True)
+def local_search(
+    generator,
+    table,
+    x0,
+    matrix,
+    c0,
+    ycst,
+    b0,
+    lengths,
+    wk,
+    samples,
+    iterations,
+    step,
+    shrink,
+    min_step,
+    max_evaluations,
+    max_asks,
+):
+    """Local search (Shum §VI-E) on one frame's fused energy (Eq. 10).
+
+    Parameters
+    ----------
+    generator : numpy.random.Generator
+        The optimiser's generator (advanced as the ask/tell loop advances it).
+    table : ndarray, shape (rows, d) or (0, d)
+        The proposal table, or no rows for fresh normal draws.
+    x0 : ndarray, shape (d,), float64
+    matrix, c0, ycst, b0, lengths, wk
+        The frame's :class:`~fpg_gym.reconstruct.kernels.EnergyTables` (float64 or float32).
+    samples, iterations, step, shrink, min_step
+        :class:`~optimizers.local_search.LocalSearch`'s parameters; ``shrink <= 0`` is None
+        (stop at the first batch without improvement).
+    max_evaluations, max_asks : int
+        The budget; negative is unlimited.
+
+    Returns
+    -------
+    best_x : ndarray, shape (d,)
+    best : float
+        Its energy (``inf`` when nothing was evaluated).
+    evaluations, asks : int
+        As :class:`optimizers.SearchResult` counts them.
+    status : int
+        :data:`STATUS_OK` or :data:`STATUS_NON_FINITE`.
+    """
+    center = x0.copy()
+    best_x = x0.copy()
+    best = np.inf
+    centre_energy = np.inf
+    current_step = step
+    evaluations = 0
+    asks = 0
+    iteration = 0
+    done = False  # the optimiser's own stop (it answers None to the next ask)
+    energies = np.empty(samples, dtype=matrix.dtype)
+    values = np.empty(samples)
+    while True:
+        left = max_evaluations - evaluations if max_evaluations >= 0 else -1
+        if left == 0 or (max_asks >= 0 and asks >= max_asks):
+            break
+        asks += 1
+        if done or iteration >= iterations:  # the optimiser's None
+            break
+        z = _proposals(generator, table, center, current_step, samples)
+        if iteration == 0:
+            z[0] = center  # the start is scored
+        iteration += 1
+        admitted = samples if left < 0 else min(samples, left)
+        points = z[:admitted].astype(matrix.dtype)
+        energy_rows(points @ matrix, points, c0, ycst, b0, lengths, wk, energies[:admitted])
+        finite = True
+        for i in range(admitted):
+            values[i] = energies[i]
+            finite = finite and np.isfinite(values[i])
+        if not finite and not np.all(np.isfinite(z[:admitted])):
+            return best_x, best, evaluations, asks, STATUS_NON_FINITE
+        for i in range(admitted, samples):
+            values[i] = np.inf
+        evaluations += admitted
+        i = _first_min(values[:admitted])  # the run's best point
+        if values[i] < best:
+            best = values[i]
+            best_x[:] = z[i]
+        i = _first_min(values)  # the optimiser's tell
+        if values[i] < centre_energy:
+            centre_energy = values[i]
+            center[:] = z[i]
+        elif shrink <= 0.0:
+            done = True
+        else:
+            current_step *= shrink
+            done = current_step < min_step
+    return best_x, best, evaluations, asks, STATUS_OK
