@@ -14,6 +14,8 @@ from pathlib import Path
 
 import pytest
 
+from fpg_gym.reconstruct.kernels import COMPILED_MODULES
+
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("fpg_gym", "optimizers", "policies")
 #: Imported inside functions on purpose: optional extras, and heavy modules that only some
@@ -38,11 +40,7 @@ LAZY_EXTERNALS = (
 LAZY_MODULES = ("fpg_gym/commands/",)
 #: The project's own modules that exist for an optional extra (and import it at their top, which
 #: the last test checks): imported inside functions like the extra itself.
-EXTRA_MODULES = {
-    "fpg_gym.reconstruct.compiled_kernels": "numba",
-    "fpg_gym.reconstruct.compiled_selection": "numba",
-    "fpg_gym.reconstruct.compiled_search": "numba",
-}
+EXTRA_MODULES = {f"fpg_gym.reconstruct.{name}": "numba" for name in COMPILED_MODULES}
 
 
 def _inner_imports(path: Path) -> list[tuple[int, str]]:

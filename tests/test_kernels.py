@@ -9,7 +9,9 @@ from reference_energy import ReferenceEnergyModel
 from fpg_gym import poses, skeleton
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights
 from fpg_gym.reconstruct.kernels import (
+    COMPILED_MODULES,
     available_kernels,
+    compiled_module,
     fused_energy,
     numpy_energy,
     resolve_kernel,
@@ -99,3 +101,15 @@ def test_tables_are_c_contiguous_and_sized(rng: np.random.Generator) -> None:
     assert tables.matrix.flags.c_contiguous
     assert tables.matrix.shape == (d, d + 1 + 12 + 3 * skeleton.NUM_BONES)
     assert tables.dim == d and tables.k == 12
+
+
+def test_compiled_module_names_its_modules_and_refuses_others() -> None:
+    with pytest.raises(ValueError, match="compiled_search"):
+        compiled_module("os")
+    loaded = [compiled_module(name) for name in COMPILED_MODULES]
+    if "numba" in available_kernels():
+        assert [m.__name__ for m in loaded if m is not None] == [
+            f"fpg_gym.reconstruct.{name}" for name in COMPILED_MODULES
+        ]
+    else:
+        assert loaded == [None] * len(COMPILED_MODULES)

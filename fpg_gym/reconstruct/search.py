@@ -19,7 +19,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.reconstruct.energy import EnergyModel
-from fpg_gym.reconstruct.kernels import compiled_arguments
+from fpg_gym.reconstruct.kernels import compiled_arguments, compiled_module
 from fpg_gym.reconstruct.problem import SearchProblem
 from optimizers import Optimizer, OptimizerRun, SearchResult
 from optimizers.local_search import LocalSearch
@@ -28,13 +28,8 @@ __all__ = ["compiled_search_available", "complete_compiled", "run_search"]
 
 
 def _compiled() -> ModuleType | None:
-    """The compiled search kernel's module, or None without numba (compiled on first use,
-    cached on disk)."""
-    try:
-        import fpg_gym.reconstruct.compiled_search as compiled  # needs numba: fpg-gym[fast]
-    except ImportError:
-        return None
-    return compiled
+    """The compiled search kernel's module, or None without numba."""
+    return compiled_module("compiled_search")
 
 
 def compiled_search_available() -> bool:

@@ -50,6 +50,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from fpg_gym import skeleton
+from fpg_gym.reconstruct.kernels import compiled_module
 from fpg_gym.reconstruct.node_database import NodeDatabase
 
 # --------------------------------------------------------------------------- scores
@@ -122,13 +123,8 @@ def _best_k(scores: np.ndarray, k: int) -> np.ndarray:
 
 @functools.lru_cache(maxsize=1)
 def _compiled() -> ModuleType | None:
-    """The compiled selection kernels, or None without numba (compiled on first use, cached
-    on disk)."""
-    try:
-        import fpg_gym.reconstruct.compiled_selection as compiled  # needs numba: fpg-gym[fast]
-    except ImportError:
-        return None
-    return compiled
+    """The compiled selection kernels, or None without numba."""
+    return compiled_module("compiled_selection")
 
 
 def compiled_available() -> bool:
