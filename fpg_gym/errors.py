@@ -7,7 +7,9 @@ naming the file), and the command line prints them on one line with exit status 
 
 from __future__ import annotations
 
+import importlib
 import os
+from types import ModuleType
 from typing import Any
 
 
@@ -73,3 +75,19 @@ class OutputError(FpgGymError, ValueError):
 class TaskError(FpgGymError):
     """A task of a parallel run failed; the message names the task (episode and method) and
     the original error."""
+
+
+def import_optional(module: str, missing: ImportError) -> ModuleType:
+    """Import ``module`` of an optional extra, or raise ``missing`` (which says what to install).
+
+    Parameters
+    ----------
+    module : str
+        The module's dotted name (``"ray"``, ``"rerun"``, ``"torch"``...).
+    missing : ImportError
+        The error raised, chained to the original, when ``module`` cannot be imported.
+    """
+    try:
+        return importlib.import_module(module)
+    except ImportError as error:
+        raise missing from error

@@ -16,7 +16,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from fpg_gym.errors import FpgGymError
+from fpg_gym.errors import FpgGymError, import_optional
 
 __all__ = [
     "RayUnavailable",
@@ -34,13 +34,9 @@ class RayUnavailable(FpgGymError, ImportError):
 
 def require_ray() -> Any:
     """The ``ray`` module, or :class:`RayUnavailable` naming the extra to install."""
-    try:
-        import ray  # optional extra fpg-gym[distributed]
-    except ImportError:
-        raise RayUnavailable(
-            "backend 'ray' needs Ray: pip install 'fpg-gym[distributed]'"
-        ) from None
-    return ray
+    return import_optional(  # optional extra fpg-gym[distributed]
+        "ray", RayUnavailable("backend 'ray' needs Ray: pip install 'fpg-gym[distributed]'")
+    )
 
 
 def signal_handlers() -> dict[int, Any]:

@@ -55,7 +55,6 @@ neither; :func:`import_learn` raises :class:`~optimizers.MissingDependency` nami
 
 from __future__ import annotations
 
-import importlib
 import json
 import os
 import warnings
@@ -68,7 +67,7 @@ import gymnasium as gym
 import numpy as np
 
 from fpg_gym.env_observation import CONTEXT_NAMES, LATENT_LIMIT, ObservationLayout
-from fpg_gym.errors import DataFormatError
+from fpg_gym.errors import DataFormatError, import_optional
 from fpg_gym.jsonable import jsonable
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE, quadratic_minimiser
 from fpg_gym.reconstruct.energy import EnergyWeights
@@ -160,14 +159,14 @@ def import_learn(module: str) -> Any:
     optimizers.MissingDependency
         When it is not installed; the message names ``pip install 'fpg-gym[learn]'``.
     """
-    try:
-        return importlib.import_module(module)
-    except ImportError as error:
-        top = module.split(".")[0]
-        raise MissingDependency(
+    top = module.split(".")[0]
+    return import_optional(
+        module,
+        MissingDependency(
             f"learned samplers need torch and stable-baselines3 ({top} is not installed): "
             f"{INSTALL_HINT}"
-        ) from error
+        ),
+    )
 
 
 # --------------------------------------------------------------------------- features

@@ -28,7 +28,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym import metrics, skeleton
-from fpg_gym.errors import FpgGymError
+from fpg_gym.errors import FpgGymError, import_optional
 from fpg_gym.outputs import atomic_path
 
 __all__ = [
@@ -59,13 +59,12 @@ class ViewUnavailable(FpgGymError, ImportError):
 
 def require_rerun() -> Any:
     """The rerun module, or :class:`ViewUnavailable` saying how to install it."""
-    try:
-        import rerun  # optional extra (fpg-gym[view]): ~1 s to import, only for the view
-    except ImportError:
-        raise ViewUnavailable(
+    return import_optional(  # optional extra (fpg-gym[view]): ~1 s to import, only for the view
+        "rerun",
+        ViewUnavailable(
             "the 3D view needs rerun-sdk: pip install 'fpg-gym[view]' (or pip install rerun-sdk)"
-        ) from None
-    return rerun
+        ),
+    )
 
 
 def rerun_available() -> bool:
