@@ -1042,7 +1042,8 @@ class Reconstructor:
 
         Compiles (or loads from numba's disk cache) the energy and selection kernels and runs
         two frames of a still database pose standing 2.5 m in front of the sensor, a full search
-        then a graph walk, with ``optimizer`` (and the ragdoll, when configured); then
+        then a graph walk, with ``optimizer`` (which loads the compiled local search when it is
+        local search) and the ragdoll, when configured; then
         :meth:`reset`, after which the output does not depend on these frames. For a live
         stream, whose first frames would stall for tens of milliseconds otherwise.
         """
