@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from fpg_gym import poses, skeleton
-from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.latent import LatentSpace, principal_axes
 
 
 def candidates(rng: np.random.Generator, k: int) -> np.ndarray:
@@ -75,3 +75,26 @@ def test_bad_arguments() -> None:
     space = LatentSpace.fit(np.random.default_rng(0).normal(size=(5, 20, 3)))
     with pytest.raises(ValueError, match="z"):
         space.decode(np.zeros((2, 3)))
+
+
+@pytest.mark.parametrize("k", [5, 30, 60, 90])
+def test_principal_axes_agree_with_the_svd(rng: np.random.Generator, k: int) -> None:
+    data = candidates(rng, k).reshape(k, -1).astype(np.float64)
+    centred = data - data.mean(axis=0)
+    dim = min(20, k - 1)
+    singular, basis = principal_axes(centred, dim)
+    _, expected, vt = np.linalg.svd(centred, full_matrices=False)
+    np.testing.assert_allclose(singular[:dim], expected[:dim], rtol=1e-10)
+    signs = np.sign(np.einsum("dc,dc->d", basis, vt[:dim]))
+    np.testing.assert_allclose(basis * signs[:, None], vt[:dim], atol=1e-10)
+    np.testing.assert_allclose(basis @ basis.T, np.eye(dim), atol=1e-10)
+
+
+def test_principal_axes_of_duplicates_are_the_svds() -> None:
+    pose = poses.rest_pose().reshape(-1).astype(np.float64)
+    data = np.stack([pose] * 8 + [pose + 0.01, pose - 0.02])  # rank 1 after centring
+    centred = data - data.mean(axis=0)
+    singular, basis = principal_axes(centred, 5)  # s_5 = 0: the Gram axes would be noise
+    _, expected, vt = np.linalg.svd(centred, full_matrices=False)
+    np.testing.assert_array_equal(singular, expected)
+    np.testing.assert_array_equal(basis, vt[:5])

