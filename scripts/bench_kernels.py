@@ -54,7 +54,11 @@ from reference_selection import reference_best_k  # noqa: E402
 
 import optimizers  # noqa: E402
 from fpg_gym import metrics  # noqa: E402
-from fpg_gym.experiments.bench_kernels import interleaved_cpu_us, recorded_queries  # noqa: E402
+from fpg_gym.experiments.bench_kernels import (  # noqa: E402
+    interleaved_cpu_us,
+    recorded_queries,
+    search_rows,
+)
 from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
 from fpg_gym.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes  # noqa: E402
 from fpg_gym.io import load_clips  # noqa: E402
@@ -62,7 +66,6 @@ from fpg_gym.reconstruct import Reconstructor  # noqa: E402
 from fpg_gym.reconstruct import reconstructor as reconstructor_module  # noqa: E402
 from fpg_gym.reconstruct import selection as selection_module  # noqa: E402
 from fpg_gym.reconstruct.kernels import compile_kernels  # noqa: E402
-from fpg_gym.reconstruct.search import run_search  # noqa: E402
 from fpg_gym.reconstruct.selection import (  # noqa: E402
     NodeDatabase,
     SelectionQuery,
@@ -122,52 +125,6 @@ def frame_table(graph: Any, recordings: list[Any], repeats: int) -> list[dict[st
                 "mean_error_m": float(errors.mean()),
                 "err02_pct": 100.0 * metrics.err_ratio(errors),
                 "median_energy": float(np.median(np.concatenate(s["energies"]))),
-            }
-        )
-    return rows
-
-
-def search_table(graph: Any, recordings: list[Any], frames: int = 30) -> list[dict[str, Any]]:
-    """CPU ms of local search alone (2,000 evaluations) on recorded frame problems: the
-    ask/tell loop (``optimizers.run_optimizer``) against the compiled search
-    (``fpg_gym.reconstruct.search.run_search``), interleaved problem by problem, for both
-    proposal sources; the results are checked equal (point, energy, counts)."""
-    problems = []
-    for recording in recordings:
-        reconstructor = Reconstructor(graph)
-        step = max(1, recording.num_frames // frames)
-        for t in range(recording.num_frames):
-            problem = reconstructor.prepare(
-                recording.positions[t], recording.states[t], recording.timestamps[t]
-            )
-            if t % step == 0:
-                problems.append(problem)
-            reconstructor.finish(reconstructor.search("local-search", t).x)
-    rows = []
-    for proposals in ("normal", "table"):
-        cpu = {"loop": 0.0, "compiled": 0.0}
-        differ = 0
-        for i, problem in enumerate(problems * 3):
-            found = {}
-            for name, run in (("loop", optimizers.run_optimizer), ("compiled", run_search)):
-                optimizer = optimizers.make("local-search", proposals=proposals)
-                generator = np.random.default_rng(i)
-                if proposals == "table":  # drawn once per stream, not per frame: not timed
-                    optimizer.reset(problem, generator)
-                    optimizer.proposal_table()
-                start = time.process_time()
-                found[name] = run(problem, optimizer, generator, max_evaluations=2000)
-                cpu[name] += time.process_time() - start
-            a, b = found["loop"], found["compiled"]
-            differ += not (np.array_equal(a.x, b.x) and (a.energy, a.asks) == (b.energy, b.asks))
-        count = 3 * len(problems)
-        rows.append(
-            {
-                "proposals": proposals,
-                "problems": count,
-                "loop_ms": 1e3 * cpu["loop"] / count,
-                "compiled_ms": 1e3 * cpu["compiled"] / count,
-                "differ": differ,
             }
         )
     return rows
@@ -385,7 +342,7 @@ def main(argv: list[str] | None = None) -> int:
         header = "| local search (2,000 evaluations) | problems | ask/tell loop ms | compiled ms "
         print("\n" + header + "| speed-up | results differ |")
         print("| --- | --- | --- | --- | --- | --- |")
-        for r in search_table(graph, recordings):
+        for r in search_rows(graph, recordings):
             print(
                 f"| proposals {r['proposals']} | {r['problems']} | {r['loop_ms']:.3f} | "
                 f"{r['compiled_ms']:.3f} | {r['loop_ms'] / r['compiled_ms']:.2f}x | "

@@ -40,6 +40,12 @@ def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:
     assert frame["direct (definitions)"]["speedup_vs_direct"] == 1.0
     assert all(row["cpu_ms_per_frame"] > 0 for row in frame.values())
     assert 5.0 < kernels["floor"]["mflop"] < 20.0 and kernels["floor"]["floor_ms"] > 0
+    search = {row["proposals"]: row for row in kernels["search"]}
+    assert set(search) == {"normal", "table"}
+    for row in search.values():  # the compiled search finds what the ask/tell loop finds
+        assert row["problems"] > 0 and row["differ"] == 0
+        assert row["loop_ms"] > 0 and row["compiled_ms"] > 0
+    assert any(line.startswith("| table |") for line in lines)
     assert any(line.startswith("| fused (numpy) |") for line in lines)
     assert any(line.startswith("CPU time per frame") for line in lines)
     build = report["build"]

@@ -10,7 +10,8 @@ Sections (each a list of rows, see :func:`run_bench`):
 ``kernels``
     The search's kernels side by side in CPU time (:mod:`fpg_gym.experiments.bench_kernels`):
     the energy of 100 points (fused compiled / fused numpy / the definitions), a frame without
-    ragdoll with each, and the arithmetic floor of a frame's 2,000 evaluations.
+    ragdoll with each, local search alone (the compiled search against the ask/tell loop, results
+    compared) and the arithmetic floor of a frame's 2,000 evaluations.
 ``selection``
     Median CPU time of selection per frame against graph size (graphs built with several
     ``thres1``): the graph walk (FPG §8: scores a neighbourhood), the ``auto`` selector, the
@@ -62,6 +63,7 @@ from fpg_gym.experiments.bench_kernels import (
     energy_rows,
     floor_row,
     frame_rows,
+    search_rows,
     selection_rows,
 )
 from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1, FilteredPoseGraph
@@ -281,6 +283,11 @@ def _kernels(graph: Any, recordings: list[Any], settings: BenchSettings) -> dict
     return {
         "energy": energy_rows(graph, recordings[0], quick=settings.quick),
         "frame": frame_rows(graph, recordings, quick=settings.quick),
+        "search": (
+            search_rows(graph, recordings[:1], frames=10, repeats=1)
+            if settings.quick
+            else search_rows(graph, recordings)
+        ),
         "floor": floor_row(),
     }
 
@@ -561,6 +568,24 @@ def format_bench(report: dict[str, Any]) -> str:
                         f"{r['speedup_vs_direct']:.2f}x",
                     ]
                     for r in kernels["frame"]
+                ],
+            ),
+            "",
+            "Local search alone, 2,000 evaluations (CPU ms per search, mean over recorded "
+            "frame problems; results compared)",
+            "",
+            markdown_table(
+                ["proposals", "problems", "ask/tell loop ms", "compiled ms", "speed-up", "differ"],
+                [
+                    [
+                        r["proposals"],
+                        str(r["problems"]),
+                        f"{r['loop_ms']:.3f}",
+                        f"{r['compiled_ms']:.3f}",
+                        f"{r['loop_ms'] / r['compiled_ms']:.2f}x",
+                        str(r["differ"]),
+                    ]
+                    for r in kernels.get("search", [])
                 ],
             ),
             "",

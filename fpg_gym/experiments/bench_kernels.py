@@ -30,6 +30,7 @@ from fpg_gym import skeleton
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct.kernels import available_kernels, fused_energy
 from fpg_gym.reconstruct.problem import SearchProblem
+from fpg_gym.reconstruct.search import run_search
 from fpg_gym.reconstruct.selection import (
     NodeDatabase,
     SelectionQuery,
@@ -37,8 +38,16 @@ from fpg_gym.reconstruct.selection import (
     shum_best_k,
     shum_score,
 )
+from optimizers.local_search import LocalSearch
 
-__all__ = ["cpu_median_us", "energy_rows", "floor_row", "frame_rows", "selection_rows"]
+__all__ = [
+    "cpu_median_us",
+    "energy_rows",
+    "floor_row",
+    "frame_rows",
+    "search_rows",
+    "selection_rows",
+]
 
 
 def cpu_median_us(fn: Callable[[], object], repeats: int = 25, inner: int = 20) -> float:
@@ -169,6 +178,55 @@ def floor_row(dim: int = 20, k: int = 30, evaluations: int = 2000) -> dict[str, 
         "gemm_gflops": rate / 1e9,
         "floor_ms": 1e3 * flops / rate,
     }
+
+
+def search_rows(
+    graph: Any, recordings: list[Any], frames: int = 30, repeats: int = 3
+) -> list[dict[str, Any]]:
+    """CPU ms of local search alone (2,000 evaluations) on recorded frame problems: the
+    ask/tell loop (``optimizers.run_optimizer``) against the compiled search
+    (``fpg_gym.reconstruct.search.run_search``), interleaved problem by problem, for both
+    proposal sources; ``differ`` counts the problems whose results (point, energy, asks) are not
+    equal. ``frames`` problems per recording, each searched ``repeats`` times."""
+    problems = []
+    for recording in recordings:
+        reconstructor = Reconstructor(graph)
+        step = max(1, recording.num_frames // frames)
+        for t in range(recording.num_frames):
+            problem = reconstructor.prepare(
+                recording.positions[t], recording.states[t], recording.timestamps[t]
+            )
+            if t % step == 0:
+                problems.append(problem)
+            reconstructor.finish(reconstructor.search("local-search", t).x)
+    rows = []
+    for proposals in ("normal", "table"):
+        cpu = {"loop": 0.0, "compiled": 0.0}
+        differ = 0
+        for i, problem in enumerate(problems * repeats):
+            found = {}
+            for name, run in (("loop", optimizers.run_optimizer), ("compiled", run_search)):
+                optimizer = LocalSearch(proposals=proposals)
+                generator = np.random.default_rng(i)
+                if proposals == "table":  # drawn once per stream, not per frame: not timed
+                    optimizer.reset(problem, generator)
+                    optimizer.proposal_table()
+                start = time.process_time()
+                found[name] = run(problem, optimizer, generator, max_evaluations=2000)
+                cpu[name] += time.process_time() - start
+            a, b = found["loop"], found["compiled"]
+            differ += not (np.array_equal(a.x, b.x) and (a.energy, a.asks) == (b.energy, b.asks))
+        count = repeats * len(problems)
+        rows.append(
+            {
+                "proposals": proposals,
+                "problems": count,
+                "loop_ms": 1e3 * cpu["loop"] / count,
+                "compiled_ms": 1e3 * cpu["compiled"] / count,
+                "differ": differ,
+            }
+        )
+    return rows
 
 
 def recorded_queries(graph: Any, recordings: list[Any]) -> list[SelectionQuery]:

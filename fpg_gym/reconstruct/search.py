@@ -9,6 +9,10 @@ kernel (:func:`fpg_gym.reconstruct.compiled_search.local_search`, ``fpg-gym[fast
 draws, budget and best point as the ask/tell loop, to the last bit, about 1.6x faster with
 normal draws and 2.5x with the proposal table (``python scripts/bench_kernels.py --sections
 search``). Any other optimiser, or no numba, runs the ask/tell loop.
+
+The compiled run leaves the :class:`~optimizers.local_search.LocalSearch` object as ``reset``
+left it (its ``center`` and ``current_step`` are not advanced; its proposal table is drawn and
+kept as the loop would): what a search returns is :class:`optimizers.SearchResult`.
 """
 
 from __future__ import annotations
