@@ -7,8 +7,8 @@
 the compiled kernel and the budget has no time limit, the whole search runs as one compiled
 kernel (:func:`fpg_gym.reconstruct.compiled_search.local_search`, ``fpg-gym[fast]``): the same
 draws, budget and best point as the ask/tell loop, to the last bit, about 1.6x faster with
-normal draws and 2.5x with the proposal table (``python scripts/bench_kernels.py --sections
-search``). Any other optimiser, or no numba, runs the ask/tell loop.
+normal draws and 1.7-1.8x with the proposal table (``python scripts/bench_kernels.py --sections
+search``). Any other optimiser, a time budget or no numba runs the ask/tell loop.
 
 The compiled run leaves the :class:`~optimizers.local_search.LocalSearch` object as ``reset``
 left it (its ``center`` and ``current_step`` are not advanced; its proposal table is drawn and
