@@ -26,6 +26,8 @@ metres (any space, as long as reference and estimate share it).
 * :func:`root_relative_error` — each joint's distance to the reference once both skeletons have
   their root (HipCenter) at the origin, averaged over frames.
 * :func:`time_summary` — median, p95, mean and max of per-frame computation times.
+* :func:`bootstrap_mean_ci` — a 95 % bootstrap interval of a mean over episodes (or of its
+  change against a baseline on the same episodes).
 
 Examples
 --------
@@ -50,6 +52,7 @@ __all__ = [
     "band_shares",
     "bone_length_variation",
     "bones_tracked",
+    "bootstrap_mean_ci",
     "err_ratio",
     "error_histogram",
     "frame_error",
@@ -128,6 +131,57 @@ def _bone_errors(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarra
 def mean_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> float:
     """FPG Eq. 13 over a whole sequence: mean over frames and bones, metres."""
     return float(frame_error(reference, estimate).mean())
+
+
+def bootstrap_mean_ci(
+    values: npt.ArrayLike,
+    *,
+    weights: npt.ArrayLike | None = None,
+    base: npt.ArrayLike | None = None,
+    draws: int = 2000,
+    rng: np.random.Generator | int = 0,
+) -> tuple[float, float]:
+    """95 % percentile bootstrap interval of a mean over episodes, resampling the episodes.
+
+    Parameters
+    ----------
+    values : array_like, shape (E,)
+        One value per episode (e.g. its mean error).
+    weights : array_like, shape (E,), optional
+        Each episode's weight (e.g. its frame count): the mean is then ``sum(w v) / sum(w)``,
+        the pooled mean over frames.
+    base : array_like, shape (E,), optional
+        The same episodes' values under a baseline: the interval is then that of the relative
+        change ``mean(values) / mean(base) - 1`` (paired).
+    draws : int
+        Bootstrap resamples.
+    rng : numpy.random.Generator or int
+        The resampling's generator, or its seed.
+
+    Returns
+    -------
+    tuple of float
+        The 2.5th and 97.5th percentiles.
+
+    Raises
+    ------
+    ValueError
+        If ``values`` is empty or the arrays differ in length.
+    """
+    v = np.asarray(values, dtype=np.float64).reshape(-1)
+    if len(v) == 0:
+        raise ValueError("values: expected at least one episode, got 0")
+    w = np.ones_like(v) if weights is None else np.asarray(weights, dtype=np.float64).reshape(-1)
+    b = None if base is None else np.asarray(base, dtype=np.float64).reshape(-1)
+    if len(w) != len(v) or (b is not None and len(b) != len(v)):
+        raise ValueError(f"weights, base: expected {len(v)} values (one per episode)")
+    generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    idx = generator.integers(0, len(v), size=(draws, len(v)))
+    total = w[idx].sum(axis=1)
+    means = (w * v)[idx].sum(axis=1) / total
+    if b is not None:
+        means = means / ((w * b)[idx].sum(axis=1) / total) - 1.0
+    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
 
 
 def err_ratio(errors: npt.ArrayLike, threshold: float = ERR_THRESHOLD_M) -> float:

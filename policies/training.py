@@ -160,7 +160,9 @@ def evaluate_agents(
 ) -> dict[str, dict[str, float]]:
     """Reconstruct ``recordings`` with each agent (an optimiser name or object) and summarise.
 
-    Returns, per agent: ``mean_energy``, ``mean_error`` (FPG Eq. 13, m), ``err02`` (share of
+    Returns, per agent: ``mean_energy``, ``mean_error`` (FPG Eq. 13, m) with
+    ``error_ci_low``/``error_ci_high`` (its 95 % bootstrap interval over the recordings,
+    :func:`fpg_gym.metrics.bootstrap_mean_ci`: a few episodes give a wide one), ``err02`` (share of
     frames with error >= 0.2 m), ``jitter`` (the output's mean joint acceleration, m/s²,
     :func:`fpg_gym.metrics.jitter`, averaged over the recordings), ``evaluations`` and ``ms``
     per frame, ``frames``. Errors need ground truth (NaN otherwise).
@@ -197,9 +199,18 @@ def evaluate_agents(
                 if truth is not None:
                     errors.append(metrics.frame_error(truth, result.poses))
             err = np.concatenate(errors) if errors else np.array([np.nan])
+            low, high = (
+                metrics.bootstrap_mean_ci(
+                    [np.mean(e) for e in errors], weights=[len(e) for e in errors], rng=seed
+                )
+                if errors
+                else (np.nan, np.nan)
+            )
             out[name] = {
                 "mean_energy": float(np.mean(np.concatenate(energies))),
                 "mean_error": float(np.mean(err)),
+                "error_ci_low": low,
+                "error_ci_high": high,
                 "err02": metrics.err_ratio(err) if errors else np.nan,
                 "jitter": float(np.mean(jitters)) if jitters else np.nan,
                 "evaluations": float(np.mean(np.concatenate(evaluations))),
@@ -226,13 +237,14 @@ def _format_row(name: str, row: dict[str, float]) -> str:
 def format_evaluation(table: dict[str, dict[str, float]]) -> str:
     """A markdown table of :func:`evaluate_agents`' output."""
     lines = [
-        "| agent | mean energy | mean error (m) | Err0.2 (%) | jitter (m/s²) | evaluations/frame "
-        "| ms/frame |",
+        "| agent | mean energy | mean error (m) [95 % CI over episodes] | Err0.2 (%) "
+        "| jitter (m/s²) | evaluations/frame | ms/frame |",
         "| --- | --- | --- | --- | --- | --- | --- |",
     ]
     for name, row in table.items():
         lines.append(
-            f"| {name} | {row['mean_energy']:.4f} | {row['mean_error']:.4f} | "
+            f"| {name} | {row['mean_energy']:.4f} | {row['mean_error']:.4f} "
+            f"[{row.get('error_ci_low', np.nan):.4f}, {row.get('error_ci_high', np.nan):.4f}] | "
             f"{100 * row['err02']:.1f} | {row['jitter']:.2f} | {row['evaluations']:.0f} | "
             f"{row['ms']:.2f} |"
         )

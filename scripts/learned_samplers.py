@@ -231,22 +231,6 @@ def protocol(
 # --------------------------------------------------------------------------- UI-PRMD
 
 
-def _bootstrap_ci(
-    values: np.ndarray,
-    rng: np.random.Generator,
-    draws: int = 2000,
-    base: np.ndarray | None = None,
-) -> tuple[float, float]:
-    """95 % percentile bootstrap interval of the mean of ``values`` (one per episode), or with
-    ``base`` (paired, the same episodes) of the relative change ``mean(values) / mean(base) - 1``.
-    """
-    idx = rng.integers(0, len(values), size=(draws, len(values)))
-    means = values[idx].mean(axis=1)
-    if base is not None:
-        means = means / base[idx].mean(axis=1) - 1.0
-    return float(np.percentile(means, 2.5)), float(np.percentile(means, 97.5))
-
-
 def _uiprmd_data(
     imported: Path,
     subjects: dict[str, list[Path]],
@@ -581,8 +565,8 @@ def uiprmd_table(results: list[dict[str, Any]]) -> str:
     anchor = np.array([np.mean(base[e]["error"]) for e in order])
     for name, episodes in by.items():
         err = np.array([np.mean(episodes[e]["error"]) for e in order])
-        lo, hi = _bootstrap_ci(err, rng)
-        rlo, rhi = _bootstrap_ci(err, rng, base=anchor)
+        lo, hi = metrics.bootstrap_mean_ci(err, rng=rng)
+        rlo, rhi = metrics.bootstrap_mean_ci(err, base=anchor, rng=rng)
         jit = np.mean([np.mean(episodes[e]["jitter"]) for e in order])
         cpu = np.median([np.median(episodes[e]["cpu"]) for e in order])
         kind = name.split(" ")[0]

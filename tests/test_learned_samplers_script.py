@@ -57,18 +57,3 @@ def test_table_pools_seeds_and_compares_with_the_anchor(script: Any) -> None:
     assert "-20.0 %" in lines["learned (seed 0)"] and "-10.0 %" in lines["learned (seed 1)"]
     assert "-15.0 %" in lines["learned"]  # the seeds pooled
     assert f"{np.mean(anchor) * 0.85:.4f}" in lines["learned"]
-
-
-def test_bootstrap_interval_holds_the_mean(script: Any) -> None:
-    values = np.random.default_rng(0).normal(1.0, 0.1, 40)
-    low, high = script._bootstrap_ci(values, np.random.default_rng(1))
-    assert low < values.mean() < high and high - low < 0.1
-
-
-def test_paired_interval_of_a_relative_change(script: Any) -> None:
-    base = np.random.default_rng(0).uniform(0.05, 0.15, 30)
-    low, high = script._bootstrap_ci(0.9 * base, np.random.default_rng(1), base=base)
-    assert low == pytest.approx(-0.1) and high == pytest.approx(-0.1)
-    noisy = 0.9 * base * np.random.default_rng(2).uniform(0.95, 1.05, 30)
-    low, high = script._bootstrap_ci(noisy, np.random.default_rng(1), base=base)
-    assert low < noisy.mean() / base.mean() - 1 < high < 0

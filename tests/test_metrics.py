@@ -215,3 +215,27 @@ def test_root_relative_error_by_hand():
     np.testing.assert_allclose(metrics.root_relative_error(reference, estimate), expected)
     with pytest.raises(ValueError, match="differ in shape"):
         metrics.root_relative_error(reference, estimate[:1])
+
+
+def test_bootstrap_mean_ci_covers_the_pooled_mean_and_the_paired_change() -> None:
+    values = np.array([0.10, 0.12, 0.08, 0.11, 0.30])
+    frames = np.array([100, 100, 100, 100, 10])  # the outlier is a short episode
+    low, high = metrics.bootstrap_mean_ci(values, weights=frames)
+    pooled = float(np.sum(values * frames) / frames.sum())
+    assert low < pooled < high < 0.2
+    assert (
+        metrics.bootstrap_mean_ci(values)[1] > high
+    )  # unweighted, the short outlier counts as much as the others
+    assert metrics.bootstrap_mean_ci([0.1]) == (0.1, 0.1)
+    # Paired: every episode 10 % below its baseline gives a change of exactly -10 %.
+    change = metrics.bootstrap_mean_ci(0.9 * values, base=values, weights=frames)
+    assert change == pytest.approx((-0.1, -0.1))
+    assert metrics.bootstrap_mean_ci(values, rng=3) == metrics.bootstrap_mean_ci(values, rng=3)
+    base = np.random.default_rng(0).uniform(0.05, 0.15, 30)
+    noisy = 0.9 * base * np.random.default_rng(2).uniform(0.95, 1.05, 30)
+    low, high = metrics.bootstrap_mean_ci(noisy, base=base, rng=np.random.default_rng(1))
+    assert low < noisy.mean() / base.mean() - 1 < high < 0
+    with pytest.raises(ValueError, match="one per episode"):
+        metrics.bootstrap_mean_ci(values, weights=frames[:2])
+    with pytest.raises(ValueError, match="at least one"):
+        metrics.bootstrap_mean_ci([])

@@ -567,6 +567,9 @@ def test_cli_trains_a_tiny_rl_sampler_and_evaluates_it(tmp_path: Path) -> None:
     evaluation = sampler.spec.training["evaluation"]
     assert {"learned (200)", "learned+search (200)"} <= set(evaluation)
     assert all(np.isfinite(row["jitter"]) for row in evaluation.values())
+    for row in evaluation.values():  # one episode: the interval is the mean itself
+        assert row["error_ci_low"] == pytest.approx(row["mean_error"])
+        assert row["error_ci_high"] == pytest.approx(row["mean_error"])
 
 
 def test_learned_optimiser_copies_share_the_model(trained: dict[str, Any]) -> None:
