@@ -55,6 +55,7 @@ import numpy.typing as npt
 
 from fpg_gym.filters.base import (
     INFERRED,
+    NOT_TRACKED,
     TRACKED,
     FloatArray,
     PresetFilter,
@@ -165,12 +166,13 @@ class KalmanFilter(PresetFilter):
         """R per joint: tracked / inferred / not tracked; inf (skip the update) when unmeasured."""
         p = self.settings
         not_tracked = np.inf if p.not_tracked_std is None else p.not_tracked_std**2
-        var = np.select(
-            [states == TRACKED, states == INFERRED],
-            [p.tracked_std**2, p.inferred_std**2],
+        by_state = np.empty(3)  # indexed by the (validated) state: 0, 1 or 2
+        by_state[[NOT_TRACKED, INFERRED, TRACKED]] = (
             not_tracked,
+            p.inferred_std**2,
+            p.tracked_std**2,
         )
-        return np.where(np.isfinite(frame).all(axis=1), var, np.inf)
+        return np.where(np.isfinite(frame).all(axis=1), by_state[states], np.inf)
 
     def _step(self, frame: FloatArray, states: npt.NDArray[np.int8], dt: float) -> FloatArray:
         p = self.settings

@@ -109,8 +109,9 @@ class OneEuroFilter(PresetFilter):
             # A repeated timestamp: nothing new to filter.
             return np.where(started[:, None], self._value, frame)
         step = dt if dt > 0.0 else DEFAULT_DT
-        speed = alpha(p.d_cutoff, step) * (raw - self._value) / step
-        speed = speed + (1.0 - alpha(p.d_cutoff, step)) * self._speed
+        speed_alpha = alpha(p.d_cutoff, step)
+        speed = speed_alpha * (raw - self._value) / step
+        speed = speed + (1.0 - speed_alpha) * self._speed
         cutoff = p.min_cutoff + p.beta * np.linalg.norm(speed, axis=1)
         a = alpha(cutoff, step)[:, None]
         value = a * raw + (1.0 - a) * self._value

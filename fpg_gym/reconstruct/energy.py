@@ -267,42 +267,52 @@ class EnergyModel:
         self.lengths = np.asarray(lengths, dtype=np.float64)
         self.target = None if target is None else np.asarray(target, dtype=np.float64).reshape(-1)
         joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
+        components = latent.components  # (d, 60)
         # Es: neighbours' unwhitened coordinates y_n (K, d) and squared residuals |r_n|^2 (K,).
         self._neighbours = np.asarray(neighbours, dtype=np.float64)
         flat = self._neighbours.reshape(len(neighbours), POSE_SIZE)
         centred = flat - latent.mean
         y = centred @ latent.basis.T
         residual = centred - y @ latent.basis
-        # Working copies in the arithmetic precision (one frame: no leading stream axis).
+        # Working arrays in the arithmetic precision (one frame: no leading stream axis; no copy
+        # in float64).
         t = self.dtype
         self._work = _Working(
-            mean=latent.mean.astype(t),
-            components=latent.components.astype(t),  # (d, 60)
-            sensor=self.sensor.astype(t),
-            joint_weights=joint_weights.astype(t),
-            y=y.astype(t),
-            y_sq=np.einsum("kd,kd->k", y, y).astype(t),
-            r_sq=np.einsum("kd,kd->k", residual, residual).astype(t),
-            std=latent.std.astype(t),
-            lengths=self.lengths.astype(t),
-            target=None if self.target is None else self.target.astype(t),
+            mean=latent.mean.astype(t, copy=False),
+            components=components.astype(t, copy=False),
+            sensor=self.sensor.astype(t, copy=False),
+            joint_weights=joint_weights.astype(t, copy=False),
+            y=y.astype(t, copy=False),
+            y_sq=np.einsum("kd,kd->k", y, y).astype(t, copy=False),
+            r_sq=np.einsum("kd,kd->k", residual, residual).astype(t, copy=False),
+            std=latent.std.astype(t, copy=False),
+            lengths=self.lengths.astype(t, copy=False),
+            target=None if self.target is None else self.target.astype(t, copy=False),
         )
-        self.tables = self._tables(latent, y, np.einsum("kd,kd->k", centred, centred))
+        self.tables = self._tables(
+            latent, components, joint_weights, y, np.einsum("kd,kd->k", centred, centred)
+        )
         if self.dtype != np.float64:
             self.tables = self.tables.astype(self.dtype)
         self._energy: Callable[[np.ndarray], np.ndarray] = bind_energy(
             self.tables, self.fused_kernel
         )
 
-    def _tables(self, latent: LatentSpace, y: np.ndarray, centred_sq: np.ndarray) -> EnergyTables:
+    def _tables(
+        self,
+        latent: LatentSpace,
+        components: np.ndarray,
+        joint_weights: np.ndarray,
+        y: np.ndarray,
+        centred_sq: np.ndarray,
+    ) -> EnergyTables:
         """Eq. 10 as one matrix (:mod:`fpg_gym.reconstruct.kernels`): ``Ec`` (Eq. 11, ``W =
         diag(R)``) and ``Em`` (Eq. 14, ``W = I / 20``, where ``C C^T = diag(std^2)``) expanded
         as ``z^T A z + g.z + c``, the prior ``|z|^2 / d``, ``|u|^2`` and the ``K`` inner
         products of ``Es`` (Eq. 12; ``|y_n|^2 + |r_n|^2 = |x_n - mean|^2``), the bone vectors
         of ``Ek`` (Eq. 13)."""
         joints = skeleton.NUM_JOINTS
-        components, mean, std, d = latent.components, latent.mean, latent.std, latent.dim
-        joint_weights = np.repeat(self.reliability, 3)
+        mean, std, d = latent.mean, latent.std, latent.dim
         wc, ws, wk, wm, wp = self._w
         delta = mean - self.sensor
         weighted = wc * joint_weights * delta
