@@ -30,19 +30,6 @@ STATUS_NON_FINITE = 1
 
 
 @numba.njit(cache=True, nogil=True)
-def _first_min(values):
-    """``np.argmin``: the index of the first NaN, else of the first smallest value."""
-    best = 0
-    for i in range(values.shape[0]):
-        v = values[i]
-        if np.isnan(v):
-            return i
-        if v < values[best]:
-            best = i
-    return best
-
-
-@numba.njit(cache=True, nogil=True)
 def _proposals(generator, table, center, step, samples):
     """``samples`` points ``center + step * N(0, I)``: drawn now, or a block of ``table``'s
     rows at a uniform offset with a random sign per axis (``LocalSearch._from_table``)."""
@@ -142,14 +129,15 @@ def local_search(
         for i in range(admitted, samples):
             values[i] = np.inf
         evaluations += admitted
-        i = _first_min(values[:admitted])  # the run's best point
-        if values[i] < best:
-            best = values[i]
-            best_x[:] = z[i]
-        i = _first_min(values)  # the optimiser's tell
-        if values[i] < centre_energy:
-            centre_energy = values[i]
-            center[:] = z[i]
+        # numba's np.argmin is numpy's: the first NaN, else the first minimum
+        row = np.argmin(values[:admitted])  # the run's best point
+        if values[row] < best:
+            best = values[row]
+            best_x[:] = z[row]
+        row = np.argmin(values)  # the optimiser's tell
+        if values[row] < centre_energy:
+            centre_energy = values[row]
+            center[:] = z[row]
         elif shrink <= 0.0:
             done = True
         else:

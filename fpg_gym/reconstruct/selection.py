@@ -42,7 +42,6 @@ Without numba the numpy paths run (the previous implementation, unchanged).
 
 from __future__ import annotations
 
-import functools
 from dataclasses import dataclass, replace
 from types import ModuleType
 from typing import Protocol, runtime_checkable
@@ -121,9 +120,9 @@ def _best_k(scores: np.ndarray, k: int) -> np.ndarray:
 # --------------------------------------------------------------------------- compiled kernels
 
 
-@functools.lru_cache(maxsize=1)
 def _compiled() -> ModuleType | None:
-    """The compiled selection kernels, or None without numba."""
+    """The compiled selection kernels, or None without numba (imported once,
+    :func:`~fpg_gym.reconstruct.kernels.compiled_module`)."""
     return compiled_module("compiled_selection")
 
 
