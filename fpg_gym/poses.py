@@ -19,6 +19,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpg_gym import skeleton
+from fpg_gym.compiled import compiled_module
 
 FloatArray = npt.NDArray[np.floating]
 
@@ -201,7 +202,15 @@ def bone_vectors(poses: FloatArray) -> np.ndarray:
 
 def bone_lengths(poses: FloatArray) -> np.ndarray:
     """Bone lengths in metres: ``(..., 20, 3) -> (..., 19)``."""
-    return np.linalg.norm(bone_vectors(np.asarray(poses, dtype=np.float64)), axis=-1)
+    poses64 = np.asarray(poses, dtype=np.float64)
+    if poses64.shape == (skeleton.NUM_JOINTS, 3):
+        compiled = compiled_module("fpg_gym.compiled_poses")
+        if compiled is not None:  # one pose: one compiled call, the same sums
+            lengths: np.ndarray = compiled.bone_lengths_pose(
+                np.ascontiguousarray(poses64), skeleton.BONES
+            )
+            return lengths
+    return np.linalg.norm(bone_vectors(poses64), axis=-1)
 
 
 def rest_pose(lengths: FloatArray | None = None) -> np.ndarray:
@@ -242,6 +251,13 @@ def retarget(poses: FloatArray, lengths: FloatArray) -> np.ndarray:
     lengths64 = np.asarray(lengths, dtype=np.float64)
     if lengths64.shape[-1:] != (skeleton.NUM_BONES,):
         raise ValueError(f"lengths: expected shape (..., 19), got {lengths64.shape}")
+    if poses64.shape == (skeleton.NUM_JOINTS, 3) and lengths64.ndim == 1:
+        compiled = compiled_module("fpg_gym.compiled_poses")
+        if compiled is not None:  # one pose (a frame's output): one compiled call
+            out: np.ndarray = compiled.retarget_pose(
+                np.ascontiguousarray(poses64), lengths64, skeleton.BONES, REST_DIRECTIONS
+            )
+            return out
     directions = bone_directions(poses64)
     return _assemble(poses64[..., skeleton.ROOT, :], directions, lengths64).astype(np.float32)
 

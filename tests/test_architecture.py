@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from fpg_gym.reconstruct.kernels import COMPILED_MODULES
+from fpg_gym.compiled import COMPILED_MODULES
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("fpg_gym", "optimizers", "policies")
@@ -40,7 +40,7 @@ LAZY_EXTERNALS = (
 LAZY_MODULES = ("fpg_gym/commands/",)
 #: The project's own modules that exist for an optional extra (and import it at their top, which
 #: the last test checks): imported inside functions like the extra itself.
-EXTRA_MODULES = {f"fpg_gym.reconstruct.{name}": "numba" for name in COMPILED_MODULES}
+EXTRA_MODULES = dict.fromkeys(COMPILED_MODULES, "numba")
 
 
 def _inner_imports(path: Path) -> list[tuple[int, str]]:

@@ -33,7 +33,21 @@ def test_table_batches_are_standard_normal_around_the_centre() -> None:
     assert samples.shape == (200 * 100, 20)
     assert np.abs(samples.mean(axis=0)).max() < 0.05
     assert np.abs(samples.std(axis=0) - 1.0).max() < 0.05
-    assert search._table is not None and len(search._table) == TABLE_ROWS
+    table = search.proposal_table()
+    assert table.shape == (TABLE_ROWS, 20) and not table.flags.writeable
+    other = LocalSearch(proposals="table")
+    other.reset(Quadratic(np.random.default_rng(2)), np.random.default_rng(3))
+    assert other.proposal_table() is table  # one table per process and dimension
+
+
+def test_the_table_is_the_default_and_the_generator_picks_its_rows() -> None:
+    assert LocalSearch().proposals == "table"
+    runs = [
+        optimizers.run_optimizer(Quadratic(np.random.default_rng(0)), LocalSearch(), seed)
+        for seed in (1, 1, 2)
+    ]
+    np.testing.assert_array_equal(runs[0].x, runs[1].x)
+    assert not np.array_equal(runs[0].x, runs[2].x)
 
 
 def test_table_proposals_find_optima_as_good_as_fresh_draws() -> None:

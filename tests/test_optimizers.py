@@ -165,7 +165,9 @@ def test_local_search_scores_x0_moves_on_strict_improvement_and_halves_its_step(
     improvement: the step halves, 0.25 -> 0.125 -> ... -> 0.015625 -> 0.0078125 < min_step =
     0.01, and the search stops.
     """
-    search = optimizers.make("local-search", samples=4, iterations=20, step=0.25, min_step=0.01)
+    search = optimizers.make(
+        "local-search", samples=4, iterations=20, step=0.25, min_step=0.01, proposals="normal"
+    )
     search.reset(_Scripted(), np.random.default_rng(7))
     twin = np.random.default_rng(7)
     x0 = _Scripted.x0

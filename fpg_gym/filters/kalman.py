@@ -53,6 +53,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
+from fpg_gym.compiled import compiled_module
 from fpg_gym.filters.base import (
     INFERRED,
     NOT_TRACKED,
@@ -162,20 +163,51 @@ class KalmanFilter(PresetFilter):
     def _start(self, num_joints: int) -> None:
         self._alloc(num_joints)
 
-    def _measurement_var(self, frame: FloatArray, states: npt.NDArray[np.int8]) -> FloatArray:
-        """R per joint: tracked / inferred / not tracked; inf (skip the update) when unmeasured."""
+    def _by_state(self) -> FloatArray:
+        """R by tracking state (indexed by the validated state 0, 1 or 2): not tracked
+        (inf, skip the update, unless ``not_tracked_std``), inferred, tracked."""
         p = self.settings
         not_tracked = np.inf if p.not_tracked_std is None else p.not_tracked_std**2
-        by_state = np.empty(3)  # indexed by the (validated) state: 0, 1 or 2
+        by_state = np.empty(3)
         by_state[[NOT_TRACKED, INFERRED, TRACKED]] = (
             not_tracked,
             p.inferred_std**2,
             p.tracked_std**2,
         )
-        return np.where(np.isfinite(frame).all(axis=1), by_state[states], np.inf)
+        return by_state
+
+    def _measurement_var(self, frame: FloatArray, states: npt.NDArray[np.int8]) -> FloatArray:
+        """R per joint (:meth:`_by_state`); inf (skip the update) when unmeasured."""
+        return np.where(np.isfinite(frame).all(axis=1), self._by_state()[states], np.inf)
 
     def _step(self, frame: FloatArray, states: npt.NDArray[np.int8], dt: float) -> FloatArray:
         p = self.settings
+        compiled = compiled_module("fpg_gym.filters.compiled_filters")
+        if compiled is not None:  # the same step as below, joint by joint in one call
+            q = p.accel_psd
+            upd, s, innov = self._innovation
+            out: FloatArray = compiled.kalman_step(
+                np.ascontiguousarray(frame, dtype=np.float64),
+                states,
+                self._by_state(),
+                dt,
+                q * dt**3 / 3.0,
+                q * dt**2 / 2.0,
+                q * dt,
+                p.initial_velocity_std**2,
+                -1.0 if p.max_coast is None else p.max_coast,
+                self._pos,
+                self._vel,
+                self._p00,
+                self._p01,
+                self._p11,
+                self._started,
+                self._unseen,
+                upd,
+                s,
+                innov,
+            )
+            return out
         var = self._measurement_var(frame, states)
         measured = np.isfinite(var)
         z = np.where(measured[:, None], frame, 0.0)

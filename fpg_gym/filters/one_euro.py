@@ -24,6 +24,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
+from fpg_gym.compiled import compiled_module
 from fpg_gym.filters.base import DEFAULT_DT, FloatArray, PresetFilter, valid_joints
 
 
@@ -102,14 +103,29 @@ class OneEuroFilter(PresetFilter):
 
     def _step(self, frame: FloatArray, states: npt.NDArray[np.int8], dt: float) -> FloatArray:
         p = self.settings
+        if dt <= 0.0:
+            started = self._started & valid_joints(frame, states)
+            if started.any():  # a repeated timestamp: nothing new to filter
+                return np.where(started[:, None], self._value, frame)
+        step = dt if dt > 0.0 else DEFAULT_DT
+        speed_alpha = alpha(p.d_cutoff, step)
+        compiled = compiled_module("fpg_gym.filters.compiled_filters")
+        if compiled is not None:  # the same step as below, joint by joint in one call
+            out: FloatArray = compiled.one_euro_step(
+                np.ascontiguousarray(frame, dtype=np.float64),
+                states,
+                step,
+                float(speed_alpha),
+                float(p.min_cutoff),
+                float(p.beta),
+                self._value,
+                self._speed,
+                self._started,
+            )
+            return out
         valid = valid_joints(frame, states)
         raw = np.where(valid[:, None], frame, 0.0)
         started = self._started & valid
-        if dt <= 0.0 and started.any():
-            # A repeated timestamp: nothing new to filter.
-            return np.where(started[:, None], self._value, frame)
-        step = dt if dt > 0.0 else DEFAULT_DT
-        speed_alpha = alpha(p.d_cutoff, step)
         speed = speed_alpha * (raw - self._value) / step
         speed = speed + (1.0 - speed_alpha) * self._speed
         cutoff = p.min_cutoff + p.beta * np.linalg.norm(speed, axis=1)

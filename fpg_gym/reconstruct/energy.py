@@ -32,12 +32,14 @@ from __future__ import annotations
 
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
+from types import ModuleType
 from typing import Any
 
 import numpy as np
 import numpy.typing as npt
 
 from fpg_gym import skeleton
+from fpg_gym.compiled import compiled_module
 from fpg_gym.poses import bone_lengths
 from fpg_gym.reconstruct.kernels import (
     KERNELS,
@@ -166,6 +168,8 @@ def pose_energy_terms(
 # Ek: bone vectors are linear in the flat pose x (60,): child minus parent coordinates.
 _CHILD_COORDS = (3 * skeleton.BONES[:, 1][:, None] + np.arange(3)).reshape(-1)
 _PARENT_COORDS = (3 * skeleton.BONES[:, 0][:, None] + np.arange(3)).reshape(-1)
+#: The compiled kernels' "no motion target" (``Em = 0``).
+_NO_TARGET = np.zeros(0)
 
 
 @dataclass(frozen=True)
@@ -266,37 +270,78 @@ class EnergyModel:
         self.reliability = np.asarray(reliability, dtype=np.float64)
         self.lengths = np.asarray(lengths, dtype=np.float64)
         self.target = None if target is None else np.asarray(target, dtype=np.float64).reshape(-1)
-        joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
-        components = latent.components  # (d, 60)
-        # Es: neighbours' unwhitened coordinates y_n (K, d) and squared residuals |r_n|^2 (K,).
         self._neighbours = np.asarray(neighbours, dtype=np.float64)
         flat = self._neighbours.reshape(len(neighbours), POSE_SIZE)
-        centred = flat - latent.mean
-        y = centred @ latent.basis.T
-        residual = centred - y @ latent.basis
-        # Working arrays in the arithmetic precision (one frame: no leading stream axis; no copy
-        # in float64).
+        compiled = (
+            compiled_module("fpg_gym.reconstruct.compiled_frame")
+            if self.kernel == "numba"
+            else None
+        )
+        self._compiled_terms: Callable[..., np.ndarray] | None = (
+            None if compiled is None else compiled.latent_terms
+        )
+        if compiled is None:
+            self.tables, arrays = self._setup(latent, flat)
+        else:
+            self.tables, arrays = self._setup_compiled(compiled, latent, flat)
+        # Working arrays of terms() in the arithmetic precision (no copy in float64).
         t = self.dtype
+        components, joint_weights, y, y_sq, r_sq = (a.astype(t, copy=False) for a in arrays)
         self._work = _Working(
             mean=latent.mean.astype(t, copy=False),
-            components=components.astype(t, copy=False),
+            components=components,
             sensor=self.sensor.astype(t, copy=False),
-            joint_weights=joint_weights.astype(t, copy=False),
-            y=y.astype(t, copy=False),
-            y_sq=np.einsum("kd,kd->k", y, y).astype(t, copy=False),
-            r_sq=np.einsum("kd,kd->k", residual, residual).astype(t, copy=False),
+            joint_weights=joint_weights,
+            y=y,
+            y_sq=y_sq,
+            r_sq=r_sq,
             std=latent.std.astype(t, copy=False),
             lengths=self.lengths.astype(t, copy=False),
             target=None if self.target is None else self.target.astype(t, copy=False),
-        )
-        self.tables = self._tables(
-            latent, components, joint_weights, y, np.einsum("kd,kd->k", centred, centred)
         )
         if self.dtype != np.float64:
             self.tables = self.tables.astype(self.dtype)
         self._energy: Callable[[np.ndarray], np.ndarray] = bind_energy(
             self.tables, self.fused_kernel
         )
+
+    def _setup(
+        self, latent: LatentSpace, flat: np.ndarray
+    ) -> tuple[EnergyTables, tuple[np.ndarray, ...]]:
+        """:attr:`tables` (:meth:`_tables`) and the float64 arrays of :meth:`terms`
+        (``components``, ``joint_weights``, ``y``, ``y_sq``, ``r_sq``), in numpy."""
+        joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
+        components = latent.components  # (d, 60)
+        # Es: neighbours' unwhitened coordinates y_n (K, d) and squared residuals |r_n|^2 (K,).
+        centred = flat - latent.mean
+        y = centred @ latent.basis.T
+        residual = centred - y @ latent.basis
+        y_sq = np.einsum("kd,kd->k", y, y)
+        r_sq = np.einsum("kd,kd->k", residual, residual)
+        tables = self._tables(
+            latent, components, joint_weights, y, np.einsum("kd,kd->k", centred, centred)
+        )
+        return tables, (components, joint_weights, y, y_sq, r_sq)
+
+    def _setup_compiled(
+        self, compiled: ModuleType, latent: LatentSpace, flat: np.ndarray
+    ) -> tuple[EnergyTables, tuple[np.ndarray, ...]]:
+        """:meth:`_setup` in one compiled call
+        (:func:`fpg_gym.reconstruct.compiled_frame.energy_setup`)."""
+        matrix, c0, ycst, b0, wk, *arrays = compiled.energy_setup(
+            latent.mean,
+            np.ascontiguousarray(latent.basis),
+            latent.std,
+            self.sensor,
+            self.reliability,
+            np.ascontiguousarray(flat),
+            self.lengths,
+            _NO_TARGET if self.target is None else self.target,
+            self._w,
+            _CHILD_COORDS,
+            _PARENT_COORDS,
+        )
+        return EnergyTables(matrix, float(c0), ycst, b0, self.lengths, float(wk)), tuple(arrays)
 
     def _tables(
         self,
@@ -362,7 +407,26 @@ class EnergyModel:
     def terms(self, z: np.ndarray) -> dict[str, np.ndarray]:
         """``Ec``, ``Es``, ``Ek``, ``Em``, ``Ep`` for latent points ``(n, d)``, each ``(n,)``
         float64."""
-        return _latent_terms(self._work, np.asarray(z, dtype=self.dtype))
+        z = np.ascontiguousarray(z, dtype=self.dtype)
+        if self._compiled_terms is None:
+            return _latent_terms(self._work, z)
+        w = self._work
+        rows = self._compiled_terms(
+            z,
+            w.mean,
+            w.components,
+            w.sensor,
+            w.joint_weights,
+            w.y,
+            w.y_sq,
+            w.r_sq,
+            w.std,
+            w.lengths,
+            _NO_TARGET.astype(self.dtype) if w.target is None else w.target,
+            _CHILD_COORDS,
+            _PARENT_COORDS,
+        )
+        return dict(zip(TERM_NAMES, rows, strict=True))
 
     def total(self, terms: dict[str, np.ndarray]) -> np.ndarray:
         """Weighted sum of terms (Eq. 10, plus the prior when its weight is not 0)."""

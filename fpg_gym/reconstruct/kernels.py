@@ -27,25 +27,22 @@ with one call of the same kernel.
 from __future__ import annotations
 
 import functools
-import importlib
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from types import ModuleType
 from typing import Any
 
 import numpy as np
 
 from fpg_gym import skeleton
+from fpg_gym.compiled import compiled_module
 
 __all__ = [
-    "COMPILED_MODULES",
     "KERNELS",
     "EnergyTables",
     "available_kernels",
     "bind_energy",
     "compile_kernels",
     "compiled_arguments",
-    "compiled_module",
     "fused_energy",
     "numpy_energy",
     "resolve_kernel",
@@ -199,35 +196,10 @@ def numpy_energy(z: np.ndarray, tables: EnergyTables) -> np.ndarray:
 # --------------------------------------------------------------------------- numba kernel
 
 
-#: The modules of compiled (numba) kernels, each imported only when ``fpg-gym[fast]`` is installed.
-COMPILED_MODULES: tuple[str, ...] = ("compiled_kernels", "compiled_search", "compiled_selection")
-
-
-@functools.cache
-def compiled_module(name: str) -> ModuleType | None:
-    """``fpg_gym.reconstruct.<name>``, one of :data:`COMPILED_MODULES`, or None when numba is
-    not installed (``pip install 'fpg-gym[fast]'``). Imported once; its kernels compile on
-    first use and are cached on disk.
-
-    Raises
-    ------
-    ValueError
-        If ``name`` is not one of :data:`COMPILED_MODULES`.
-    """
-    if name not in COMPILED_MODULES:
-        raise ValueError(f"name: expected one of {', '.join(COMPILED_MODULES)}, got {name!r}")
-    try:
-        return importlib.import_module(f"fpg_gym.reconstruct.{name}")
-    except ModuleNotFoundError as error:  # numba (or its llvmlite) absent; other errors raise
-        if error.name not in ("numba", "llvmlite"):
-            raise
-        return None
-
-
 def _numba_kernels() -> tuple[Callable[..., np.ndarray], Callable[..., np.ndarray]] | None:
     """The compiled energy kernels (one frame, S stacked frames;
     :mod:`fpg_gym.reconstruct.compiled_kernels`), or None without numba."""
-    compiled = compiled_module("compiled_kernels")
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_kernels")
     return None if compiled is None else (compiled.fused_kernel, compiled.stacked_fused_kernel)
 
 

@@ -22,7 +22,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from fpg_gym import skeleton
+from fpg_gym.compiled import compiled_module
 from fpg_gym.poses import as_poses
+from fpg_gym.reconstruct.kernels import resolve_kernel
 
 POSE_SIZE = skeleton.NUM_JOINTS * 3
 
@@ -103,11 +105,16 @@ class LatentSpace:
         return self.basis * self.std[:, None]
 
     @classmethod
-    def fit(cls, poses: np.ndarray, max_dim: int = 20, min_std: float = 1e-6) -> LatentSpace:
+    def fit(
+        cls, poses: np.ndarray, max_dim: int = 20, min_std: float = 1e-6, kernel: str = "auto"
+    ) -> LatentSpace:
         """PCA of ``poses`` ``(K, 20, 3)`` with ``d = min(max_dim, K - 1)`` whitened axes.
 
         The sign of each direction is fixed (its largest-magnitude entry is positive) so that the
-        same poses always give the same space.
+        same poses always give the same space. ``kernel`` (``"auto"``, ``"numba"``,
+        ``"numpy"``): ``"numba"`` fits in one compiled call
+        (:func:`fpg_gym.reconstruct.compiled_frame.fit_latent`, about half the time of the numpy
+        code on 30 candidates; the same result to rounding), ``"auto"`` when numba is installed.
 
         Raises
         ------
@@ -123,6 +130,13 @@ class LatentSpace:
             raise ValueError(f"min_std: expected > 0, got {min_std}")
         count = len(data)
         dim = min(max_dim, count - 1, POSE_SIZE)
+        if dim > 0 and resolve_kernel(kernel) == "numba":
+            compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+            assert compiled is not None  # resolve_kernel checked numba
+            mean, basis, std, degenerate, ratio = compiled.fit_latent(
+                data, dim, min_std, GRAM_MAX_CONDITION
+            )
+            return cls(mean, basis, std, degenerate, float(ratio))
         mean = data.mean(axis=0)
         centred = data - mean
         if dim == 0:

@@ -18,6 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from fpg_gym import skeleton
+from fpg_gym.compiled import compiled_module
 from fpg_gym.poses import as_poses, bone_directions
 
 __all__ = ["AUGMENTED_SIZE", "NodeDatabase", "augmented_queries"]
@@ -96,6 +97,16 @@ class NodeDatabase:
         nodes = np.asarray(nodes, dtype=np.intp)
         if lengths is None:
             return self.poses[nodes]
+        compiled = compiled_module("fpg_gym.compiled_poses")
+        if compiled is not None:  # the same poses in one call
+            out: np.ndarray = compiled.assemble_nodes(
+                self._directions,
+                self._roots,
+                nodes,
+                np.asarray(lengths, dtype=np.float32),
+                skeleton.BONES,
+            )
+            return out
         vectors = self._directions[nodes] * np.asarray(lengths, dtype=np.float32)[:, None]
         # joint = root + PATH_MATRIX @ bone vectors, as one GEMM ((M*3, 19) x (19, 20)); the
         # sum is copied into the C-contiguous (M, 20, 3) layout the scores read.

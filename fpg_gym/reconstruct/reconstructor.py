@@ -806,7 +806,11 @@ class Reconstructor:
         )
         t3 = time.perf_counter()
 
-        latent = LatentSpace.fit(selection.poses, max_dim=cfg.latent_dim)
+        latent = LatentSpace.fit(
+            selection.poses,
+            max_dim=cfg.latent_dim,
+            kernel="numpy" if cfg.energy_kernel == "direct" else cfg.energy_kernel,
+        )
         if cfg.temporal.align_basis:
             latent = align_basis(latent, self._previous_latent)
         self._previous_latent = latent

@@ -53,6 +53,7 @@ import numpy as np
 
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
+from fpg_gym.compiled import compiled_module
 from fpg_gym.skeleton import TRACKED
 
 # (20, 19) incidence matrix, rows normalised: Rk(j) = 1 - INCIDENCE @ deviation (mean over bones).
@@ -202,6 +203,13 @@ def behaviour_angles(
     """
     a = np.asarray(displacement, dtype=np.float64)
     b = np.asarray(previous, dtype=np.float64)
+    if a.ndim == 2 and a.shape == b.shape and a.shape[1] == 3:
+        compiled = compiled_module("fpg_gym.compiled_poses")
+        if compiled is not None:  # one frame: one compiled call
+            angles: np.ndarray = compiled.vector_angles(
+                np.ascontiguousarray(a), np.ascontiguousarray(b), float(min_length)
+            )
+            return angles
     na = np.linalg.norm(a, axis=-1)
     nb = np.linalg.norm(b, axis=-1)
     ok = (na >= min_length) & (nb >= min_length)
@@ -295,11 +303,19 @@ class SortedWindow:
     def add(self, row: np.ndarray) -> None:
         """Add the finite values of ``row``."""
         new = np.sort(row[np.isfinite(row)])
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        if compiled is not None:  # one merge instead of np.insert's index bookkeeping
+            self.values = compiled.merge_sorted(self.values, new)
+            return
         self.values = np.insert(self.values, np.searchsorted(self.values, new), new)
 
     def remove(self, row: np.ndarray) -> None:
         """Remove the finite values of ``row``, added before (each value once per occurrence)."""
         old = np.sort(row[np.isfinite(row)])
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        if compiled is not None:
+            self.values = compiled.remove_sorted(self.values, old)
+            return
         # Equal values of the row take consecutive places: the k-th copy the k-th one found.
         rank = np.arange(len(old)) - np.searchsorted(old, old)
         self.values = np.delete(self.values, np.searchsorted(self.values, old) + rank)

@@ -22,8 +22,9 @@ from typing import Any
 
 import numpy as np
 
+from fpg_gym.compiled import compiled_module
 from fpg_gym.reconstruct.energy import EnergyModel
-from fpg_gym.reconstruct.kernels import compiled_arguments, compiled_module
+from fpg_gym.reconstruct.kernels import compiled_arguments
 from fpg_gym.reconstruct.problem import SearchProblem
 from optimizers import Optimizer, OptimizerRun, SearchResult
 from optimizers.local_search import LocalSearch
@@ -33,7 +34,7 @@ __all__ = ["compiled_search_available", "complete_compiled", "run_search"]
 
 def _compiled() -> ModuleType | None:
     """The compiled search kernel's module, or None without numba."""
-    return compiled_module("compiled_search")
+    return compiled_module("fpg_gym.reconstruct.compiled_search")
 
 
 def compiled_search_available() -> bool:
@@ -86,7 +87,7 @@ def complete_compiled(problem: Any, run: OptimizerRun) -> bool:
     max_asks = -1 if run.max_asks is None else run.max_asks
     table = np.zeros((0, problem.dim))
     if optimizer.proposals == "table" and budget != 0 and max_asks != 0:
-        table = optimizer.proposal_table()  # drawn, if need be, where the first ask draws it
+        table = optimizer.proposal_table()  # the process's shared table
     x, energy, evaluations, asks, status = compiled.local_search(
         run.rng,
         table,

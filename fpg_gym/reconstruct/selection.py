@@ -49,7 +49,7 @@ from typing import Protocol, runtime_checkable
 import numpy as np
 
 from fpg_gym import skeleton
-from fpg_gym.reconstruct.kernels import compiled_module
+from fpg_gym.compiled import compiled_module
 from fpg_gym.reconstruct.node_database import NodeDatabase
 
 # --------------------------------------------------------------------------- scores
@@ -122,8 +122,8 @@ def _best_k(scores: np.ndarray, k: int) -> np.ndarray:
 
 def _compiled() -> ModuleType | None:
     """The compiled selection kernels, or None without numba (imported once,
-    :func:`~fpg_gym.reconstruct.kernels.compiled_module`)."""
-    return compiled_module("compiled_selection")
+    :func:`~fpg_gym.compiled.compiled_module`)."""
+    return compiled_module("fpg_gym.reconstruct.compiled_selection")
 
 
 def compiled_available() -> bool:

@@ -1,0 +1,80 @@
+"""The compiled (numba) kernels' modules, and the one loader that imports them.
+
+Each module of :data:`COMPILED_MODULES` imports numba at its top and exists for the optional
+extra ``fpg-gym[fast]``; the code that uses it asks :func:`compiled_module` for it and runs its
+numpy path when it gets None. The kernels compile on first use and are cached on disk
+(``cache=True``), so a new process loads them instead of compiling them again.
+"""
+
+from __future__ import annotations
+
+import functools
+import importlib
+from collections.abc import Iterator
+from contextlib import contextmanager
+from types import ModuleType
+
+__all__ = ["COMPILED_MODULES", "compiled_module", "numba_available", "numpy_only"]
+
+#: The modules of compiled kernels, each imported only when ``fpg-gym[fast]`` is installed.
+COMPILED_MODULES: tuple[str, ...] = (
+    "fpg_gym.compiled_poses",
+    "fpg_gym.filters.compiled_filters",
+    "fpg_gym.reconstruct.compiled_frame",
+    "fpg_gym.reconstruct.compiled_kernels",
+    "fpg_gym.reconstruct.compiled_search",
+    "fpg_gym.reconstruct.compiled_selection",
+)
+
+
+_numpy_only = False
+
+
+@contextmanager
+def numpy_only() -> Iterator[None]:
+    """Within this block :func:`compiled_module` gives None, so that everything built in it runs
+    its numpy path, as without numba (for benchmarks and tests; not thread-safe)."""
+    global _numpy_only
+    previous, _numpy_only = _numpy_only, True
+    try:
+        yield
+    finally:
+        _numpy_only = previous
+
+
+def compiled_module(name: str) -> ModuleType | None:
+    """The module ``name``, one of :data:`COMPILED_MODULES`, or None when numba is not installed
+    (``pip install 'fpg-gym[fast]'``) or within :func:`numpy_only`. Imported once.
+
+    Raises
+    ------
+    ValueError
+        If ``name`` is not one of :data:`COMPILED_MODULES`.
+    ImportError
+        If the module fails to import for another reason than a missing numba (or llvmlite).
+    """
+    if name not in COMPILED_MODULES:
+        raise ValueError(f"name: expected one of {', '.join(COMPILED_MODULES)}, got {name!r}")
+    return None if _numpy_only else _import(name)
+
+
+@functools.cache
+def _import(name: str) -> ModuleType | None:
+    try:
+        return importlib.import_module(name)
+    except ModuleNotFoundError as error:  # numba (or its llvmlite) absent; other errors raise
+        if error.name not in ("numba", "llvmlite"):
+            raise
+        return None
+
+
+@functools.cache
+def numba_available() -> bool:
+    """Whether numba can be imported (the compiled kernels can run)."""
+    try:
+        importlib.import_module("numba")
+    except ModuleNotFoundError as error:
+        if error.name not in ("numba", "llvmlite"):
+            raise
+        return False
+    return True

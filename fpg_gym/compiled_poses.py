@@ -1,0 +1,94 @@
+"""Pose kernels compiled (numba); imported only when ``fpg-gym[fast]`` is installed.
+
+:func:`retarget_pose` is :func:`fpg_gym.poses.retarget` for one pose: the same directions (a bone
+shorter than 1e-9 m takes its rest direction) and the same sums along the tree (each joint is
+its root plus the bone vectors of its path, in bone order, as ``PATH_MATRIX``'s product adds
+them), in one call instead of about fifteen numpy calls. :func:`assemble_nodes` builds a pose
+database's candidates from their directions the same way
+(:meth:`~fpg_gym.reconstruct.node_database.NodeDatabase.poses_for`), :func:`bone_lengths_pose`
+and :func:`vector_angles` are :func:`fpg_gym.poses.bone_lengths` of one pose (the same sums) and
+:func:`fpg_gym.reconstruct.reliability.behaviour_angles` (equal to rounding). Module-level
+functions so that numba's disk cache (``cache=True``) finds them in a new process.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["assemble_nodes", "bone_lengths_pose", "retarget_pose", "vector_angles"]
+
+
+@numba.njit(cache=True, nogil=True)
+def retarget_pose(pose, lengths, bones, rest_directions):
+    """``pose`` ``(20, 3)`` float64 with bone lengths ``lengths`` ``(19,)``; ``bones`` the
+    ``(parent, child)`` pairs, parents first; float32 ``(20, 3)``."""
+    joints = pose.shape[0]
+    offset = np.zeros((joints, 3))
+    for b in range(bones.shape[0]):
+        parent, child = bones[b, 0], bones[b, 1]
+        vx = pose[child, 0] - pose[parent, 0]
+        vy = pose[child, 1] - pose[parent, 1]
+        vz = pose[child, 2] - pose[parent, 2]
+        norm = np.sqrt(vx * vx + vy * vy + vz * vz)
+        if norm > 1e-9:
+            vx, vy, vz = vx / norm, vy / norm, vz / norm
+        else:
+            vx, vy, vz = rest_directions[b, 0], rest_directions[b, 1], rest_directions[b, 2]
+        offset[child, 0] = offset[parent, 0] + vx * lengths[b]
+        offset[child, 1] = offset[parent, 1] + vy * lengths[b]
+        offset[child, 2] = offset[parent, 2] + vz * lengths[b]
+    out = np.empty((joints, 3), dtype=np.float32)
+    for j in range(joints):
+        for c in range(3):
+            out[j, c] = pose[0, c] + offset[j, c]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def assemble_nodes(directions, roots, nodes, lengths, bones):
+    """Poses ``(M, 20, 3)`` float32 of the database rows ``nodes``: each root plus, along its
+    path, the unit bone ``directions`` ``(N, 19, 3)`` float32 scaled by ``lengths`` ``(19,)``
+    float32 (the bone vectors in float32, their sums in float64)."""
+    count = nodes.shape[0]
+    joints = bones.shape[0] + 1
+    out = np.empty((count, joints, 3), dtype=np.float32)
+    offset = np.zeros((joints, 3))
+    for i in range(count):
+        node = nodes[i]
+        for b in range(bones.shape[0]):
+            parent, child = bones[b, 0], bones[b, 1]
+            for c in range(3):
+                vector = directions[node, b, c] * lengths[b]  # float32, as the numpy path
+                offset[child, c] = offset[parent, c] + vector
+        for j in range(joints):
+            for c in range(3):
+                out[i, j, c] = offset[j, c] + roots[node, c]
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def bone_lengths_pose(pose, bones):
+    """Bone lengths ``(19,)`` float64 of one pose ``(20, 3)`` float64."""
+    out = np.empty(bones.shape[0])
+    for b in range(bones.shape[0]):
+        s = 0.0
+        for c in range(3):
+            v = pose[bones[b, 1], c] - pose[bones[b, 0], c]
+            s += v * v
+        out[b] = np.sqrt(s)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def vector_angles(a, b, min_length):
+    """Angle in radians between the rows of ``a`` and ``b`` ``(J, 3)`` float64, 0 where either
+    is shorter than ``min_length``."""
+    out = np.zeros(a.shape[0])
+    for j in range(a.shape[0]):
+        na = np.sqrt(a[j, 0] * a[j, 0] + a[j, 1] * a[j, 1] + a[j, 2] * a[j, 2])
+        nb = np.sqrt(b[j, 0] * b[j, 0] + b[j, 1] * b[j, 1] + b[j, 2] * b[j, 2])
+        if na >= min_length and nb >= min_length:
+            cos = (a[j, 0] * b[j, 0] + a[j, 1] * b[j, 1] + a[j, 2] * b[j, 2]) / (na * nb)
+            out[j] = np.arccos(min(max(cos, -1.0), 1.0))
+    return out

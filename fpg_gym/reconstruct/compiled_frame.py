@@ -1,0 +1,263 @@
+"""A frame's set-up compiled (numba): the local PCA, the energy's tables and the terms of a few
+points, and the sorted window of the reliability's reference lengths; imported only when
+``fpg-gym[fast]`` is installed.
+
+The same maths as the numpy code they stand for (:meth:`LatentSpace.fit
+<fpg_gym.reconstruct.latent.LatentSpace.fit>`, :class:`~fpg_gym.reconstruct.energy.EnergyModel`'s
+tables and working arrays, its :meth:`~fpg_gym.reconstruct.energy.EnergyModel.terms`) in one call
+each instead of some forty numpy calls: the arithmetic is a few tens of thousands of
+multiply-adds, so what the numpy code spends is dispatch. Results agree with the numpy path to
+floating-point rounding (the sums run in another order); the tests compare them.
+
+Module-level functions so that numba's disk cache (``cache=True``) finds them in a new process.
+"""
+
+from __future__ import annotations
+
+import numba
+import numpy as np
+
+__all__ = ["energy_setup", "fit_latent", "latent_terms", "merge_sorted", "remove_sorted"]
+
+
+@numba.njit(cache=True, nogil=True)
+def fit_latent(data, dim, min_std, max_condition):
+    """Whitened PCA of ``data`` ``(K, 60)`` float64 with ``1 <= dim <= min(K - 1, 60)`` axes.
+
+    Returns ``mean (60,)``, ``basis (dim, 60)`` (each row's largest-magnitude entry positive),
+    ``std (dim,)`` floored at ``min_std``, ``degenerate (dim,)`` and the explained variance
+    ratio, as :meth:`LatentSpace.fit <fpg_gym.reconstruct.latent.LatentSpace.fit>`. The axes
+    come from the ``K x K`` Gram matrix while ``s_1 / s_dim <= max_condition`` (and ``K <=
+    60``), else from the SVD (:func:`fpg_gym.reconstruct.latent.principal_axes`).
+    """
+    count, size = data.shape
+    mean = np.zeros(size)
+    for i in range(count):
+        for c in range(size):
+            mean[c] += data[i, c]
+    mean /= count
+    centred = np.empty((count, size))
+    for i in range(count):
+        for c in range(size):
+            centred[i, c] = data[i, c] - mean[c]
+    singular = np.zeros(0)
+    basis = np.zeros((0, size))
+    gram_ok = False
+    if count <= size:
+        values, vectors = np.linalg.eigh(centred @ centred.T)
+        singular = np.sqrt(np.maximum(values[::-1], 0.0))
+        if singular[dim - 1] > 0.0 and singular[0] <= max_condition * singular[dim - 1]:
+            top = np.empty((dim, count))
+            for a in range(dim):
+                for i in range(count):
+                    top[a, i] = vectors[i, count - 1 - a]
+            basis = top @ centred
+            for a in range(dim):
+                basis[a] /= singular[a]
+            gram_ok = True
+    if not gram_ok:
+        _, singular, vt = np.linalg.svd(centred, full_matrices=False)
+        basis = np.ascontiguousarray(vt[:dim])
+    for a in range(dim):  # sign: the largest-magnitude entry positive
+        best = 0
+        for c in range(1, size):
+            if abs(basis[a, c]) > abs(basis[a, best]):
+                best = c
+        if basis[a, best] < 0.0:
+            basis[a] *= -1.0
+    kept = min(dim, singular.shape[0])
+    std = np.full(dim, min_std)
+    degenerate = np.ones(dim, dtype=np.bool_)
+    scale = np.sqrt(count - 1.0)
+    for a in range(kept):
+        spread = singular[a] / scale
+        degenerate[a] = spread < min_std
+        std[a] = max(spread, min_std)
+    total = 0.0
+    for a in range(singular.shape[0]):
+        total += singular[a] * singular[a]
+    kept_sum = 0.0
+    for a in range(kept):
+        kept_sum += singular[a] * singular[a]
+    ratio = kept_sum / total if total > 0.0 else 1.0
+    return mean, basis, std, degenerate, ratio
+
+
+@numba.njit(cache=True, nogil=True)
+def energy_setup(
+    mean, basis, std, sensor, reliability, neighbours, lengths, target, weights, child, parent
+):
+    """Shum Eq. 10's tables and working arrays for one frame (all float64).
+
+    ``target`` is ``(60,)`` or empty (no motion target: ``Em = 0``); ``weights`` ``(5,)`` are
+    ``w_c, w_s, w_k, w_m, w_p``; ``child``/``parent`` the 57 coordinates of the bones' ends.
+
+    Returns ``matrix (d, d + 1 + K + 57)``, ``c0``, ``ycst (K,)``, ``b0 (57,)``, ``wk`` (the
+    :class:`~fpg_gym.reconstruct.kernels.EnergyTables`), then ``components (d, 60)``,
+    ``joint_weights (60,)``, ``y (K, d)``, ``y_sq (K,)`` and ``r_sq (K,)`` (what
+    :func:`latent_terms` takes).
+    """
+    joints = reliability.shape[0]
+    bones = lengths.shape[0]
+    d, size = basis.shape
+    k = neighbours.shape[0]
+    wc, ws, wk, wm, wp = weights[0], weights[1], weights[2], weights[3], weights[4]
+    components = np.empty((d, size))
+    for a in range(d):
+        for c in range(size):
+            components[a, c] = basis[a, c] * std[a]
+    joint_weights = np.empty(size)
+    for j in range(joints):
+        for c in range(3):
+            joint_weights[3 * j + c] = reliability[j]
+    # Es (Eq. 12): neighbours' coordinates y_n in the space and squared residuals outside it.
+    centred = np.empty((k, size))
+    centred_sq = np.zeros(k)
+    for n in range(k):
+        for c in range(size):
+            v = neighbours[n, c] - mean[c]
+            centred[n, c] = v
+            centred_sq[n] += v * v
+    y = centred @ basis.T
+    residual = centred - y @ basis
+    y_sq = np.zeros(k)
+    r_sq = np.zeros(k)
+    for n in range(k):
+        for a in range(d):
+            y_sq[n] += y[n, a] * y[n, a]
+        for c in range(size):
+            r_sq[n] += residual[n, c] * residual[n, c]
+    # Ec (Eq. 11) and Em (Eq. 14) as z^T A z + g.z + c.
+    weighted = np.empty(size)
+    c0 = 0.0
+    for c in range(size):
+        delta = mean[c] - sensor[c]
+        weighted[c] = wc * joint_weights[c] * delta
+        c0 += weighted[c] * delta
+    has_target = target.shape[0] > 0
+    if has_target:
+        motion_sq = 0.0
+        for c in range(size):
+            motion = mean[c] - target[c]
+            weighted[c] += wm / joints * motion
+            motion_sq += motion * motion
+        c0 += wm / joints * motion_sq
+    width = d + 1 + k + 3 * bones
+    matrix = np.empty((d, width))
+    scaled = np.empty((d, size))
+    for a in range(d):
+        for c in range(size):
+            scaled[a, c] = components[a, c] * (wc * joint_weights[c])
+    matrix[:, :d] = scaled @ components.T
+    for a in range(d):
+        diagonal = ws / joints * std[a] * std[a] + wp / max(d, 1)
+        if has_target:
+            diagonal += wm / joints * std[a] * std[a]
+        matrix[a, a] += diagonal
+        linear = 0.0
+        for c in range(size):
+            linear += components[a, c] * weighted[c]
+        matrix[a, d] = 2.0 * linear
+        for n in range(k):
+            matrix[a, d + 1 + n] = (-2.0 * ws / joints) * (std[a] * y[n, a])
+        for b in range(3 * bones):
+            matrix[a, d + 1 + k + b] = components[a, child[b]] - components[a, parent[b]]
+    ycst = np.empty(k)
+    for n in range(k):
+        ycst[n] = ws / joints * centred_sq[n]
+    b0 = np.empty(3 * bones)
+    for b in range(3 * bones):
+        b0[b] = mean[child[b]] - mean[parent[b]]
+    return matrix, c0, ycst, b0, wk / bones, components, joint_weights, y, y_sq, r_sq
+
+
+@numba.njit(cache=True, nogil=True)
+def latent_terms(
+    z, mean, components, sensor, joint_weights, y, y_sq, r_sq, std, lengths, target, child, parent
+):
+    """``Ec``, ``Es``, ``Ek``, ``Em``, ``Ep`` (Shum Eqs. 11-14 and the latent prior) of points
+    ``(n, d)``, as rows of a ``(5, n)`` float64 array, from :func:`energy_setup`'s working
+    arrays (in the points' dtype); ``target`` empty gives ``Em = 0``."""
+    n, d = z.shape
+    size = mean.shape[0]
+    joints = size // 3
+    bones = lengths.shape[0]
+    k = y.shape[0]
+    x = z @ components
+    out = np.zeros((5, n))
+    u = np.empty(d, dtype=z.dtype)
+    for i in range(n):
+        for c in range(size):
+            x[i, c] += mean[c]
+        ec = 0.0
+        for c in range(size):
+            diff = x[i, c] - sensor[c]
+            ec += diff * diff * joint_weights[c]
+        uu = 0.0
+        zz = 0.0
+        for a in range(d):
+            u[a] = z[i, a] * std[a]
+            uu += u[a] * u[a]
+            zz += z[i, a] * z[i, a]
+        best = np.inf
+        for m in range(k):
+            dot = 0.0
+            for a in range(d):
+                dot += u[a] * y[m, a]
+            dist = uu - 2.0 * dot + y_sq[m] + r_sq[m]
+            if dist < best:
+                best = dist
+        ek = 0.0
+        for b in range(bones):
+            s = 0.0
+            for c in range(3):
+                v = x[i, child[3 * b + c]] - x[i, parent[3 * b + c]]
+                s += v * v
+            diff = np.sqrt(s) - lengths[b]
+            ek += diff * diff
+        em = 0.0
+        if target.shape[0] > 0:
+            for c in range(size):
+                diff = x[i, c] - target[c]
+                em += diff * diff
+        out[0, i] = ec  # Eq. 11
+        out[1, i] = max(best, 0.0) / joints  # Eq. 12
+        out[2, i] = ek / bones  # Eq. 13
+        out[3, i] = em / joints  # Eq. 14
+        out[4, i] = zz / max(d, 1)  # latent prior (beyond the papers)
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def merge_sorted(values, new):
+    """The sorted values of ``values`` and ``new`` (both sorted, float64); a value of ``new``
+    equal to one of ``values`` goes before it (``np.searchsorted``'s left side)."""
+    out = np.empty(values.shape[0] + new.shape[0])
+    i = j = 0
+    for k in range(out.shape[0]):
+        if j < new.shape[0] and (i >= values.shape[0] or new[j] <= values[i]):
+            out[k] = new[j]
+            j += 1
+        else:
+            out[k] = values[i]
+            i += 1
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def remove_sorted(values, old):
+    """``values`` (sorted) without one occurrence of each value of ``old`` (sorted; each one
+    present)."""
+    out = np.empty(max(values.shape[0] - old.shape[0], 0))
+    j = k = 0
+    for i in range(values.shape[0]):
+        if j < old.shape[0] and values[i] == old[j]:
+            j += 1
+        elif k < out.shape[0]:
+            out[k] = values[i]
+            k += 1
+        else:
+            break
+    if j != old.shape[0]:
+        raise ValueError("remove_sorted: a value to remove is not in the window")
+    return out

@@ -1,0 +1,226 @@
+"""The frame's compiled stages (numba) against the numpy code they stand for.
+
+The filters' steps, the pose retarget, one pose's bone lengths and the sorted window do the same
+operations in the same order, so their outputs must be equal to the bit; the local PCA, the
+energy's set-up, the candidates' assembly and the behaviour angles sum in another order (or call
+another arccos), so theirs must agree to rounding. Each numpy path runs within
+``fpg_gym.compiled.numpy_only()``.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fpg_gym import poses, skeleton
+from fpg_gym.compiled import COMPILED_MODULES, compiled_module, numba_available, numpy_only
+from fpg_gym.filters import INFERRED, NOT_TRACKED, TRACKED, KalmanFilter, OneEuroFilter
+from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights
+from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.node_database import NodeDatabase
+from fpg_gym.reconstruct.reliability import SortedWindow, behaviour_angles
+
+pytestmark = pytest.mark.skipif(not numba_available(), reason="needs numba (fpg-gym[fast])")
+
+
+def test_numpy_only_hides_every_compiled_module_within_its_block() -> None:
+    with numpy_only():
+        assert [compiled_module(name) for name in COMPILED_MODULES] == [None] * len(
+            COMPILED_MODULES
+        )
+        with numpy_only():
+            pass
+        assert compiled_module(COMPILED_MODULES[0]) is None  # still hidden after a nested block
+    assert all(compiled_module(name) is not None for name in COMPILED_MODULES)
+
+
+def hostile_stream(rng: np.random.Generator, frames: int = 90) -> tuple[np.ndarray, ...]:
+    """A noisy walk with every state, dropped and non-finite joints, a repeated timestamp and
+    a long gap (the velocity is zeroed past max_coast)."""
+    walk = np.cumsum(rng.normal(0.0, 0.02, (frames, 20, 3)), axis=0)
+    positions = walk + np.array([0.0, 1.0, 2.5])
+    states = rng.choice([NOT_TRACKED, INFERRED, TRACKED], (frames, 20), p=[0.1, 0.2, 0.7])
+    states[:, 3] = NOT_TRACKED  # a joint never measured
+    states = states.astype(np.int8)
+    positions[rng.random((frames, 20)) < 0.03] = np.nan
+    times = np.arange(frames) / 30.0
+    times[40] = times[39]  # a repeated timestamp
+    times[60:] += 0.5  # a gap longer than max_coast
+    return positions, states, times
+
+
+def run_filter(make: Any, hidden: bool, stream: tuple[np.ndarray, ...]) -> Any:
+    with numpy_only() if hidden else contextlib.nullcontext():
+        filt = make()
+        out = np.stack([filt.update(p, s, t) for p, s, t in zip(*stream, strict=True)])
+        state = {k: np.copy(v) for k, v in vars(filt).items() if isinstance(v, np.ndarray)}
+    return out, state
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        KalmanFilter,
+        lambda: KalmanFilter(max_coast=None, not_tracked_std=0.2),
+        OneEuroFilter,
+        lambda: OneEuroFilter("output"),
+    ],
+)
+def test_compiled_filter_steps_equal_the_numpy_steps_to_the_bit(make: Any) -> None:
+    stream = hostile_stream(np.random.default_rng(3))
+    compiled, compiled_state = run_filter(make, False, stream)
+    reference, reference_state = run_filter(make, True, stream)
+    np.testing.assert_array_equal(compiled, reference)
+    assert compiled_state.keys() == reference_state.keys()
+    for name, value in reference_state.items():
+        np.testing.assert_array_equal(compiled_state[name], value, err_msg=name)
+
+
+def test_compiled_kalman_keeps_the_innovations_fit_noise_reads() -> None:
+    positions, states, times = hostile_stream(np.random.default_rng(4), frames=70)
+    innovations = []
+    for hidden in (False, True):
+        with numpy_only() if hidden else contextlib.nullcontext():
+            kf = KalmanFilter()
+            seen = []
+            for p, s, t in zip(positions, states, times, strict=True):
+                kf.update(p, s, t)
+                seen.append([np.copy(a) for a in kf._innovation])
+            innovations.append(seen)
+    for compiled, reference in zip(*innovations, strict=True):
+        for a, b in zip(compiled, reference, strict=True):
+            np.testing.assert_array_equal(a, b)
+
+
+def test_compiled_retarget_of_one_pose_equals_the_numpy_retarget() -> None:
+    rng = np.random.default_rng(5)
+    for i in range(200):
+        pose = rng.normal(0.0, 0.3, (20, 3))
+        if i % 5 == 0:
+            pose[6] = pose[5]  # a zero-length bone takes its rest direction
+        lengths = rng.uniform(0.05, 0.5, skeleton.NUM_BONES)
+        compiled = poses.retarget(pose, lengths)
+        with numpy_only():
+            reference = poses.retarget(pose, lengths)
+        assert compiled.dtype == np.float32
+        np.testing.assert_array_equal(compiled, reference)
+        np.testing.assert_allclose(poses.bone_lengths(compiled), lengths, atol=1e-6)
+
+
+def test_compiled_sorted_window_equals_the_numpy_window() -> None:
+    rng = np.random.default_rng(8)
+    rows = np.round(rng.normal(1.0, 0.1, (60, 19)), 2)  # rounded: many equal values
+    rows[rng.random(rows.shape) < 0.2] = np.nan
+    windows = {}
+    for hidden in (False, True):
+        with numpy_only() if hidden else contextlib.nullcontext():
+            window, medians = SortedWindow(), []
+            for i, row in enumerate(rows):
+                if i >= 25:
+                    window.remove(rows[i - 25])
+                window.add(row)
+                medians.append(window.median())
+                kept = rows[max(0, i - 24) : i + 1]
+                np.testing.assert_array_equal(window.values, np.sort(kept[np.isfinite(kept)]))
+            windows[hidden] = medians
+    assert windows[False] == windows[True]
+
+
+def test_compiled_remove_sorted_refuses_a_value_not_in_the_window() -> None:
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    with pytest.raises(ValueError, match="not in the window"):
+        compiled.remove_sorted(np.array([1.0, 2.0]), np.array([3.0]))
+
+
+def test_compiled_pose_helpers_equal_their_numpy_paths(graph: Any) -> None:
+    rng = np.random.default_rng(9)
+    database = NodeDatabase(graph.poses)
+    nodes = rng.choice(len(graph.poses), 30, replace=False)
+    lengths = rng.uniform(0.05, 0.5, skeleton.NUM_BONES)
+    pose = rng.normal(0.0, 0.3, (20, 3))
+    a, b = rng.normal(0.0, 0.05, (2, 20, 3))
+    a[3] = 0.0  # a short displacement: angle 0
+    results = []
+    for hidden in (False, True):
+        with numpy_only() if hidden else contextlib.nullcontext():
+            results.append(
+                (
+                    database.poses_for(nodes, lengths),
+                    poses.bone_lengths(pose),
+                    behaviour_angles(a, b, 0.03),
+                    behaviour_angles(b, -b, 0.03),  # opposite: pi
+                )
+            )
+    compiled, reference = results
+    assert compiled[0].dtype == np.float32 and compiled[0].flags.c_contiguous
+    np.testing.assert_allclose(compiled[0], reference[0], rtol=0, atol=1e-6)
+    np.testing.assert_array_equal(compiled[1], reference[1])  # the same sums
+    for x, y in zip(compiled[2:], reference[2:], strict=True):
+        np.testing.assert_allclose(x, y, rtol=0, atol=1e-7)  # arccos is steep at pi
+        np.testing.assert_array_equal(x == 0.0, y == 0.0)
+
+
+def candidate_sets(graph: Any, count: int = 12) -> list[np.ndarray]:
+    rng = np.random.default_rng(6)
+    nodes = np.asarray(graph.poses, dtype=np.float64)
+    sets = [nodes[rng.choice(len(nodes), 30, replace=False)] for _ in range(count)]
+    duplicated = sets[0].copy()
+    duplicated[10:] = duplicated[0]  # duplicates: the SVD path
+    return [*sets, duplicated]
+
+
+def test_compiled_latent_fit_agrees_with_numpy(graph: Any) -> None:
+    for candidates in candidate_sets(graph):
+        for max_dim in (20, 5):
+            fast = LatentSpace.fit(candidates, max_dim=max_dim, kernel="numba")
+            slow = LatentSpace.fit(candidates, max_dim=max_dim, kernel="numpy")
+            np.testing.assert_allclose(fast.mean, slow.mean, rtol=0, atol=1e-15)
+            np.testing.assert_allclose(fast.std, slow.std, rtol=1e-10)
+            np.testing.assert_array_equal(fast.degenerate, slow.degenerate)
+            live = ~slow.degenerate
+            np.testing.assert_allclose(fast.basis[live], slow.basis[live], rtol=0, atol=1e-7)
+            assert fast.explained_variance_ratio == pytest.approx(slow.explained_variance_ratio)
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+@pytest.mark.parametrize("with_target", [True, False])
+def test_compiled_energy_setup_and_terms_agree_with_numpy(
+    graph: Any, dtype: Any, with_target: bool
+) -> None:
+    rng = np.random.default_rng(7)
+    for candidates in candidate_sets(graph, count=4):
+        latent = LatentSpace.fit(candidates, kernel="numpy")
+        sensor = candidates[0] + rng.normal(0.0, 0.03, (20, 3))
+        target = candidates[1] if with_target else None
+        arguments = (
+            latent,
+            sensor,
+            rng.uniform(0.0, 1.0, 20),
+            candidates,
+            poses.bone_lengths(candidates[2]),
+            target,
+            EnergyWeights.with_prior(),
+            dtype,
+        )
+        fast, slow = (
+            EnergyModel(*arguments, kernel="numba"),
+            EnergyModel(*arguments, kernel="numpy"),
+        )
+        tolerance = 1e-12 if dtype == np.float64 else 1e-5
+        for name in ("matrix", "ycst", "b0", "lengths"):
+            a, b = getattr(fast.tables, name), getattr(slow.tables, name)
+            assert a.dtype == b.dtype == np.dtype(dtype)
+            np.testing.assert_allclose(a, b, rtol=tolerance, atol=tolerance * np.abs(b).max())
+        assert fast.tables.c0 == pytest.approx(slow.tables.c0, rel=tolerance)
+        assert fast.tables.wk == slow.tables.wk
+        z = rng.normal(0.0, 1.0, (16, latent.dim))
+        fast_terms, slow_terms = fast.terms(z), slow.terms(z)
+        for name in TERM_NAMES:
+            assert fast_terms[name].dtype == np.float64
+            np.testing.assert_allclose(
+                fast_terms[name], slow_terms[name], rtol=50 * tolerance, atol=1e-12, err_msg=name
+            )
+        np.testing.assert_allclose(fast(z), slow(z), rtol=50 * tolerance)
