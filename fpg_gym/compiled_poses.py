@@ -7,8 +7,12 @@ them), in one call instead of about fifteen numpy calls. :func:`assemble_nodes` 
 database's candidates from their directions the same way
 (:meth:`~fpg_gym.reconstruct.node_database.NodeDatabase.poses_for`), :func:`bone_lengths_pose`
 and :func:`vector_angles` are :func:`fpg_gym.poses.bone_lengths` of one pose (the same sums) and
-:func:`fpg_gym.reconstruct.reliability.behaviour_angles` (equal to rounding). Module-level
-functions so that numba's disk cache (``cache=True``) finds them in a new process.
+:func:`fpg_gym.reconstruct.reliability.behaviour_angles` (equal to rounding);
+:func:`facing_yaw_pose` and :func:`place_pose` are :func:`fpg_gym.poses.facing_yaw`, and the
+rotations of :func:`~fpg_gym.poses.normalise`, :func:`~fpg_gym.poses.into_placement` and
+:func:`~fpg_gym.poses.denormalise`, for one pose (equal to rounding: numpy's 3 x 3 products may
+fuse their multiply-adds). Module-level functions so that numba's disk cache (``cache=True``)
+finds them in a new process.
 """
 
 from __future__ import annotations
@@ -16,7 +20,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["assemble_nodes", "bone_lengths_pose", "retarget_pose", "vector_angles"]
+__all__ = [
+    "assemble_nodes",
+    "bone_lengths_pose",
+    "facing_yaw_pose",
+    "place_pose",
+    "retarget_pose",
+    "vector_angles",
+]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -91,4 +102,40 @@ def vector_angles(a, b, min_length):
         if na >= min_length and nb >= min_length:
             cos = (a[j, 0] * b[j, 0] + a[j, 1] * b[j, 1] + a[j, 2] * b[j, 2]) / (na * nb)
             out[j] = np.arccos(min(max(cos, -1.0), 1.0))
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def facing_yaw_pose(pose, hip_left, hip_right, shoulder_left, shoulder_right, degenerate):
+    """Heading of one pose ``(20, 3)`` float64 from its hip line (the shoulder line when the
+    hips' horizontal extent is under ``degenerate``), radians; 0 when both are degenerate."""
+    rx = pose[hip_right, 0] - pose[hip_left, 0]
+    rz = pose[hip_right, 2] - pose[hip_left, 2]
+    if not np.hypot(rx, rz) > degenerate:
+        rx = pose[shoulder_right, 0] - pose[shoulder_left, 0]
+        rz = pose[shoulder_right, 2] - pose[shoulder_left, 2]
+    forward_x, forward_z = rz, -rx  # up x right; yaw from +Z towards +X
+    if np.hypot(forward_x, forward_z) > degenerate:
+        return np.arctan2(forward_x, forward_z)
+    return 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def place_pose(pose, root, yaw, inverse):
+    """One pose ``(20, 3)`` float64 turned about +Y: ``(p - root) R_y(yaw)`` (row vectors: into
+    the placement's frame), or with ``inverse`` ``p R_y(yaw)^T + root`` (back to camera space);
+    float64."""
+    c, s = np.cos(yaw), np.sin(yaw)
+    out = np.empty_like(pose)
+    for j in range(pose.shape[0]):
+        if inverse:
+            x, y, z = pose[j, 0], pose[j, 1], pose[j, 2]
+            out[j, 0] = (x * c + z * s) + root[0]
+            out[j, 1] = y + root[1]
+            out[j, 2] = (z * c - x * s) + root[2]
+        else:
+            x, y, z = pose[j, 0] - root[0], pose[j, 1] - root[1], pose[j, 2] - root[2]
+            out[j, 0] = x * c - z * s
+            out[j, 1] = y
+            out[j, 2] = x * s + z * c
     return out

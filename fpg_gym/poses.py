@@ -13,7 +13,7 @@ shoulder line is used instead, and the yaw is 0 when both are degenerate.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -49,6 +49,7 @@ _HIP_RIGHT = skeleton.joint_index("HipRight")
 _SHOULDER_LEFT = skeleton.joint_index("ShoulderLeft")
 _SHOULDER_RIGHT = skeleton.joint_index("ShoulderRight")
 _DEGENERATE_LINE_M = 1e-4
+_FACING_JOINTS = (_HIP_LEFT, _HIP_RIGHT, _SHOULDER_LEFT, _SHOULDER_RIGHT)
 
 
 def as_poses(value: object, name: str = "poses", *, ndim: int | None = None) -> np.ndarray:
@@ -133,6 +134,16 @@ class Placement:
     yaw: np.ndarray
 
 
+def _one_pose_kernels(pose: np.ndarray, placement: Placement | None = None) -> Any:
+    """The compiled pose kernels (:mod:`fpg_gym.compiled_poses`) when ``pose`` is one pose
+    ``(20, 3)`` (and ``placement`` one root and one yaw) and numba is installed, else None."""
+    if pose.shape != (skeleton.NUM_JOINTS, 3):
+        return None
+    if placement is not None and (np.shape(placement.root) != (3,) or np.ndim(placement.yaw)):
+        return None
+    return compiled_module("fpg_gym.compiled_poses")
+
+
 def yaw_matrix(yaw: FloatArray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` about +Y by ``yaw`` radians (right-handed)."""
     yaw = np.asarray(yaw, dtype=np.float64)
@@ -174,6 +185,12 @@ def normalise(poses: FloatArray) -> tuple[np.ndarray, Placement]:
     """
     poses64 = np.asarray(poses, dtype=np.float64)
     root = poses64[..., skeleton.ROOT, :]
+    compiled = _one_pose_kernels(poses64)
+    if compiled is not None:  # one pose: two compiled calls
+        pose = np.ascontiguousarray(poses64)
+        angle = compiled.facing_yaw_pose(pose, *_FACING_JOINTS, _DEGENERATE_LINE_M)
+        normalised = compiled.place_pose(pose, root, angle, False)
+        return normalised.astype(np.float32), Placement(root=root, yaw=np.asarray(angle))
     yaw = facing_yaw(poses64)
     # p_norm = R_y(-yaw) (p - root), i.e. for row vectors (p - root) @ R_y(yaw)
     normalised = np.einsum("...jc,...cd->...jd", poses64 - root[..., None, :], yaw_matrix(yaw))
@@ -183,6 +200,15 @@ def normalise(poses: FloatArray) -> tuple[np.ndarray, Placement]:
 def denormalise(poses: FloatArray, placement: Placement) -> np.ndarray:
     """Inverse of :func:`normalise`: ``R_y(yaw) p + root``, float32."""
     poses64 = np.asarray(poses, dtype=np.float64)
+    compiled = _one_pose_kernels(poses64, placement)
+    if compiled is not None:
+        out32: np.ndarray = compiled.place_pose(
+            np.ascontiguousarray(poses64),
+            np.asarray(placement.root, dtype=np.float64),
+            float(placement.yaw),
+            True,
+        ).astype(np.float32)
+        return out32
     rotation = yaw_matrix(placement.yaw)
     out = (
         np.einsum("...jc,...dc->...jd", poses64, rotation)
@@ -411,7 +437,17 @@ def into_placement(poses: FloatArray, placement: Placement) -> np.ndarray:
     -------
     ndarray, shape (..., 20, 3), float64
     """
-    local = np.asarray(poses, dtype=np.float64) - np.asarray(placement.root)[..., None, :]
+    poses64 = np.asarray(poses, dtype=np.float64)
+    compiled = _one_pose_kernels(poses64, placement)
+    if compiled is not None:
+        placed: np.ndarray = compiled.place_pose(
+            np.ascontiguousarray(poses64),
+            np.asarray(placement.root, dtype=np.float64),
+            float(placement.yaw),
+            False,
+        )
+        return placed
+    local = poses64 - np.asarray(placement.root)[..., None, :]
     out: np.ndarray = local @ yaw_matrix(placement.yaw)
     return out
 

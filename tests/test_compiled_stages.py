@@ -163,6 +163,32 @@ def test_compiled_pose_helpers_equal_their_numpy_paths(graph: Any) -> None:
         np.testing.assert_array_equal(x == 0.0, y == 0.0)
 
 
+def test_compiled_placements_of_one_pose_agree_with_numpy() -> None:
+    rng = np.random.default_rng(10)
+    for i in range(100):
+        pose = rng.normal(0.0, 0.4, (20, 3)) + np.array([0.0, 1.0, 2.5])
+        if i % 10 == 0:  # hips on a vertical line: the heading comes from the shoulders
+            pose[16] = pose[12] + np.array([0.0, 0.05, 0.0])
+        placement = poses.Placement(root=rng.normal(size=3), yaw=np.asarray(rng.uniform(-3, 3)))
+        results = []
+        for hidden in (False, True):
+            with numpy_only() if hidden else contextlib.nullcontext():
+                normalised, found = poses.normalise(pose)
+                results.append(
+                    (
+                        normalised,
+                        found.yaw,
+                        poses.denormalise(normalised, found),
+                        poses.into_placement(pose, placement),
+                    )
+                )
+        (a, yaw, back, placed), (a2, yaw2, back2, placed2) = results
+        np.testing.assert_array_equal(a, a2)
+        assert float(yaw) == float(yaw2) and np.ndim(yaw) == np.ndim(yaw2) == 0
+        np.testing.assert_array_equal(back, back2)
+        np.testing.assert_allclose(placed, placed2, rtol=0, atol=1e-14)  # numpy may fuse
+
+
 def candidate_sets(graph: Any, count: int = 12) -> list[np.ndarray]:
     rng = np.random.default_rng(6)
     nodes = np.asarray(graph.poses, dtype=np.float64)

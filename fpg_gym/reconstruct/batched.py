@@ -22,7 +22,6 @@ from __future__ import annotations
 import copy
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -137,11 +136,12 @@ def _stream_arrays(recording: Any, index: int, frame_dt: float) -> tuple[np.ndar
 
 
 def _own_search_time(record: FrameRecord, search_ms: float) -> FrameRecord:
-    """The record with the stream's own search time (not the batch's)."""
-    ms = dict(record.ms)
+    """The record with the stream's own search time (not the batch's): its ``ms``, a dict new
+    with the frame (``Reconstructor.finish``), set in place."""
+    ms = record.ms
     ms["total"] += search_ms - ms["search"]
     ms["search"] = search_ms
-    return replace(record, ms=ms)
+    return record
 
 
 def search_together(problems: Sequence[Any], runs: Sequence[OptimizerRun]) -> np.ndarray:

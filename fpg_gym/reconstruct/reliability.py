@@ -47,6 +47,7 @@ calibrated). Fixed lengths can be given instead (``reference_lengths=``, ``"give
 
 from __future__ import annotations
 
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -219,9 +220,15 @@ def behaviour_angles(
 
 def behaviour_reliability(mean_angle: np.ndarray, config: ReliabilityConfig) -> np.ndarray:
     """``Rb`` from the mean direction-change angle (radians) over the last ``f_b`` frames."""
-    floor = np.deg2rad(config.theta_floor_deg)
-    span = np.deg2rad(config.theta_roof_deg) - floor
-    return 1.0 - np.clip(np.asarray(mean_angle) - floor, 0.0, span) / span
+    floor, span = _theta_bounds(config)
+    return 1.0 - np.minimum(np.maximum(np.asarray(mean_angle) - floor, 0.0), span) / span
+
+
+@functools.lru_cache(maxsize=16)
+def _theta_bounds(config: ReliabilityConfig) -> tuple[float, float]:
+    """``Rb``'s floor angle and span, in radians."""
+    floor = float(np.deg2rad(config.theta_floor_deg))
+    return floor, float(np.deg2rad(config.theta_roof_deg)) - floor
 
 
 def kinematic_reliability(lengths: np.ndarray, reference: np.ndarray) -> np.ndarray:
@@ -508,8 +515,11 @@ class ReliabilityEstimator:
             del history.angles[: -cfg.behaviour_frames]
         history.positions.append(local)
         del history.positions[:-2]
+        # The mean over the last f_b frames: the rows' sum in order, as np.mean sums them.
         mean_angle = (
-            np.mean(history.angles, axis=0) if history.angles else np.zeros(skeleton.NUM_JOINTS)
+            sum(history.angles[1:], history.angles[0]) / len(history.angles)
+            if history.angles
+            else np.zeros(skeleton.NUM_JOINTS)
         )
         behaviour = behaviour_reliability(mean_angle, cfg)
 

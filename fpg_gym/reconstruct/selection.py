@@ -555,7 +555,9 @@ class GraphSelector:
         self._average = (
             best_score if self._average is None else (1 - a) * self._average + a * best_score
         )
-        return replace(selection, poses=np.asarray(selection.poses, dtype=np.float32))
+        if selection.poses.dtype == np.float32:
+            return selection
+        return replace(selection, poses=selection.poses.astype(np.float32))
 
 
 def _database(graph: object, database: NodeDatabase | None) -> NodeDatabase:
