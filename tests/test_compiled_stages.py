@@ -21,6 +21,7 @@ from fpg_gym.filters import INFERRED, NOT_TRACKED, TRACKED, KalmanFilter, OneEur
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.node_database import NodeDatabase
+from fpg_gym.reconstruct.reconstructor import left_right_costs
 from fpg_gym.reconstruct.reliability import SortedWindow, behaviour_angles
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="needs numba (fpg-gym[fast])")
@@ -187,6 +188,19 @@ def test_compiled_placements_of_one_pose_agree_with_numpy() -> None:
         assert float(yaw) == float(yaw2) and np.ndim(yaw) == np.ndim(yaw2) == 0
         np.testing.assert_array_equal(back, back2)
         np.testing.assert_allclose(placed, placed2, rtol=0, atol=1e-14)  # numpy may fuse
+
+
+def test_compiled_left_right_costs_agree_with_numpy() -> None:
+    rng = np.random.default_rng(11)
+    for _ in range(200):
+        positions = rng.normal(0.0, 0.4, (20, 3)) + np.array([0.0, 1.0, 2.5])
+        prediction = positions + rng.normal(0.0, 0.05, (20, 3))
+        states = rng.choice([NOT_TRACKED, INFERRED, TRACKED], 20).astype(np.int8)
+        compiled = left_right_costs(positions, states, prediction)
+        with numpy_only():
+            reference = left_right_costs(positions, states, prediction)
+        np.testing.assert_allclose(compiled, reference, rtol=1e-13, atol=1e-15)
+        assert np.argmin(compiled) == np.argmin(reference)
 
 
 def candidate_sets(graph: Any, count: int = 12) -> list[np.ndarray]:

@@ -125,9 +125,12 @@ class BoneSettler:
             self.events.append(
                 {"time_s": timestamp, "kind": "settled", "lengths_m": self._settled.tolist()}
             )
-        step = np.clip(estimate - self._lengths, -cfg.max_rate_m_s * dt, cfg.max_rate_m_s * dt)
-        moved = np.clip(
-            self._lengths + step, self._high - cfg.max_spread_m, self._low + cfg.max_spread_m
+        # np.clip's rule, min(max(x, low), high), without its wrapper's cost (every frame).
+        rate = cfg.max_rate_m_s * dt
+        step = np.minimum(np.maximum(estimate - self._lengths, -rate), rate)
+        moved = np.minimum(
+            np.maximum(self._lengths + step, self._high - cfg.max_spread_m),
+            self._low + cfg.max_spread_m,
         )
         self._low, self._high = np.minimum(self._low, moved), np.maximum(self._high, moved)
         change = moved - self._lengths

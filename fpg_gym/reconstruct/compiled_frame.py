@@ -1,6 +1,6 @@
 """A frame's set-up compiled (numba): the local PCA, the energy's tables and the terms of a few
-points, and the sorted window of the reliability's reference lengths; imported only when
-``fpg-gym[fast]`` is installed.
+points, the sorted window of the reliability's reference lengths and the left/right labelling
+costs; imported only when ``fpg-gym[fast]`` is installed.
 
 The same maths as the numpy code they stand for (:meth:`LatentSpace.fit
 <fpg_gym.reconstruct.latent.LatentSpace.fit>`, :class:`~fpg_gym.reconstruct.energy.EnergyModel`'s
@@ -17,7 +17,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["energy_setup", "fit_latent", "latent_terms", "merge_sorted", "remove_sorted"]
+__all__ = [
+    "energy_setup",
+    "fit_latent",
+    "labelling_costs",
+    "latent_terms",
+    "merge_sorted",
+    "remove_sorted",
+]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -260,4 +267,29 @@ def remove_sorted(values, old):
             break
     if j != old.shape[0]:
         raise ValueError("remove_sorted: a value to remove is not in the window")
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def labelling_costs(positions, states, prediction, permutations, tracked, inferred):
+    """:func:`fpg_gym.reconstruct.reconstructor.left_right_costs`: for each row of
+    ``permutations`` ``(H, 20)``, the mean distance (weights 1 tracked, 0.5 inferred, 0 not
+    tracked) between the relabelled root-relative sensor joints and the root-relative
+    prediction; ``(H,)`` float64."""
+    count, joints = permutations.shape
+    out = np.empty(count)
+    for h in range(count):
+        total = 0.0
+        weight_sum = 0.0
+        for j in range(joints):
+            source = permutations[h, j]
+            state = states[source]
+            w = 1.0 if state >= tracked else (0.5 if state == inferred else 0.0)
+            s = 0.0
+            for c in range(3):
+                v = (positions[source, c] - positions[0, c]) - (prediction[j, c] - prediction[0, c])
+                s += v * v
+            total += w * np.sqrt(s)
+            weight_sum += w
+        out[h] = total / max(weight_sum, 1e-9)
     return out

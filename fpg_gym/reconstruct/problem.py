@@ -120,8 +120,6 @@ class SearchProblem:
         self.weights: EnergyWeights = energy.weights
         self.context = context
         self.dt = context.dt
-        self.z_kinect = self.latent.encode(self.kinect_pose)
-        self.z_prediction = None if prediction is None else self.latent.encode(prediction)
         x0 = np.asarray(x0, dtype=np.float64)
         if x0.shape != (self.dim,):
             raise ValueError(f"x0: expected shape ({self.dim},), got {x0.shape}")
@@ -149,6 +147,17 @@ class SearchProblem:
     def std(self) -> np.ndarray:
         """Per-axis spread ``(d,)`` of the candidates (the whitening scale)."""
         return self.latent.std
+
+    @functools.cached_property
+    def z_kinect(self) -> np.ndarray:
+        """The sensor pose projected into the space (computed on first use)."""
+        return self.latent.encode(self.kinect_pose)
+
+    @functools.cached_property
+    def z_prediction(self) -> np.ndarray | None:
+        """The prediction projected into the space (None on a first frame; computed on first
+        use)."""
+        return None if self.prediction is None else self.latent.encode(self.prediction)
 
     @functools.cached_property
     def z_previous(self) -> np.ndarray | None:

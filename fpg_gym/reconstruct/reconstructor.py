@@ -70,6 +70,7 @@ from tqdm import tqdm
 
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
+from fpg_gym.compiled import compiled_module
 from fpg_gym.definitions import OnlineDefinitionFit, PoseMap
 from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
 from fpg_gym.poses import RecordingLike
@@ -158,6 +159,17 @@ def left_right_costs(
     prediction (camera space). Returns ``(4,)`` metres.
     """
     positions = np.asarray(positions, dtype=np.float64)
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    if compiled is not None:  # one call; the same costs to rounding
+        costs: np.ndarray = compiled.labelling_costs(
+            np.ascontiguousarray(positions),
+            np.ascontiguousarray(states),
+            np.ascontiguousarray(prediction, dtype=np.float64),
+            _LABEL_PERMUTATIONS,
+            skeleton.TRACKED,
+            skeleton.INFERRED,
+        )
+        return costs
     local = positions - positions[skeleton.ROOT]
     target = np.asarray(prediction, dtype=np.float64)
     target = target - target[skeleton.ROOT]
