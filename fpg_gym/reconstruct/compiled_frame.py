@@ -19,75 +19,57 @@ import numpy as np
 
 __all__ = [
     "energy_setup",
-    "fit_latent",
     "labelling_costs",
     "latent_terms",
     "merge_sorted",
     "remove_sorted",
+    "whitened_axes",
 ]
 
 
 @numba.njit(cache=True, nogil=True)
-def fit_latent(data, dim, min_std, max_condition):
-    """Whitened PCA of ``data`` ``(K, 60)`` float64 with ``1 <= dim <= min(K - 1, 60)`` axes.
+def whitened_axes(centred, values, vectors, dim, min_std, max_condition):
+    """The whitened axes of centred poses ``(K, 60)`` from their Gram matrix's eigenpairs
+    (``np.linalg.eigh``'s ``values``, ascending, and ``vectors``), ``1 <= dim <= K - 1``.
 
-    Returns ``mean (60,)``, ``basis (dim, 60)`` (each row's largest-magnitude entry positive),
-    ``std (dim,)`` floored at ``min_std``, ``degenerate (dim,)`` and the explained variance
-    ratio, as :meth:`LatentSpace.fit <fpg_gym.reconstruct.latent.LatentSpace.fit>`. The axes
-    come from the ``K x K`` Gram matrix while ``s_1 / s_dim <= max_condition`` (and ``K <=
-    60``), else from the SVD (:func:`fpg_gym.reconstruct.latent.principal_axes`).
+    Returns ``basis (dim, 60)`` (each row's largest-magnitude entry positive), ``std (dim,)``
+    floored at ``min_std``, ``degenerate (dim,)``, the explained variance ratio and whether the
+    Gram matrix was usable (``s_1 / s_dim <= max_condition``; when it was not, the caller takes
+    the SVD): :meth:`LatentSpace.fit <fpg_gym.reconstruct.latent.LatentSpace.fit>` after the
+    eigen-decomposition, which stays numpy's (LAPACK compiled into numba costs seconds of
+    compilation).
     """
-    count, size = data.shape
-    mean = np.zeros(size)
-    for i in range(count):
-        for c in range(size):
-            mean[c] += data[i, c]
-    mean /= count
-    centred = np.empty((count, size))
-    for i in range(count):
-        for c in range(size):
-            centred[i, c] = data[i, c] - mean[c]
-    singular = np.zeros(0)
-    basis = np.zeros((0, size))
-    gram_ok = False
-    if count <= size:
-        values, vectors = np.linalg.eigh(centred @ centred.T)
-        singular = np.sqrt(np.maximum(values[::-1], 0.0))
-        if singular[dim - 1] > 0.0 and singular[0] <= max_condition * singular[dim - 1]:
-            top = np.empty((dim, count))
-            for a in range(dim):
-                for i in range(count):
-                    top[a, i] = vectors[i, count - 1 - a]
-            basis = top @ centred
-            for a in range(dim):
-                basis[a] /= singular[a]
-            gram_ok = True
-    if not gram_ok:
-        _, singular, vt = np.linalg.svd(centred, full_matrices=False)
-        basis = np.ascontiguousarray(vt[:dim])
-    for a in range(dim):  # sign: the largest-magnitude entry positive
-        best = 0
+    count, size = centred.shape
+    singular = np.sqrt(np.maximum(values[::-1], 0.0))
+    if not (singular[dim - 1] > 0.0 and singular[0] <= max_condition * singular[dim - 1]):
+        return np.zeros((dim, size)), np.zeros(dim), np.zeros(dim, dtype=np.bool_), 0.0, False
+    top = np.empty((dim, count))
+    for a in range(dim):
+        for i in range(count):
+            top[a, i] = vectors[i, count - 1 - a]
+    basis = top @ centred
+    for a in range(dim):
+        basis[a] /= singular[a]
+        best = 0  # sign: the largest-magnitude entry positive
         for c in range(1, size):
             if abs(basis[a, c]) > abs(basis[a, best]):
                 best = c
         if basis[a, best] < 0.0:
             basis[a] *= -1.0
-    kept = min(dim, singular.shape[0])
-    std = np.full(dim, min_std)
-    degenerate = np.ones(dim, dtype=np.bool_)
+    std = np.empty(dim)
+    degenerate = np.empty(dim, dtype=np.bool_)
     scale = np.sqrt(count - 1.0)
-    for a in range(kept):
+    kept_sum = 0.0
+    for a in range(dim):
         spread = singular[a] / scale
         degenerate[a] = spread < min_std
         std[a] = max(spread, min_std)
-    total = 0.0
-    for a in range(singular.shape[0]):
-        total += singular[a] * singular[a]
-    kept_sum = 0.0
-    for a in range(kept):
         kept_sum += singular[a] * singular[a]
+    total = 0.0
+    for a in range(count):
+        total += singular[a] * singular[a]
     ratio = kept_sum / total if total > 0.0 else 1.0
-    return mean, basis, std, degenerate, ratio
+    return basis, std, degenerate, ratio, True
 
 
 @numba.njit(cache=True, nogil=True)

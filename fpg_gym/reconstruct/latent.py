@@ -112,9 +112,9 @@ class LatentSpace:
 
         The sign of each direction is fixed (its largest-magnitude entry is positive) so that the
         same poses always give the same space. ``kernel`` (``"auto"``, ``"numba"``,
-        ``"numpy"``): ``"numba"`` fits in one compiled call
-        (:func:`fpg_gym.reconstruct.compiled_frame.fit_latent`, about half the time of the numpy
-        code on 30 candidates; the same result to rounding), ``"auto"`` when numba is installed.
+        ``"numpy"``): ``"numba"`` takes the axes from the Gram matrix's eigenpairs in one compiled
+        call (:func:`fpg_gym.reconstruct.compiled_frame.whitened_axes`; the same result to
+        rounding), ``"auto"`` when numba is installed.
 
         Raises
         ------
@@ -130,15 +130,17 @@ class LatentSpace:
             raise ValueError(f"min_std: expected > 0, got {min_std}")
         count = len(data)
         dim = min(max_dim, count - 1, POSE_SIZE)
-        if dim > 0 and resolve_kernel(kernel) == "numba":
-            compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
-            assert compiled is not None  # resolve_kernel checked numba
-            mean, basis, std, degenerate, ratio = compiled.fit_latent(
-                data, dim, min_std, GRAM_MAX_CONDITION
-            )
-            return cls(mean, basis, std, degenerate, float(ratio))
         mean = data.mean(axis=0)
         centred = data - mean
+        if 0 < dim and count <= POSE_SIZE and resolve_kernel(kernel) == "numba":
+            compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+            assert compiled is not None  # resolve_kernel checked numba
+            values, vectors = np.linalg.eigh(centred @ centred.T)  # as principal_axes
+            basis, std, degenerate, ratio, usable = compiled.whitened_axes(
+                centred, values, vectors, dim, min_std, GRAM_MAX_CONDITION
+            )
+            if usable:  # else the SVD, below
+                return cls(mean, basis, std, degenerate, float(ratio))
         if dim == 0:
             return cls(mean, np.zeros((0, POSE_SIZE)), np.zeros(0), np.zeros(0, bool), 1.0)
         singular, basis = principal_axes(centred, dim)
