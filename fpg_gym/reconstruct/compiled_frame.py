@@ -43,11 +43,12 @@ def whitened_axes(centred, values, vectors, dim, min_std, max_condition):
     singular = np.sqrt(np.maximum(values[::-1], 0.0))
     if not (singular[dim - 1] > 0.0 and singular[0] <= max_condition * singular[dim - 1]):
         return np.zeros((dim, size)), np.zeros(dim), np.zeros(dim, dtype=np.bool_), 0.0, False
-    top = np.empty((dim, count))
-    for a in range(dim):
+    basis = np.zeros((dim, size))
+    for a in range(dim):  # the eigenvectors' combinations of the poses (loops: no BLAS to compile)
         for i in range(count):
-            top[a, i] = vectors[i, count - 1 - a]
-    basis = top @ centred
+            weight = vectors[i, count - 1 - a]
+            for c in range(size):
+                basis[a, c] += weight * centred[i, c]
     for a in range(dim):
         basis[a] /= singular[a]
         best = 0  # sign: the largest-magnitude entry positive
@@ -107,8 +108,17 @@ def energy_setup(
             v = neighbours[n, c] - mean[c]
             centred[n, c] = v
             centred_sq[n] += v * v
-    y = centred @ basis.T
-    residual = centred - y @ basis
+    y = np.zeros((k, d))  # coordinates in the space (loops: no BLAS to compile)
+    residual = centred.copy()
+    for n in range(k):
+        for a in range(d):
+            dot = 0.0
+            for c in range(size):
+                dot += centred[n, c] * basis[a, c]
+            y[n, a] = dot
+        for a in range(d):
+            for c in range(size):
+                residual[n, c] -= y[n, a] * basis[a, c]
     y_sq = np.zeros(k)
     r_sq = np.zeros(k)
     for n in range(k):
@@ -137,7 +147,13 @@ def energy_setup(
     for a in range(d):
         for c in range(size):
             scaled[a, c] = components[a, c] * (wc * joint_weights[c])
-    matrix[:, :d] = scaled @ components.T
+    for a in range(d):
+        for b in range(a, d):
+            dot = 0.0
+            for c in range(size):
+                dot += scaled[a, c] * components[b, c]
+            matrix[a, b] = dot
+            matrix[b, a] = dot
     for a in range(d):
         diagonal = ws / joints * std[a] * std[a] + wp / max(d, 1)
         if has_target:
