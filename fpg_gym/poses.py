@@ -144,6 +144,21 @@ def _one_pose_kernels(pose: np.ndarray, placement: Placement | None = None) -> A
     return compiled_module("fpg_gym.compiled_poses")
 
 
+def _place_one_pose(pose: np.ndarray, placement: Placement, inverse: bool) -> np.ndarray | None:
+    """One pose ``(20, 3)`` float64 into ``placement``'s frame (or back, with ``inverse``) by
+    the compiled kernel, or None when it does not apply (several poses, no numba)."""
+    compiled = _one_pose_kernels(pose, placement)
+    if compiled is None:
+        return None
+    placed: np.ndarray = compiled.place_pose(
+        np.ascontiguousarray(pose),
+        np.asarray(placement.root, dtype=np.float64),
+        float(placement.yaw),
+        inverse,
+    )
+    return placed
+
+
 def yaw_matrix(yaw: FloatArray) -> np.ndarray:
     """Rotation matrices ``(..., 3, 3)`` about +Y by ``yaw`` radians (right-handed)."""
     yaw = np.asarray(yaw, dtype=np.float64)
@@ -200,15 +215,9 @@ def normalise(poses: FloatArray) -> tuple[np.ndarray, Placement]:
 def denormalise(poses: FloatArray, placement: Placement) -> np.ndarray:
     """Inverse of :func:`normalise`: ``R_y(yaw) p + root``, float32."""
     poses64 = np.asarray(poses, dtype=np.float64)
-    compiled = _one_pose_kernels(poses64, placement)
-    if compiled is not None:
-        out32: np.ndarray = compiled.place_pose(
-            np.ascontiguousarray(poses64),
-            np.asarray(placement.root, dtype=np.float64),
-            float(placement.yaw),
-            True,
-        ).astype(np.float32)
-        return out32
+    placed = _place_one_pose(poses64, placement, inverse=True)
+    if placed is not None:
+        return placed.astype(np.float32)
     rotation = yaw_matrix(placement.yaw)
     out = (
         np.einsum("...jc,...dc->...jd", poses64, rotation)
@@ -438,14 +447,8 @@ def into_placement(poses: FloatArray, placement: Placement) -> np.ndarray:
     ndarray, shape (..., 20, 3), float64
     """
     poses64 = np.asarray(poses, dtype=np.float64)
-    compiled = _one_pose_kernels(poses64, placement)
-    if compiled is not None:
-        placed: np.ndarray = compiled.place_pose(
-            np.ascontiguousarray(poses64),
-            np.asarray(placement.root, dtype=np.float64),
-            float(placement.yaw),
-            False,
-        )
+    placed = _place_one_pose(poses64, placement, inverse=False)
+    if placed is not None:
         return placed
     local = poses64 - np.asarray(placement.root)[..., None, :]
     out: np.ndarray = local @ yaw_matrix(placement.yaw)
