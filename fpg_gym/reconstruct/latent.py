@@ -25,6 +25,7 @@ from fpg_gym import skeleton
 from fpg_gym.compiled import compiled_module
 from fpg_gym.poses import as_poses
 from fpg_gym.reconstruct.kernels import resolve_kernel
+from fpg_gym.threads import one_blas_thread
 
 POSE_SIZE = skeleton.NUM_JOINTS * 3
 
@@ -60,12 +61,14 @@ def principal_axes(centred: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarra
     """
     count = len(centred)
     if count <= centred.shape[1]:
-        values, vectors = np.linalg.eigh(centred @ centred.T)
+        with one_blas_thread():
+            values, vectors = np.linalg.eigh(centred @ centred.T)
         singular = np.sqrt(np.maximum(values[::-1], 0.0))
         if singular[dim - 1] > 0.0 and singular[0] <= GRAM_MAX_CONDITION * singular[dim - 1]:
             basis = (vectors[:, ::-1][:, :dim].T @ centred) / singular[:dim, None]
             return singular, basis
-    _, singular, vt = np.linalg.svd(centred, full_matrices=False)
+    with one_blas_thread():
+        _, singular, vt = np.linalg.svd(centred, full_matrices=False)
     return singular, vt[:dim].copy()
 
 
@@ -135,7 +138,8 @@ class LatentSpace:
         if 0 < dim and count <= POSE_SIZE and resolve_kernel(kernel) == "numba":
             compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
             assert compiled is not None  # resolve_kernel checked numba
-            values, vectors = np.linalg.eigh(centred @ centred.T)  # as principal_axes
+            with one_blas_thread():
+                values, vectors = np.linalg.eigh(centred @ centred.T)  # as principal_axes
             basis, std, degenerate, ratio, usable = compiled.whitened_axes(
                 centred, values, vectors, dim, min_std, GRAM_MAX_CONDITION
             )
