@@ -8,6 +8,7 @@ import pytest
 
 from fpg_gym.cli import main
 from fpg_gym.experiments.bench import BenchSettings, format_bench, run_bench
+from fpg_gym.experiments.bench_kernels import DIRECT_FRAME
 
 
 def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:
@@ -37,7 +38,8 @@ def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:
     energy = {row["kernel"]: row for row in kernels["energy"]}
     assert "fused (numpy)" in energy and energy["fused (numpy)"]["us_per_100_points"] > 0
     frame = {row["configuration"]: row for row in kernels["frame"]}
-    assert frame["direct (definitions)"]["speedup_vs_direct"] == 1.0
+    assert frame[DIRECT_FRAME]["speedup_vs_direct"] == 1.0
+    assert any(name.endswith("proposal table (default)") for name in frame)
     assert all(row["cpu_ms_per_frame"] > 0 for row in frame.values())
     assert 5.0 < kernels["floor"]["mflop"] < 20.0 and kernels["floor"]["floor_ms"] > 0
     search = {row["proposals"]: row for row in kernels["search"]}
