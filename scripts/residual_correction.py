@@ -1,0 +1,261 @@
+"""Issue 19 exploration: how much of the closed-form pipeline's error a learned model can remove.
+
+A linear (ridge) model maps what a frame's output and input say, in the output's normalised
+frame (its root at the origin, facing +Z), to the truth's root-relative joints minus the
+output's: the output pose (60), the sensor pose (60, joints not tracked zeroed), the reliability
+(20) and the tracking states (one-hot, 60). The corrected output is the output plus the
+prediction. It is not a sampler: it measures whether the observation carries what a sampler
+would need to beat its anchor, on data the model never saw.
+
+Protocols (``--protocol``):
+
+* ``sim``: Bandai Namco dataset-1, the seed-2016 take split (``fpg_gym.holdout.split_takes``).
+  The graph takes are split in two halves (seeded); the training streams are one half's takes
+  simulated in ``front-many`` and ``left45-many`` (first 150 frames) and reconstructed with a
+  graph of the other half, so no truth is a candidate; the last tenth of those streams picks the
+  ridge penalty. Scored on the first 8 held-out takes x ``front-many``, ``left45-many``,
+  ``right45-many`` (150 frames) with a graph of all graph takes, as
+  ``scripts/learned_samplers.py``'s simulated protocol.
+* ``uiprmd``: UI-PRMD leave one subject out, as ``scripts/real_kinect.py``: for each held-out
+  subject, a graph of the other seven subjects' Vicon joint centres (thres1 0.1) and a Kinect v2
+  sensor map fitted on them; training data: two repetitions per exercise of six of them, each
+  reconstructed with a graph that also lacks that subject; the seventh picks the penalty; scored
+  on one repetition per exercise of the held-out subject.
+
+Usage::
+
+    python scripts/residual_correction.py --protocol sim
+    python scripts/residual_correction.py --protocol uiprmd --work runs/real_kinect
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from threadpoolctl import threadpool_limits
+
+REPO = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(REPO))  # this checkout's fpg_gym
+sys.path.insert(0, str(REPO / "scripts"))  # real_kinect's UI-PRMD folds
+
+from fpg_gym import metrics  # noqa: E402
+from fpg_gym import poses as pose_utils  # noqa: E402
+from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
+from fpg_gym.holdout import split_takes  # noqa: E402
+from fpg_gym.io import load_clips  # noqa: E402
+from fpg_gym.reconstruct import Reconstructor  # noqa: E402
+
+DEFAULT_DATA = REPO.parent / "shared" / "data"
+PENALTIES = (1.0, 10.0, 100.0, 1000.0, 10000.0)
+
+
+def frame_data(reconstructor: Reconstructor, recordings: list[Any]) -> dict[str, Any]:
+    """The closed-form pipeline's outputs of ``recordings`` with each frame's features and
+    target (module docstring)."""
+    features, targets, outputs, truths, fps = [], [], [], [], []
+    for recording in recordings:
+        result = reconstructor.reconstruct(recording, "closed-form", rng=0)
+        output = np.asarray(result.poses, dtype=np.float64)
+        reliability = result.arrays()["reliability"].reshape(len(output), -1)
+        truth = np.asarray(recording.ground_truth, dtype=np.float64)
+        sensor = np.asarray(recording.positions, dtype=np.float64)
+        states = np.asarray(recording.states)
+        for t in range(len(output)):
+            local, placement = pose_utils.normalise(output[t])
+            local = local.astype(np.float64)
+            seen = pose_utils.into_placement(sensor[t], placement)
+            seen = np.where((states[t] > 0)[:, None], seen, 0.0)
+            target = pose_utils.into_placement(truth[t], placement)
+            features.append(
+                np.concatenate(
+                    [
+                        local.reshape(-1),
+                        seen.reshape(-1),
+                        reliability[t],
+                        np.eye(3)[states[t]].reshape(-1),
+                    ]
+                )
+            )
+            targets.append(((target - target[0]) - local).reshape(-1))
+        outputs.append(output)
+        truths.append(truth)
+        fps.append(float(getattr(recording, "fps", 30.0) or 30.0))
+    return {
+        "x": np.array(features),
+        "y": np.array(targets),
+        "outputs": outputs,
+        "truths": truths,
+        "fps": fps,
+    }
+
+
+def corrected(data: dict[str, Any], prediction: np.ndarray) -> list[np.ndarray]:
+    """The outputs plus the predicted corrections, back in camera space."""
+    out, row = [], 0
+    for output in data["outputs"]:
+        fixed = np.empty_like(output)
+        for t in range(len(output)):
+            local, placement = pose_utils.normalise(output[t])
+            step = prediction[row + t].reshape(20, 3)
+            fixed[t] = pose_utils.denormalise(local.astype(np.float64) + step, placement)
+        row += len(output)
+        out.append(fixed)
+    return out
+
+
+def scores(poses: list[np.ndarray], data: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:
+    """Per-episode mean error (FPG Eq. 13) and jitter."""
+    errors = np.array(
+        [metrics.frame_error(t, p).mean() for p, t in zip(poses, data["truths"], strict=True)]
+    )
+    jitter = np.array(
+        [np.nanmean(metrics.jitter(p, fps=f)) for p, f in zip(poses, data["fps"], strict=True)]
+    )
+    return errors, jitter
+
+
+def fit_ridge(
+    train: dict[str, Any], validation: dict[str, Any]
+) -> tuple[float, Any, dict[float, float]]:
+    """The ridge model whose penalty gives the lowest validation error; ``(penalty, predict,
+    validation errors by penalty)``."""
+    mean, scale = train["x"].mean(axis=0), train["x"].std(axis=0) + 1e-6
+    z = (train["x"] - mean) / scale
+    gram, moment = z.T @ z, z.T @ train["y"]
+    found: dict[float, float] = {}
+    best: tuple[float, float, np.ndarray] | None = None
+    for penalty in PENALTIES:
+        weights = np.linalg.solve(gram + penalty * np.eye(len(gram)), moment)
+        prediction = ((validation["x"] - mean) / scale) @ weights
+        found[penalty] = float(scores(corrected(validation, prediction), validation)[0].mean())
+        if best is None or found[penalty] < best[0]:
+            best = (found[penalty], penalty, weights)
+    assert best is not None
+    weights = best[2]
+    return best[1], lambda x: ((x - mean) / scale) @ weights, found
+
+
+def report(name: str, base: np.ndarray, fixed: np.ndarray, jb: np.ndarray, jf: np.ndarray) -> str:
+    """One line: mean errors, the relative change with a paired 95 % bootstrap interval."""
+    change = fixed - base
+    rng = np.random.default_rng(2016)
+    boot = [
+        change[i].mean() / base[i].mean() for i in rng.integers(0, len(change), (2000, len(change)))
+    ]
+    low, high = np.percentile(boot, [2.5, 97.5])
+    return (
+        f"{name}: {len(base)} episodes, closed-form {base.mean():.4f} m -> corrected "
+        f"{fixed.mean():.4f} m ({100 * (fixed.mean() / base.mean() - 1):+.1f} %, 95 % CI "
+        f"[{100 * low:+.1f}, {100 * high:+.1f}]), lower on {int(np.sum(change < 0))}; jitter "
+        f"{jb.mean():.2f} -> {jf.mean():.2f} m/s^2"
+    )
+
+
+def sim_protocol(data_root: Path) -> str:
+    """The simulated held-out Bandai protocol (module docstring)."""
+    from policies.training import simulate_episodes
+
+    files = sorted((data_root / "bandai_namco" / "dataset-1").glob("*.bvh"))
+    graph_files, eval_files = split_takes(files)
+    graph_clips = load_clips(graph_files, progress=False)
+    order = np.random.default_rng(2016).permutation(len(graph_clips))
+    half = [graph_clips[i] for i in sorted(order[: len(order) // 2])]
+    other = [graph_clips[i] for i in sorted(order[len(order) // 2 :])]
+    training = simulate_episodes(other, ["front-many", "left45-many"], [0], max_frames=150)
+    cut = len(training) - max(1, len(training) // 10)
+    reconstructor = Reconstructor(FilteredPoseGraph.build(half, progress=False))
+    train, validation = (
+        frame_data(reconstructor, training[:cut]),
+        frame_data(reconstructor, training[cut:]),
+    )
+    penalty, predict, found = fit_ridge(train, validation)
+    evaluation = simulate_episodes(
+        load_clips(eval_files[:8], progress=False),
+        ["front-many", "left45-many", "right45-many"],
+        [0],
+        max_frames=150,
+    )
+    graph = FilteredPoseGraph.build(graph_clips, progress=False)
+    test = frame_data(Reconstructor(graph), evaluation)
+    base, jb = scores(test["outputs"], test)
+    fixed, jf = scores(corrected(test, predict(test["x"])), test)
+    print(f"penalty {penalty:g} (validation errors {found}); {len(train['x'])} training frames")
+    return report("simulated held-out Bandai", base, fixed, jb, jf)
+
+
+def uiprmd_protocol(work: Path, data_root: Path) -> str:
+    """UI-PRMD leave one subject out (module docstring)."""
+    import real_kinect
+
+    from fpg_gym.definitions import fit_sensor_maps
+    from fpg_gym.io.recording import load_recording
+
+    imported = real_kinect._imported(work, data_root)
+    subjects = real_kinect._by_subject(imported / "recordings")
+    names = sorted(subjects)
+    graphs: dict[tuple[str, ...], FilteredPoseGraph] = {}
+
+    def graph_without(excluded: set[str]) -> FilteredPoseGraph:
+        key = tuple(sorted(excluded))
+        if key not in graphs:
+            graphs[key] = real_kinect.uiprmd_graph(imported, set(key), 0.1)
+        return graphs[key]
+
+    totals: list[tuple[np.ndarray, ...]] = []
+    for held_out in names:
+        others = [s for s in names if s != held_out]
+        chooser = others[names.index(held_out) % len(others)]
+        recordings = [load_recording(p) for s in others for p in subjects[s]]
+        sensor_map, _ = fit_sensor_maps(
+            np.concatenate([r.positions for r in recordings]),
+            np.concatenate([r.ground_truth for r in recordings]),
+            sensor="kinect-v2",
+            truth="vicon",
+        )
+        parts = {
+            s: frame_data(
+                Reconstructor(graph_without({held_out, s}), sensor_map=sensor_map),
+                [load_recording(p) for p in real_kinect._episodes(subjects[s], 2)],
+            )
+            for s in others
+        }
+        train = {
+            key: np.concatenate([parts[s][key] for s in others if s != chooser])
+            for key in ("x", "y")
+        }
+        penalty, predict, _ = fit_ridge(train, parts[chooser])
+        test = frame_data(
+            Reconstructor(graph_without({held_out}), sensor_map=sensor_map),
+            [load_recording(p) for p in real_kinect._episodes(subjects[held_out], 1)],
+        )
+        base, jb = scores(test["outputs"], test)
+        fixed, jf = scores(corrected(test, predict(test["x"])), test)
+        totals.append((base, fixed, jb, jf))
+        print(report(f"{held_out} (penalty {penalty:g}, chosen on {chooser})", base, fixed, jb, jf))
+    pooled = (np.concatenate(column) for column in zip(*totals, strict=True))
+    return report("UI-PRMD, 8 held-out subjects", *pooled)
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--protocol", choices=("sim", "uiprmd"), required=True)
+    parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
+    parser.add_argument("--work", type=Path, default=Path("runs/real_kinect"))
+    args = parser.parse_args()
+    threadpool_limits(1, "blas")
+    start = time.perf_counter()
+    if args.protocol == "sim":
+        line = sim_protocol(args.data)
+    else:
+        line = uiprmd_protocol(args.work, args.data)
+    print(f"{line}; wall {time.perf_counter() - start:.0f} s")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
