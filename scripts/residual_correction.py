@@ -13,14 +13,18 @@ Protocols (``--protocol``):
   The graph takes are split in two halves (seeded); the training streams are one half's takes
   simulated in ``front-many`` and ``left45-many`` (first 150 frames) and reconstructed with a
   graph of the other half, so no truth is a candidate; the last tenth of those streams picks the
-  ridge penalty. Scored on the first 8 held-out takes x ``front-many``, ``left45-many``,
-  ``right45-many`` (150 frames) with a graph of all graph takes, as
-  ``scripts/learned_samplers.py``'s simulated protocol.
+  ridge penalty and the smoothing, then the model is fitted on all of them. Scored on the first
+  8 held-out takes x ``front-many``, ``left45-many``, ``right45-many`` (150 frames) with a graph
+  of all graph takes, as ``scripts/learned_samplers.py``'s simulated protocol.
 * ``uiprmd``: UI-PRMD leave one subject out, as ``scripts/real_kinect.py``: for each held-out
   subject, a graph of the other seven subjects' Vicon joint centres (thres1 0.1) and a Kinect v2
-  sensor map fitted on them; training data: two repetitions per exercise of six of them, each
-  reconstructed with a graph that also lacks that subject; the seventh picks the penalty; scored
-  on one repetition per exercise of the held-out subject.
+  sensor map fitted on them; training data: two repetitions per exercise of each of them,
+  reconstructed with a graph that also lacks that subject; the penalty and the smoothing are
+  chosen by leave-one-subject-out cross-validation over the seven, and the model is fitted on all
+  seven; scored on one repetition per exercise of the held-out subject.
+
+The corrections are smoothed causally per episode (``c_t = alpha p_t + (1 - alpha) c_{t-1}``,
+``alpha`` in :data:`SMOOTHING`, 1 for none), since a per-frame correction adds jitter.
 
 Usage::
 
@@ -52,6 +56,8 @@ from fpg_gym.reconstruct import Reconstructor  # noqa: E402
 
 DEFAULT_DATA = REPO.parent / "shared" / "data"
 PENALTIES = (1.0, 10.0, 100.0, 1000.0, 10000.0)
+#: Causal smoothing of the corrections (1: none).
+SMOOTHING = (1.0, 0.5, 0.25)
 
 
 def frame_data(reconstructor: Reconstructor, recordings: list[Any]) -> dict[str, Any]:
@@ -94,15 +100,19 @@ def frame_data(reconstructor: Reconstructor, recordings: list[Any]) -> dict[str,
     }
 
 
-def corrected(data: dict[str, Any], prediction: np.ndarray) -> list[np.ndarray]:
-    """The outputs plus the predicted corrections, back in camera space."""
+def corrected(data: dict[str, Any], prediction: np.ndarray, alpha: float) -> list[np.ndarray]:
+    """The outputs plus the predicted corrections, back in camera space; each episode's
+    corrections smoothed causally first (``c_t = alpha p_t + (1 - alpha) c_{t-1}``)."""
     out, row = [], 0
     for output in data["outputs"]:
         fixed = np.empty_like(output)
+        step = prediction[row]
         for t in range(len(output)):
             local, placement = pose_utils.normalise(output[t])
-            step = prediction[row + t].reshape(20, 3)
-            fixed[t] = pose_utils.denormalise(local.astype(np.float64) + step, placement)
+            step = alpha * prediction[row + t] + (1.0 - alpha) * step
+            fixed[t] = pose_utils.denormalise(
+                local.astype(np.float64) + step.reshape(20, 3), placement
+            )
         row += len(output)
         out.append(fixed)
     return out
@@ -119,25 +129,45 @@ def scores(poses: list[np.ndarray], data: dict[str, Any]) -> tuple[np.ndarray, n
     return errors, jitter
 
 
-def fit_ridge(
-    train: dict[str, Any], validation: dict[str, Any]
-) -> tuple[float, Any, dict[float, float]]:
-    """The ridge model whose penalty gives the lowest validation error; ``(penalty, predict,
-    validation errors by penalty)``."""
+def merged(parts: list[dict[str, Any]]) -> dict[str, Any]:
+    """Several data sets as one."""
+    return {
+        "x": np.concatenate([p["x"] for p in parts]),
+        "y": np.concatenate([p["y"] for p in parts]),
+        "outputs": [o for p in parts for o in p["outputs"]],
+        "truths": [t for p in parts for t in p["truths"]],
+        "fps": [f for p in parts for f in p["fps"]],
+    }
+
+
+def ridge(train: dict[str, Any], penalty: float) -> Any:
+    """The ridge model of ``train`` (standardised features) as a function of features."""
     mean, scale = train["x"].mean(axis=0), train["x"].std(axis=0) + 1e-6
     z = (train["x"] - mean) / scale
-    gram, moment = z.T @ z, z.T @ train["y"]
-    found: dict[float, float] = {}
-    best: tuple[float, float, np.ndarray] | None = None
+    weights = np.linalg.solve(z.T @ z + penalty * np.eye(z.shape[1]), z.T @ train["y"])
+    return lambda x: ((x - mean) / scale) @ weights
+
+
+def choose(
+    folds: list[tuple[dict[str, Any], dict[str, Any]]],
+) -> tuple[float, float, dict[str, float]]:
+    """The penalty and smoothing with the lowest mean validation error over ``folds``
+    (``(train, validation)`` pairs); ``(penalty, alpha, errors by setting)``."""
+    found: dict[str, float] = {}
+    best: tuple[float, float, float] | None = None
     for penalty in PENALTIES:
-        weights = np.linalg.solve(gram + penalty * np.eye(len(gram)), moment)
-        prediction = ((validation["x"] - mean) / scale) @ weights
-        found[penalty] = float(scores(corrected(validation, prediction), validation)[0].mean())
-        if best is None or found[penalty] < best[0]:
-            best = (found[penalty], penalty, weights)
+        models = [(ridge(train, penalty), validation) for train, validation in folds]
+        for alpha in SMOOTHING:
+            error = float(
+                np.mean(
+                    [scores(corrected(v, model(v["x"]), alpha), v)[0].mean() for model, v in models]
+                )
+            )
+            found[f"{penalty:g}/{alpha:g}"] = round(error, 5)
+            if best is None or error < best[0]:
+                best = (error, penalty, alpha)
     assert best is not None
-    weights = best[2]
-    return best[1], lambda x: ((x - mean) / scale) @ weights, found
+    return best[1], best[2], found
 
 
 def report(name: str, base: np.ndarray, fixed: np.ndarray, jb: np.ndarray, jf: np.ndarray) -> str:
@@ -173,7 +203,8 @@ def sim_protocol(data_root: Path) -> str:
         frame_data(reconstructor, training[:cut]),
         frame_data(reconstructor, training[cut:]),
     )
-    penalty, predict, found = fit_ridge(train, validation)
+    penalty, alpha, found = choose([(train, validation)])
+    predict = ridge(merged([train, validation]), penalty)
     evaluation = simulate_episodes(
         load_clips(eval_files[:8], progress=False),
         ["front-many", "left45-many", "right45-many"],
@@ -183,8 +214,11 @@ def sim_protocol(data_root: Path) -> str:
     graph = FilteredPoseGraph.build(graph_clips, progress=False)
     test = frame_data(Reconstructor(graph), evaluation)
     base, jb = scores(test["outputs"], test)
-    fixed, jf = scores(corrected(test, predict(test["x"])), test)
-    print(f"penalty {penalty:g} (validation errors {found}); {len(train['x'])} training frames")
+    fixed, jf = scores(corrected(test, predict(test["x"]), alpha), test)
+    print(
+        f"penalty/smoothing {penalty:g}/{alpha:g} (validation errors {found}); "
+        f"{len(train['x'])} training and {len(validation['x'])} validation frames"
+    )
     return report("simulated held-out Bandai", base, fixed, jb, jf)
 
 
@@ -209,7 +243,6 @@ def uiprmd_protocol(work: Path, data_root: Path) -> str:
     totals: list[tuple[np.ndarray, ...]] = []
     for held_out in names:
         others = [s for s in names if s != held_out]
-        chooser = others[names.index(held_out) % len(others)]
         recordings = [load_recording(p) for s in others for p in subjects[s]]
         sensor_map, _ = fit_sensor_maps(
             np.concatenate([r.positions for r in recordings]),
@@ -224,19 +257,19 @@ def uiprmd_protocol(work: Path, data_root: Path) -> str:
             )
             for s in others
         }
-        train = {
-            key: np.concatenate([parts[s][key] for s in others if s != chooser])
-            for key in ("x", "y")
-        }
-        penalty, predict, _ = fit_ridge(train, parts[chooser])
+        inner = [
+            (merged([parts[s] for s in others if s != v]), parts[v]) for v in others
+        ]  # every training subject validates once
+        penalty, alpha, _ = choose(inner)
+        predict = ridge(merged([parts[s] for s in others]), penalty)
         test = frame_data(
             Reconstructor(graph_without({held_out}), sensor_map=sensor_map),
             [load_recording(p) for p in real_kinect._episodes(subjects[held_out], 1)],
         )
         base, jb = scores(test["outputs"], test)
-        fixed, jf = scores(corrected(test, predict(test["x"])), test)
+        fixed, jf = scores(corrected(test, predict(test["x"]), alpha), test)
         totals.append((base, fixed, jb, jf))
-        print(report(f"{held_out} (penalty {penalty:g}, chosen on {chooser})", base, fixed, jb, jf))
+        print(report(f"{held_out} (penalty/smoothing {penalty:g}/{alpha:g})", base, fixed, jb, jf))
     pooled = (np.concatenate(column) for column in zip(*totals, strict=True))
     return report("UI-PRMD, 8 held-out subjects", *pooled)
 
