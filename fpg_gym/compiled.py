@@ -60,21 +60,15 @@ def compiled_module(name: str) -> ModuleType | None:
 
 @functools.cache
 def _import(name: str) -> ModuleType | None:
+    """``name`` imported, or None when numba (or its llvmlite) is missing; other errors raise."""
     try:
         return importlib.import_module(name)
-    except ModuleNotFoundError as error:  # numba (or its llvmlite) absent; other errors raise
+    except ModuleNotFoundError as error:
         if error.name not in ("numba", "llvmlite"):
             raise
         return None
 
 
-@functools.cache
 def numba_available() -> bool:
     """Whether numba can be imported (the compiled kernels can run)."""
-    try:
-        importlib.import_module("numba")
-    except ModuleNotFoundError as error:
-        if error.name not in ("numba", "llvmlite"):
-            raise
-        return False
-    return True
+    return _import("numba") is not None

@@ -173,11 +173,7 @@ def choose(
 def report(name: str, base: np.ndarray, fixed: np.ndarray, jb: np.ndarray, jf: np.ndarray) -> str:
     """One line: mean errors, the relative change with a paired 95 % bootstrap interval."""
     change = fixed - base
-    rng = np.random.default_rng(2016)
-    boot = [
-        change[i].mean() / base[i].mean() for i in rng.integers(0, len(change), (2000, len(change)))
-    ]
-    low, high = np.percentile(boot, [2.5, 97.5])
+    low, high = metrics.bootstrap_mean_ci(fixed, base=base, rng=2016)
     return (
         f"{name}: {len(base)} episodes, closed-form {base.mean():.4f} m -> corrected "
         f"{fixed.mean():.4f} m ({100 * (fixed.mean() / base.mean() - 1):+.1f} %, 95 % CI "

@@ -47,6 +47,7 @@ larger than its X/Y error.
 
 from __future__ import annotations
 
+import functools
 from dataclasses import asdict, dataclass
 from typing import Any, Final
 
@@ -163,9 +164,11 @@ class KalmanFilter(PresetFilter):
     def _start(self, num_joints: int) -> None:
         self._alloc(num_joints)
 
+    @functools.cached_property
     def _by_state(self) -> FloatArray:
         """R by tracking state (indexed by the validated state 0, 1 or 2): not tracked
-        (inf, skip the update, unless ``not_tracked_std``), inferred, tracked."""
+        (inf, skip the update, unless ``not_tracked_std``), inferred, tracked; from the
+        settings, once."""
         p = self.settings
         not_tracked = np.inf if p.not_tracked_std is None else p.not_tracked_std**2
         by_state = np.empty(3)
@@ -178,7 +181,7 @@ class KalmanFilter(PresetFilter):
 
     def _measurement_var(self, frame: FloatArray, states: npt.NDArray[np.int8]) -> FloatArray:
         """R per joint (:meth:`_by_state`); inf (skip the update) when unmeasured."""
-        return np.where(np.isfinite(frame).all(axis=1), self._by_state()[states], np.inf)
+        return np.where(np.isfinite(frame).all(axis=1), self._by_state[states], np.inf)
 
     def _step(self, frame: FloatArray, states: npt.NDArray[np.int8], dt: float) -> FloatArray:
         p = self.settings
@@ -189,7 +192,7 @@ class KalmanFilter(PresetFilter):
             out: FloatArray = compiled.kalman_step(
                 np.ascontiguousarray(frame, dtype=np.float64),
                 states,
-                self._by_state(),
+                self._by_state,
                 dt,
                 q * dt**3 / 3.0,
                 q * dt**2 / 2.0,

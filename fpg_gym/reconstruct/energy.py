@@ -299,6 +299,10 @@ class EnergyModel:
             lengths=self.lengths.astype(t, copy=False),
             target=None if self.target is None else self.target.astype(t, copy=False),
         )
+        # The compiled terms' motion target: empty for none (Em = 0).
+        self._terms_target = (
+            self._work.target if self._work.target is not None else _NO_TARGET.astype(t)
+        )
         if self.dtype != np.float64:
             self.tables = self.tables.astype(self.dtype)
         self._energy: Callable[[np.ndarray], np.ndarray] = bind_energy(
@@ -422,7 +426,7 @@ class EnergyModel:
             w.r_sq,
             w.std,
             w.lengths,
-            _NO_TARGET.astype(self.dtype) if w.target is None else w.target,
+            self._terms_target,
             _CHILD_COORDS,
             _PARENT_COORDS,
         )

@@ -34,7 +34,17 @@ POSE_SIZE = skeleton.NUM_JOINTS * 3
 GRAM_MAX_CONDITION = 1e4
 
 
-def principal_axes(centred: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarray]:
+def gram_eigenpairs(centred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``np.linalg.eigh`` of the Gram matrix ``C C^T`` of centred poses ``(K, 60)`` (eigenvalues
+    ascending), on one BLAS thread (:func:`fpg_gym.threads.one_blas_thread`)."""
+    with one_blas_thread():
+        values, vectors = np.linalg.eigh(centred @ centred.T)
+    return values, vectors
+
+
+def principal_axes(
+    centred: np.ndarray, dim: int, eigenpairs: tuple[np.ndarray, np.ndarray] | None = None
+) -> tuple[np.ndarray, np.ndarray]:
     """Singular values (descending) and the first ``dim`` right singular vectors of ``centred``.
 
     Parameters
@@ -43,6 +53,8 @@ def principal_axes(centred: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarra
         Centred poses, float64.
     dim : int
         Axes wanted, ``1 <= dim <= min(K, 60)``.
+    eigenpairs : tuple of ndarray, optional
+        :func:`gram_eigenpairs` of ``centred`` when the caller has them already.
 
     Returns
     -------
@@ -61,8 +73,7 @@ def principal_axes(centred: np.ndarray, dim: int) -> tuple[np.ndarray, np.ndarra
     """
     count = len(centred)
     if count <= centred.shape[1]:
-        with one_blas_thread():
-            values, vectors = np.linalg.eigh(centred @ centred.T)
+        values, vectors = gram_eigenpairs(centred) if eigenpairs is None else eigenpairs
         singular = np.sqrt(np.maximum(values[::-1], 0.0))
         if singular[dim - 1] > 0.0 and singular[0] <= GRAM_MAX_CONDITION * singular[dim - 1]:
             basis = (vectors[:, ::-1][:, :dim].T @ centred) / singular[:dim, None]
@@ -135,19 +146,19 @@ class LatentSpace:
         dim = min(max_dim, count - 1, POSE_SIZE)
         mean = data.mean(axis=0)
         centred = data - mean
+        eigenpairs = None
         if 0 < dim and count <= POSE_SIZE and resolve_kernel(kernel) == "numba":
             compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
             assert compiled is not None  # resolve_kernel checked numba
-            with one_blas_thread():
-                values, vectors = np.linalg.eigh(centred @ centred.T)  # as principal_axes
+            eigenpairs = gram_eigenpairs(centred)
             basis, std, degenerate, ratio, usable = compiled.whitened_axes(
-                centred, values, vectors, dim, min_std, GRAM_MAX_CONDITION
+                centred, *eigenpairs, dim, min_std, GRAM_MAX_CONDITION
             )
-            if usable:  # else the SVD, below
+            if usable:  # else principal_axes takes the SVD, from the same eigenpairs
                 return cls(mean, basis, std, degenerate, float(ratio))
         if dim == 0:
             return cls(mean, np.zeros((0, POSE_SIZE)), np.zeros(0), np.zeros(0, bool), 1.0)
-        singular, basis = principal_axes(centred, dim)
+        singular, basis = principal_axes(centred, dim, eigenpairs)
         signs = np.sign(basis[np.arange(dim), np.argmax(np.abs(basis), axis=1)])
         basis *= np.where(signs == 0, 1.0, signs)[:, None]
         spread = np.zeros(dim)
