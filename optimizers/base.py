@@ -100,6 +100,17 @@ class BaseOptimizer:
     def tell(self, z: np.ndarray, energies: np.ndarray) -> None:
         """Receive the batch's values (ignored by default)."""
 
+    def recommend(self) -> tuple[np.ndarray, float] | None:
+        """The point the search returns and its energy, when that is not the lowest-energy
+        point evaluated; None (the default) returns that point.
+
+        A sampler with a learned prior recommends the evaluated point of highest posterior
+        (:class:`policies.learned_optimizers.LearnedSampler`): the energy alone is not the
+        accuracy, so its lowest point need not be the best guess (the distinction between
+        the best evaluated point and the recommendation is Nevergrad's).
+        """
+        return None
+
     def __repr__(self) -> str:
         params = ", ".join(f"{k}={v!r}" for k, v in self.params().items())
         return f"{type(self).__name__}({params})"

@@ -21,7 +21,9 @@ class SearchResult:
     Attributes
     ----------
     x : ndarray, shape (dim,)
-        The best point evaluated, or a copy of ``problem.x0`` when nothing was evaluated.
+        The best point evaluated (or the one the optimiser recommends, see
+        :meth:`~optimizers.BaseOptimizer.recommend`), or a copy of ``problem.x0`` when nothing
+        was evaluated.
     energy : float
         Its value (``inf`` when nothing was evaluated).
     evaluations : int
@@ -220,7 +222,14 @@ class OptimizerRun:
         self.done = True
 
     def result(self) -> SearchResult:
-        """The best point found so far and the evaluations and asks spent."""
+        """The best point found so far (the optimiser's recommendation when it makes one:
+        :meth:`BaseOptimizer.recommend`) and the evaluations and asks spent."""
+        recommend = getattr(self.optimizer, "recommend", None)
+        choice = recommend() if callable(recommend) and self.asks else None
+        x, energy = (self.best_x, self.best) if choice is None else choice
         return SearchResult(
-            x=self.best_x, energy=self.best, evaluations=self.evaluations, asks=self.asks
+            x=np.array(x, dtype=np.float64),
+            energy=float(energy),
+            evaluations=self.evaluations,
+            asks=self.asks,
         )

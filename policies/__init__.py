@@ -1,10 +1,12 @@
-"""Learned candidate samplers (torch, stable-baselines3): a Gaussian over the latent space.
+"""Learned candidate samplers (numpy, torch, stable-baselines3): a Gaussian over the latent space.
 
 A sampler maps the observation of a frame of ``fpg_gym/KinectPose-v0`` to a mean and a standard
 deviation per latent axis, in the env's action units (:mod:`policies.sampler`), centred on an
 *anchor* computed from the observation (by default the closed-form minimiser of the energy's
 quadratic terms, :func:`quadratic_anchor`):
 
+* :class:`~policies.pose_sampler.LinearPoseSampler`: a ridge model of the ground truth's offset
+  from the anchor in the frame's pose, numpy only (:mod:`policies.pose_sampler`);
 * :class:`~policies.supervised.SupervisedSampler`: a torch MLP imitating the local-search
   optimum (or the ground truth) with a Gaussian likelihood (:mod:`policies.supervised`);
 * :class:`~policies.rl.RLSampler`: a stable-baselines3 PPO or SAC policy trained on the env's
@@ -16,7 +18,7 @@ Train with ``fpg-gym train-sampler`` (:func:`policies.training.train_sampler`), 
 ``learned:PATH`` / ``learned+search:PATH`` (:mod:`policies.learned_optimizers`).
 
 torch and stable-baselines3 are the optional extra ``pip install 'fpg-gym[learn]'``: importing
-this package needs neither; using a sampler without them raises
+this package and the linear sampler need neither; using another sampler without them raises
 :class:`optimizers.MissingDependency` naming the extra.
 """
 

@@ -8,7 +8,9 @@ with ``problem.evaluate``: the same budget accounting as every other optimiser.
 
 ``learned:PATH`` (:class:`LearnedSampler`)
     One batch of ``samples`` (200) points: the Gaussian's anchor (when the model has one, see
-    :class:`policies.sampler.FeatureMap`) and mean first, then draws from the Gaussian.
+    :class:`policies.sampler.FeatureMap`) and mean first, then draws from the Gaussian; the
+    lowest energy wins, or with a prior weight (a linear sampler's default) the highest
+    posterior.
 ``learned+search:PATH`` (:class:`LearnedSearch`)
     ``samples`` (100) learned points, then local-search iterations (Shum §VI-E rule: move to the
     batch's best on improvement, else halve the step) seeded at the best one: ``iterations``
@@ -68,11 +70,26 @@ class LearnedSampler(BaseOptimizer):
         Points (200): the anchor (if any) and the mean, then draws from the Gaussian.
     std_scale : float
         Multiplies the model's standard deviation (1).
+    prior_weight : float, optional
+        With a weight ``w``, the search returns the evaluated point of lowest
+        ``E(z) + w |(z - mean) / std|^2 / 2``, the learned Gaussian as a prior (its
+        :meth:`recommend`); None: the model's own choice (``hyperparameters["selection"]``,
+        which a linear sampler sets, :data:`policies.pose_sampler.SELECTION`), else the
+        lowest energy.
+    anchor : bool, optional
+        Whether the anchor is among the points (None: the model's choice, else yes).
     """
 
     name = "learned"
 
-    def __init__(self, model: Any, samples: int = 200, std_scale: float = 1.0) -> None:
+    def __init__(
+        self,
+        model: Any,
+        samples: int = 200,
+        std_scale: float = 1.0,
+        prior_weight: float | None = None,
+        anchor: bool | None = None,
+    ) -> None:
         super().__init__()
         if samples < 1:
             raise ValueError(f"samples: expected >= 1, got {samples}")
@@ -82,6 +99,13 @@ class LearnedSampler(BaseOptimizer):
         self.sampler = _sampler(model)
         self.samples = int(samples)
         self.std_scale = float(std_scale)
+        # The model's own selection (a linear sampler's, chosen on validation), unless given.
+        chosen = dict(self.sampler.spec.hyperparameters.get("selection") or {})
+        weight = chosen.get("prior_weight") if prior_weight is None else prior_weight
+        if weight is not None and not float(weight) >= 0:
+            raise ValueError(f"prior_weight: expected >= 0 or None, got {weight}")
+        self.prior_weight = None if weight is None else float(weight)
+        self.with_anchor = bool(chosen.get("anchor", True) if anchor is None else anchor)
 
     def __deepcopy__(self, memo: dict[int, Any]) -> LearnedSampler:
         """A copy with its own search state that shares the model (read-only while searching):
@@ -98,7 +122,13 @@ class LearnedSampler(BaseOptimizer):
     def params(self) -> dict[str, Any]:
         """Constructor parameters."""
         model = self.model if isinstance(self.model, str | os.PathLike) else "<sampler>"
-        return {"model": str(model), "samples": self.samples, "std_scale": self.std_scale}
+        return {
+            "model": str(model),
+            "samples": self.samples,
+            "std_scale": self.std_scale,
+            "prior_weight": self.prior_weight,
+            "anchor": self.with_anchor,
+        }
 
     def reset(self, problem: Any, rng: np.random.Generator) -> None:
         """Compute the frame's Gaussian (one forward pass)."""
@@ -106,12 +136,13 @@ class LearnedSampler(BaseOptimizer):
         self.mean, self.std, self.anchor = self.sampler.latent_gaussian(problem)
         self.best_z = self.mean.copy()
         self.best_energy = np.inf
+        self.chosen: tuple[np.ndarray, float, float] | None = None  # (z, energy, score)
         self.drawn = False
 
     def _draws(self, count: int) -> np.ndarray:
         z = self.mean + self.std_scale * self.std * self.rng.standard_normal((count, self.dim))
         z[0] = self.mean
-        if self.anchor is not None and count > 1:
+        if self.with_anchor and self.anchor is not None and count > 1:
             z[1] = self.anchor
         return z
 
@@ -123,11 +154,23 @@ class LearnedSampler(BaseOptimizer):
         return self._draws(self.samples)
 
     def tell(self, z: np.ndarray, energies: np.ndarray) -> None:
-        """Keep the best point."""
+        """Keep the lowest-energy point, and with a prior the point of highest posterior."""
         i = int(np.argmin(energies))
         if energies[i] < self.best_energy:
             self.best_energy = float(energies[i])
             self.best_z = np.array(z[i], dtype=np.float64)
+        if self.prior_weight is not None:
+            # -log posterior: E(z) + w |(z - mu) / sigma|^2 / 2 (the learned Gaussian as prior).
+            spread = np.maximum(self.std_scale * self.std, 1e-12)
+            scores = energies + 0.5 * self.prior_weight * (((z - self.mean) / spread) ** 2).sum(1)
+            j = int(np.argmin(scores))
+            if np.isfinite(scores[j]) and (self.chosen is None or scores[j] < self.chosen[2]):
+                self.chosen = (np.array(z[j], dtype=np.float64), float(energies[j]), scores[j])
+
+    def recommend(self) -> tuple[np.ndarray, float] | None:
+        """With a prior weight, the evaluated point of highest posterior; else None (the
+        lowest-energy point)."""
+        return None if self.chosen is None else (self.chosen[0], self.chosen[1])
 
 
 class LearnedSearch(LearnedSampler):
@@ -147,6 +190,9 @@ class LearnedSearch(LearnedSampler):
         batch without improvement.
     std_scale : float
         Multiplies the model's standard deviation (1).
+    prior_weight, anchor
+        As :class:`LearnedSampler`; with a prior the search moves around the point of highest
+        posterior, its steps in units of the learned spread.
     """
 
     name = "learned+search"
@@ -159,8 +205,12 @@ class LearnedSearch(LearnedSampler):
         search_samples: int = 50,
         step: float = 0.25,
         std_scale: float = 1.0,
+        prior_weight: float | None = None,
+        anchor: bool | None = None,
     ) -> None:
-        super().__init__(model, samples=samples, std_scale=std_scale)
+        super().__init__(
+            model, samples=samples, std_scale=std_scale, prior_weight=prior_weight, anchor=anchor
+        )
         if iterations < 0 or search_samples < 1:
             raise ValueError(
                 f"iterations, search_samples: expected >= 0 and >= 1, got {iterations}, "
@@ -195,11 +245,19 @@ class LearnedSearch(LearnedSampler):
             return None
         self.iteration += 1
         noise = self.rng.standard_normal((self.search_samples, self.dim))
-        return self.best_z + self.current_step * noise
+        if self.chosen is None:
+            return self.best_z + self.current_step * noise
+        # With a prior: around the posterior's best, in units of the learned spread.
+        spread = (self.current_step / self.step) * self.std_scale * self.std
+        return self.chosen[0] + spread * noise
+
+    def _progress(self) -> float:
+        return self.best_energy if self.chosen is None else self.chosen[2]
 
     def tell(self, z: np.ndarray, energies: np.ndarray) -> None:
-        """Move to the best point; halve the step after a search batch without improvement."""
-        before = self.best_energy
+        """Move to the best point (of the posterior, with a prior); halve the step after a
+        search batch without improvement."""
+        before = self._progress()
         super().tell(z, energies)
-        if self.iteration > 0 and not self.best_energy < before:
+        if self.iteration > 0 and not self._progress() < before:
             self.current_step *= 0.5

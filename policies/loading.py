@@ -11,6 +11,7 @@ from pathlib import Path
 from typing import Any
 
 from fpg_gym.errors import DataFormatError
+from policies.pose_sampler import LINEAR_WEIGHTS_SUFFIX, LinearPoseSampler
 from policies.rl import RLSampler
 from policies.sampler import (
     WEIGHTS_SUFFIX,
@@ -58,12 +59,20 @@ def load_sampler(
     spec = SamplerSpec.load(json_path)
     if env is not None:
         spec.check_env(env)
-    name = spec.weights or stem.name + (".zip" if spec.kind == "rl" else WEIGHTS_SUFFIX)
+    suffix = {"rl": ".zip", "linear": LINEAR_WEIGHTS_SUFFIX}.get(spec.kind, WEIGHTS_SUFFIX)
+    name = spec.weights or stem.name + suffix
     if not isinstance(name, str) or Path(name).name != name or name in ("", ".", ".."):
         raise DataFormatError(
             json_path, f"expected a file name beside the JSON, got {name!r}", field="weights"
         )
     weights = json_path.parent / name
+    if spec.kind == "linear":
+        if weights.suffix != LINEAR_WEIGHTS_SUFFIX or not weights.is_file():
+            raise FileNotFoundError(
+                f"{json_path}: its weights file {weights} is missing (a linear sampler's "
+                f"weights are a {LINEAR_WEIGHTS_SUFFIX} beside the JSON)"
+            )
+        return LinearPoseSampler.load_weights(spec, weights, seed=seed)
     if weights.suffix != WEIGHTS_SUFFIX:
         load_weights_file(weights)  # refuses it, naming the format
     if not weights.is_file():

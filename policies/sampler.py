@@ -106,7 +106,7 @@ MAX_LAYERS = 16
 MAX_LATENT_DIM = 1024
 MAX_CANDIDATES = 4096
 #: Sampler kinds.
-KINDS: tuple[str, ...] = ("supervised", "rl")
+KINDS: tuple[str, ...] = ("supervised", "rl", "linear")
 #: What to install for learned samplers.
 INSTALL_HINT = "pip install 'fpg-gym[learn]'"
 #: ``context`` entries a SearchProblem cannot give: zeroed in every model input.

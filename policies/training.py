@@ -42,11 +42,13 @@ from policies.imitation import (
     BACKENDS,
     FOLLOW,
     TARGETS,
+    TRUTH_TARGETS,
     ImitationData,
     collect_imitation_data,
     truth_latent,
 )
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
+from policies.pose_sampler import LINEAR_FEATURES, fit_linear
 from policies.rl import train_rl
 from policies.sampler import (
     DEFAULT_FEATURES,
@@ -254,6 +256,9 @@ def format_evaluation(table: dict[str, dict[str, float]]) -> str:
 # --------------------------------------------------------------------------- driver
 
 
+#: Cross-validation groups of the linear sampler's training episodes (:func:`_train_linear`).
+LINEAR_GROUPS = 5
+
 #: :class:`TrainConfig` fields that change neither the data nor the weights.
 _RUN_INDEPENDENT = (
     "out",
@@ -292,11 +297,12 @@ class TrainConfig:
         Env steps (rl, default 100,000) or training frames collected (supervised, default
         20,000).
     seed : int
-    target : {"best", "search", "truth"}
+    target : {"best", "search", "truth", "bones"}
         Supervised target (:func:`collect_imitation_data`).
     follow : {"search", "anchor", "truth"}
         What the supervised data's stream continues from (:func:`collect_imitation_data`;
-        ``"anchor"`` and ``"truth"`` need ``target="truth"`` and run no search).
+        ``"anchor"`` and ``"truth"`` need target ``"truth"`` or ``"bones"`` and run no
+        search).
     reward : {"energy", "error", "combined", "smooth"}
         The RL env's reward (rl; the error modes learn the simulated ground truth; see
         :class:`~fpg_gym.env.KinectPoseEnv`).
@@ -381,15 +387,25 @@ class TrainConfig:
     restart: bool = False
 
     def __post_init__(self) -> None:
-        if self.kind not in ("supervised", "rl"):
-            raise ValueError(f"kind: expected 'supervised' or 'rl', got {self.kind!r}")
+        if self.kind not in ("supervised", "rl", "linear"):
+            raise ValueError(f"kind: expected 'supervised', 'rl' or 'linear', got {self.kind!r}")
+        if self.kind == "linear" and (
+            self.target not in TRUTH_TARGETS or self.action_mode != "absolute"
+        ):
+            raise ValueError(
+                "kind 'linear' learns the ground truth in absolute actions: target 'bones' or "
+                f"'truth' and action_mode 'absolute' (got {self.target!r}, {self.action_mode!r})"
+            )
         if self.algo not in ("ppo", "sac"):
             raise ValueError(f"algo: expected 'ppo' or 'sac', got {self.algo!r}")
         if self.target not in TARGETS:
             raise ValueError(f"target: expected one of {TARGETS}, got {self.target!r}")
-        if self.follow not in FOLLOW or (self.follow != "search" and self.target != "truth"):
+        if self.follow not in FOLLOW or (
+            self.follow != "search" and self.target not in TRUTH_TARGETS
+        ):
             raise ValueError(
-                f"follow: expected one of {FOLLOW} ('anchor' and 'truth' with target 'truth'), "
+                f"follow: expected one of {FOLLOW} ('anchor' and 'truth' with target 'truth' "
+                "or 'bones'), "
                 f"got {self.follow!r} with target {self.target!r}"
             )
         if self.reward not in REWARD_MODES:
@@ -485,7 +501,8 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         ``backend="ray"`` without Ray (``pip install 'fpg-gym[distributed]'``).
     """
 
-    import_learn("torch")
+    if config.kind != "linear":  # the linear sampler needs numpy only
+        import_learn("torch")
     if config.kind == "rl":
         import_learn("stable_baselines3")
     if config.backend == "ray":
@@ -525,7 +542,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     # before any work.
     run = (
         RunCheckpoints(checkpoints, config.run_settings(), restart=config.restart, log=say)
-        if config.kind == "supervised"
+        if config.kind in ("supervised", "linear")
         else None
     )
     training_info: dict[str, Any] = {
@@ -550,7 +567,9 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         )
         return table
 
-    if run is not None:
+    if run is not None and config.kind == "linear":
+        sampler, history = _train_linear(config, graph, train_clips, scenarios, run, seconds, say)
+    elif run is not None:
         sampler, history = _train_supervised(
             config,
             graph,
@@ -624,25 +643,16 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     return TrainResult(str(path), sampler, history, final, seconds)
 
 
-def _train_supervised(
-    config: TrainConfig,
-    graph: Any,
-    train_clips: Sequence[Any],
-    scenarios: Sequence[str],
-    training_info: dict[str, Any],
-    evaluate: Callable[..., dict[str, Any]],
-    checkpoints: Path,
-    run: RunCheckpoints,
-    seconds: dict[str, float],
-    say: Callable[[str], None],
-) -> tuple[GaussianSampler, list[dict[str, Any]]]:
-
-    spec = SamplerSpec.for_layout(
-        "supervised",
-        "mlp",
+def _imitation_spec(
+    config: TrainConfig, kind: str, algo: str, features: Sequence[str], **hyperparameters: Any
+) -> SamplerSpec:
+    """The spec of a sampler trained on imitation pairs (supervised or linear)."""
+    return SamplerSpec.for_layout(
+        kind,
+        algo,
         config.latent_dim,
         config.k,
-        features=list(config.features),
+        features=list(features),
         anchor=config.anchor,
         anchor_style=config.anchor_style,
         action_mode=config.action_mode,
@@ -651,9 +661,25 @@ def _train_supervised(
             **config.hyperparameters,
             "target": config.target,
             "follow": config.follow,
-            "epochs": config.epochs,
+            **hyperparameters,
         },
     )
+
+
+def _imitation_pairs(
+    config: TrainConfig,
+    graph: Any,
+    train_clips: Sequence[Any],
+    scenarios: Sequence[str],
+    spec: SamplerSpec,
+    run: RunCheckpoints,
+    seconds: dict[str, float],
+    say: Callable[[str], None],
+) -> tuple[ImitationData, np.ndarray]:
+    """The supervised and linear samplers' training pairs: simulated streams of the training
+    clips, collected (or read back from a stopped run's checkpoints) as ``config`` says; and
+    the index in ``train_clips`` of each episode's clip."""
+
     t0 = time.perf_counter()
     frames_per_pass = sum(
         min(c.num_frames, config.max_frames or c.num_frames) for c in train_clips
@@ -663,9 +689,11 @@ def _train_supervised(
     recordings = simulate_episodes(train_clips, scenarios, seeds, max_frames=config.max_frames)
     order = np.random.default_rng(config.seed).permutation(len(recordings))
     recordings = [recordings[i] for i in order]
+    # Each episode's clip (simulate_episodes: seed outermost, then clip, then scenario).
+    clip_of_episode = (order // len(scenarios)) % len(train_clips)
     collected = run.collected_episodes()
     if collected:
-        say(f"{checkpoints}: going on from {len(collected)} collected episodes")
+        say(f"{run.folder}: going on from {len(collected)} collected episodes")
     data = collect_imitation_data(
         graph,
         recordings,
@@ -687,6 +715,62 @@ def _train_supervised(
         f"imitation data: {len(data)} frames from {len(set(data.episodes.tolist()))} episodes "
         f"in {seconds['data']:.1f} s"
     )
+    return data, clip_of_episode
+
+
+def _train_linear(
+    config: TrainConfig,
+    graph: Any,
+    train_clips: Sequence[Any],
+    scenarios: Sequence[str],
+    run: RunCheckpoints,
+    seconds: dict[str, float],
+    say: Callable[[str], None],
+) -> tuple[GaussianSampler, list[dict[str, Any]]]:
+    """The linear pose-space sampler (:mod:`policies.pose_sampler`): its settings chosen by
+    cross-validation over ``LINEAR_GROUPS`` groups of whole clips."""
+
+    spec = _imitation_spec(config, "linear", "ridge", LINEAR_FEATURES)
+    data, clip_of_episode = _imitation_pairs(
+        config, graph, train_clips, scenarios, spec, run, seconds, say
+    )
+    # Whole clips per group (a clip and its mirror image together), so that cross-validation
+    # scores each setting on motions its fit did not see.
+    names = sorted({c.name.removesuffix("~mirror") for c in train_clips})
+    if len(names) < 2:
+        raise ValueError("kind 'linear': cross-validation needs at least 2 training clips")
+    group_of_clip = np.array(
+        [names.index(c.name.removesuffix("~mirror")) for c in train_clips]
+    ) % min(LINEAR_GROUPS, len(names))
+    group = group_of_clip[clip_of_episode[data.episodes]]
+    groups = [(data.observations[group == g], data.actions[group == g]) for g in np.unique(group)]
+    t0 = time.perf_counter()
+    sampler, report = fit_linear(spec, groups)
+    seconds["train"] = time.perf_counter() - t0
+    chosen = f"fusion {report['fusion']:g}"
+    say(
+        f"linear sampler: penalty {report['penalty']:g}, fusion {report['fusion']:g}; "
+        f"cross-validated Eq. 13 in the latent spaces {report['cv_error'][chosen]:.4f} m "
+        f"against the anchor's {report['anchor_error']:.4f} m ({seconds['train']:.1f} s)"
+    )
+    return sampler, [{"linear": report}]
+
+
+def _train_supervised(
+    config: TrainConfig,
+    graph: Any,
+    train_clips: Sequence[Any],
+    scenarios: Sequence[str],
+    training_info: dict[str, Any],
+    evaluate: Callable[..., dict[str, Any]],
+    checkpoints: Path,
+    run: RunCheckpoints,
+    seconds: dict[str, float],
+    say: Callable[[str], None],
+) -> tuple[GaussianSampler, list[dict[str, Any]]]:
+
+    spec = _imitation_spec(config, "supervised", "mlp", config.features, epochs=config.epochs)
+    data, _ = _imitation_pairs(config, graph, train_clips, scenarios, spec, run, seconds, say)
     # Validation pairs: a tenth of the episodes, by whole episodes.
     episode_ids = np.unique(data.episodes)
     rng = np.random.default_rng(config.seed + 1)

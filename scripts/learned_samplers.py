@@ -17,19 +17,27 @@ diagnostic rows run through the Python API: the sampler's anchor alone and its m
 
 * ``uiprmd``: real Kinect v2 streams against Vicon, leave subjects out over s01-s08
   (:mod:`scripts.real_kinect`'s machinery: the UI-PRMD database and the Kinect v2 -> Vicon map
-  of each fold are fitted on the other seven subjects only). A supervised sampler learns the
-  ground truth (target ``truth``) of the training subjects' real streams; its imitation data of
-  a training subject is collected with a database that lacks that subject too (nested), so the
-  truth is never among the candidates, as on the held-out subject. One training subject per
-  fold is the validation split (early stopping, spread calibration). ``--seeds`` training seeds;
-  each is scored on the held-out subject with ``learned:`` and ``learned+search:`` (200
-  evaluations), beside ``closed-form`` (the anchor, 1), ``local-search`` (2,000) and the raw
-  sensor; 95 % confidence intervals by a bootstrap over episodes.
+  of each fold are fitted on the other seven subjects only). The sampler learns the ground
+  truth of the training subjects' real streams (every repetition; ``--train-reps N``: N per
+  exercise); its imitation data of a training subject is collected with a database that lacks
+  that subject too (nested), so the truth is never among the candidates, as on the held-out
+  subject. ``--model linear`` (default): the linear pose-space sampler
+  (:mod:`policies.pose_sampler`, target ``bones``), its settings chosen by leave-one-subject-out
+  cross-validation over the seven training subjects, deterministic (one model per fold
+  whatever ``--seeds``). ``--model mlp``: the supervised MLP (target ``truth``), one per
+  training seed, one training subject per fold being the validation split (early stopping,
+  spread calibration). Each model is scored on the held-out subject with ``learned:`` and
+  ``learned+search:`` (200 evaluations) and its mean alone (1), beside ``closed-form`` (the
+  anchor, 1), ``local-search`` (2,000), the raw sensor and two oracles that see the truth (its
+  latent point by joints and by bones); 95 % confidence intervals by a bootstrap over episodes.
+* ``sim``: the simulated held-out Bandai protocol (:func:`sim_protocol`), the same models and
+  rows.
 
 Usage::
 
     python scripts/learned_samplers.py --out runs/learned [--protocols embedded,bandai]
-    python scripts/learned_samplers.py --protocols uiprmd --seeds 0,1,2
+    python scripts/learned_samplers.py --protocols uiprmd --workers 2 --out runs/learned
+    python scripts/learned_samplers.py --protocols sim --out runs/learned
 """
 
 from __future__ import annotations
@@ -59,6 +67,7 @@ from fpg_gym.io.recording import load_recording
 from fpg_gym.methods import MethodRunner
 from fpg_gym.reconstruct import Reconstructor
 from policies.learned_optimizers import LearnedSampler
+from policies.pose_sampler import LINEAR_FEATURES, fit_linear
 from policies.sampler import FEATURE_SETS, SamplerSpec
 from policies.supervised import SupervisedSampler, fit_supervised
 from policies.training import collect_imitation_data, simulate_episodes, truth_latent
@@ -249,21 +258,25 @@ def _uiprmd_data(
         load_recording(p) for s, ps in subjects.items() if s not in (held_out, subject) for p in ps
     ]
     sensor_map, _, _ = real_kinect._fold_maps("uiprmd", graph, others, True, False)
-    recordings = [load_recording(p) for p in real_kinect._episodes(subjects[subject], reps)]
+    paths = real_kinect._episodes(subjects[subject], reps) if reps else subjects[subject]
+    recordings = [load_recording(p) for p in paths]
     return collect_imitation_data(
         graph,
         recordings,
         spec,
-        target="truth",
+        target=spec.hyperparameters.get("target", "truth"),
         follow="anchor",
         reconstructor_options={**options, "sensor_map": sensor_map},
     )
 
 
-def _oracle(graph: Any, options: dict[str, Any], recording: Any) -> np.ndarray:
+def _oracle(
+    graph: Any, options: dict[str, Any], recording: Any, metric: str = "joints"
+) -> np.ndarray:
     """The stream reconstructed from the ground truth's own latent point every frame
-    (:func:`policies.training.truth_latent`): what a perfect sampler of this latent space
-    would give (the ceiling of every sampler; it sees the truth, so it is no method)."""
+    (:func:`policies.training.truth_latent`, its joints projected or, ``metric="bones"``, its
+    bone directions at the frame's bone lengths): what a perfect sampler of this latent space
+    would give (a ceiling of every sampler; it sees the truth, so it is no method)."""
 
     truth = recording.ground_truth
     out = np.empty_like(recording.positions)
@@ -273,14 +286,23 @@ def _oracle(graph: Any, options: dict[str, Any], recording: Any) -> np.ndarray:
                 recording.positions[t], recording.states[t], float(recording.timestamps[t])
             )
             assert reconstructor.placement is not None
-            z = truth_latent(problem, reconstructor.placement, truth[t])
+            z = truth_latent(problem, reconstructor.placement, truth[t], metric)
             out[t] = reconstructor.finish(z)[0]
     return out
 
 
 def _spec(task: dict[str, Any]) -> Any:
-    """The supervised sampler's description (ground-truth target, the env's layout)."""
+    """The sampler's description (ground-truth target, the env's layout): the linear
+    pose-space sampler (``--model linear``) or the supervised MLP (``--model mlp``)."""
 
+    if task["model"] == "linear":
+        return SamplerSpec.for_layout(
+            "linear",
+            "ridge",
+            action_mode="absolute",
+            features=list(LINEAR_FEATURES),
+            hyperparameters={"target": "bones"},
+        )
     return SamplerSpec.for_layout(
         "supervised",
         "mlp",
@@ -297,6 +319,8 @@ def _train_seeds(
     stopping, shrinking and spread calibration on ``val``; saved as ``{out}/sampler_{name}_seedS``.
     """
 
+    if spec.kind == "linear":
+        return _train_linear(spec, [*train, val], task, name, info)
     obs = np.concatenate([d.observations for d in train])
     act = np.concatenate([d.actions for d in train])
     mask = np.concatenate([d.masks for d in train])
@@ -340,6 +364,37 @@ def _train_seeds(
     return result
 
 
+def _train_linear(
+    spec: Any, groups: list[Any], task: dict[str, Any], name: str, info: dict[str, Any]
+) -> dict[str, Any]:
+    """The linear pose-space sampler, its settings chosen by leave-one-group-out
+    cross-validation over ``groups`` (imitation data of the training subjects, or of the
+    simulated protocol's folds); deterministic (one model whatever the seeds); saved as
+    ``{out}/sampler_{name}_linear``."""
+
+    t0 = time.process_time()
+    sampler, report = fit_linear(spec, [(d.observations, d.actions) for d in groups])
+    cpu = time.process_time() - t0
+    sampler.spec.training = {**info, **report, "command": task["command"]}
+    path = Path(task["out"]) / f"sampler_{name}_linear"
+    sampler.save(path)
+    best = report["cv_error"][f"fusion {report['fusion']:g}"]
+    print(
+        f"{name}: linear sampler, penalty {report['penalty']:g}, fusion {report['fusion']:g}, "
+        f"cross-validated Eq. 13 in the latent spaces {best:.4f} m (anchor "
+        f"{report['anchor_error']:.4f})",
+        file=sys.stderr,
+        flush=True,
+    )
+    return {
+        "models": {"linear": str(path)},
+        "train_cpu_s": {"linear": cpu},
+        "mean_scale": {},
+        "frames": sum(len(d) for d in groups),
+        "linear": report,
+    }
+
+
 def _score(
     graph: Any, options: dict[str, Any], models: dict[str, str], episodes: list[tuple[str, Any]]
 ) -> list[dict[str, Any]]:
@@ -358,10 +413,11 @@ def _score(
         for name, recording in episodes:
             truth = recording.ground_truth
             assert truth is not None
-            for method in [*methods, "oracle"]:
+            for method in [*methods, "oracle", "oracle-bones"]:
                 c0 = time.process_time()
-                if method == "oracle":
-                    poses = _oracle(graph, options, recording)
+                if method.startswith("oracle"):
+                    metric = "bones" if method == "oracle-bones" else "joints"
+                    poses = _oracle(graph, options, recording, metric)
                 else:
                     poses = runner.run(method, recording, seed=0).poses
                 cpu = 1000 * (time.process_time() - c0) / recording.num_frames
@@ -379,9 +435,10 @@ def _score(
 
 def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
     """One held-out subject: data, ``len(seeds)`` samplers, and every method scored."""
-    import torch  # the learn extra (optional)
+    if task["model"] == "mlp":
+        import torch  # the learn extra (optional)
 
-    torch.set_num_threads(1)
+        torch.set_num_threads(1)
     imported = Path(task["imported"])
     held_out, thres1 = task["subject"], task["thres1"]
     subjects = real_kinect._by_subject(imported / "recordings")
@@ -440,14 +497,16 @@ def _sim_data(
     recordings = simulate_episodes(
         clips, task["sim_scenarios"], [seed], max_frames=task["train_frames"]
     )
-    return collect_imitation_data(graph, recordings, spec, target="truth", follow="anchor")
+    target = spec.hyperparameters.get("target", "truth")
+    return collect_imitation_data(graph, recordings, spec, target=target, follow="anchor")
 
 
 def sim_protocol(args: argparse.Namespace) -> str:
     """The simulated held-out Bandai protocol with ground-truth samplers (module docstring)."""
-    import torch  # the learn extra (optional)
+    if args.model == "mlp":
+        import torch  # the learn extra (optional)
 
-    torch.set_num_threads(1)
+        torch.set_num_threads(1)
     folder = args.out / "sim"
     folder.mkdir(parents=True, exist_ok=True)
     files = sorted((args.data / "dataset-1").glob("*.bvh"))
@@ -461,6 +520,7 @@ def sim_protocol(args: argparse.Namespace) -> str:
         "epochs": args.epochs,
         "hidden": [int(w) for w in args.hidden.split(",")],
         "features": args.features,
+        "model": args.model,
         "sim_scenarios": args.sim_train_scenarios.split(","),
         "train_frames": args.sim_train_frames,
         "command": "python scripts/learned_samplers.py "
@@ -560,6 +620,7 @@ def uiprmd_table(results: list[dict[str, Any]]) -> str:
         "local-search": "2,000",
         "mean-only": "1",
         "oracle": "– (sees the truth)",
+        "oracle-bones": "– (sees the truth)",
     }
     local = np.array([np.mean(by["local-search"][e]["error"]) for e in order])
     anchor = np.array([np.mean(base[e]["error"]) for e in order])
@@ -600,6 +661,7 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
             "epochs": args.epochs,
             "hidden": [int(w) for w in args.hidden.split(",")],
             "features": args.features,
+            "model": args.model,
             "command": command,
         }
         for subject in args.subjects.split(",")
@@ -649,10 +711,18 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--subjects", default="s01,s02,s03,s04,s05,s06,s07,s08")
     group.add_argument("--seeds", default="0,1,2", help="training seeds")
     group.add_argument("--reps", type=int, default=1, help="scored repetitions per exercise")
-    group.add_argument("--train-reps", type=int, default=3, help="training reps per exercise")
+    group.add_argument(
+        "--train-reps", type=int, default=0, help="training reps per exercise (0: all, default)"
+    )
     group.add_argument("--epochs", type=int, default=40)
     group.add_argument("--hidden", default="256,256", help="MLP layer widths")
     group.add_argument("--features", default="all", choices=("all", "latent"))
+    group.add_argument(
+        "--model",
+        default="linear",
+        choices=("linear", "mlp"),
+        help="linear pose-space sampler (default) or the supervised MLP",
+    )
     group.add_argument("--uiprmd-thres1", type=float, default=0.1)
     group.add_argument("--sensor-blend", type=float, default=0.5)
     group.add_argument("--workers", type=int, default=1)

@@ -342,3 +342,32 @@ def test_closed_form_minimises_the_quadratic_energy_with_one_evaluation() -> Non
         # A step away in any direction raises it.
         assert np.all(values >= centre - 1e-12)
         rec.finish(z)
+
+
+def test_an_optimiser_may_recommend_another_point_than_the_lowest() -> None:
+    """``recommend`` (Nevergrad's distinction between the best evaluated point and the
+    recommendation): the run returns the recommended point with its own energy; without a
+    recommendation, the lowest-energy point."""
+
+    class Recommends(optimizers.BaseOptimizer):
+        def reset(self, problem, rng):
+            super().reset(problem, rng)
+            self.asked, self.energies = False, None
+
+        def ask(self):
+            if self.asked:
+                return None
+            self.asked = True
+            return np.stack([np.full(self.dim, 0.5), np.full(self.dim, 1.0)])
+
+        def tell(self, z, energies):
+            self.points, self.energies = z, energies
+
+        def recommend(self):
+            return None if self.energies is None else (self.points[1], float(self.energies[1]))
+
+    found = optimizers.run_optimizer(Sphere(), Recommends(), rng=0)
+    assert np.allclose(found.x, 1.0) and found.energy == pytest.approx(4 * 0.5**2)
+    assert found.evaluations == 2
+    plain = optimizers.run_optimizer(Sphere(), "random-search", rng=0, max_evaluations=50)
+    assert plain.energy == pytest.approx(float(Sphere().evaluate(plain.x[None])[0]))

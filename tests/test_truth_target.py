@@ -103,3 +103,31 @@ def test_train_config_checks_follow_and_reward() -> None:
         TrainConfig(kind="supervised", out="m", target="best", follow="anchor")
     with pytest.raises(ValueError, match="reward"):
         TrainConfig(kind="rl", out="m", reward="smile")
+
+
+def test_bones_target_scores_better_after_the_retarget(graph: Any) -> None:
+    """The ``bones`` metric picks the latent point whose bone directions, at the frame's bone
+    lengths, are the truth's: after the reconstructor's retarget Eq. 13 scores it better than
+    the projected joints on average."""
+    recording = _recording()
+    truth = recording.ground_truth
+    assert truth is not None
+    errors: dict[str, list[float]] = {"joints": [], "bones": []}
+    normal = [t for t in range(recording.num_frames) if t not in SWAPPED + NO_BODY]
+    with Reconstructor(graph, ragdoll=False, temporal=TemporalConfig.off()) as reconstructor:
+        for t in range(recording.num_frames):
+            problem = reconstructor.prepare(
+                recording.positions[t], recording.states[t], float(recording.timestamps[t])
+            )
+            placement = reconstructor.placement
+            assert placement is not None
+            for metric, out in errors.items():
+                z = truth_latent(problem, placement, truth[t], metric)
+                local = pose_utils.retarget(problem.decode(z[None])[0], problem.lengths)
+                pose = pose_utils.denormalise(local, placement)
+                out.append(float(metrics.frame_error(truth[t][None], pose[None])[0]))
+            reconstructor.finish()
+    joints, bones = np.array(errors["joints"])[normal], np.array(errors["bones"])[normal]
+    assert bones.mean() < joints.mean()
+    with pytest.raises(ValueError, match="metric"):
+        truth_latent(problem, placement, truth[0], "angles")

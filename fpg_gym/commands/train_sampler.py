@@ -1,4 +1,4 @@
-"""``fpg-gym train-sampler``: train a learned candidate sampler (supervised or RL)."""
+"""``fpg-gym train-sampler``: train a learned candidate sampler (supervised, RL or linear)."""
 
 from __future__ import annotations
 
@@ -8,14 +8,15 @@ from fpg_gym.commands.compare import add_backend_arguments
 
 NAME = "train-sampler"
 HELP = (
-    "train a learned candidate sampler (supervised torch MLP or stable-baselines3 PPO/SAC) for "
-    "the optimisers learned:MODEL and learned+search:MODEL (needs fpg-gym[learn])"
+    "train a learned candidate sampler (linear pose-space model, supervised torch MLP or "
+    "stable-baselines3 PPO/SAC) for the optimisers learned:MODEL and learned+search:MODEL "
+    "(the torch kinds need fpg-gym[learn])"
 )
 
 _EPILOG = """\
 The model is written as MODEL.json (hyper-parameters, observation layout, training summary)
 beside MODEL.pt (the network's weights: a torch state dict of tensors, loaded with
-weights_only=True; no pickle);
+weights_only=True; no pickle), or for --kind linear MODEL.npz (arrays, allow_pickle=False);
 checkpoints go to MODEL.checkpoints/. A supervised run stopped at any point (Ctrl-C, kill) goes
 on where it stopped when the same command is run again: its collected episodes and its last
 finished epoch are kept there (the same model as an uninterrupted run); --restart starts over.
@@ -35,6 +36,8 @@ examples:
       --clips @runs/split/graph_takes.txt --max-frames 150 --out runs/sampler_bandai
   fpg-gym train-sampler --kind supervised --target truth --follow anchor --graph default \\
       --out runs/sampler_truth       # learns the simulated ground truth, no search
+  fpg-gym train-sampler --kind linear --target bones --follow anchor --graph default \
+      --out runs/sampler_linear      # the pose-space ridge sampler, numpy only
 
 The samplers of docs/methods.md (ground truth of real UI-PRMD subjects, left out in turn, and of
 simulated Bandai takes; 3 seeds each) come from
@@ -51,7 +54,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the command's arguments."""
     parser.formatter_class = argparse.RawDescriptionHelpFormatter
     parser.epilog = _EPILOG
-    parser.add_argument("--kind", choices=["supervised", "rl"], required=True, help="sampler kind")
+    parser.add_argument(
+        "--kind",
+        choices=["supervised", "rl", "linear"],
+        required=True,
+        help="sampler kind (linear: the pose-space ridge model; needs --target bones or truth "
+        "and learns the ground truth)",
+    )
     parser.add_argument(
         "--algo", choices=["ppo", "sac"], default="ppo", help="RL algorithm (rl; default ppo)"
     )
@@ -102,17 +111,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
     parser.add_argument(
         "--target",
-        choices=["best", "search", "truth"],
+        choices=["best", "search", "truth", "bones"],
         default="best",
         help="supervised target: the best search optimum (local search from x0 and from the "
-        "anchor), the papers' local-search optimum, or the ground truth (default best)",
+        "anchor), the papers' local-search optimum, or the ground truth (truth: its joints "
+        "projected; bones: its bone directions at the frame's bone lengths) (default best)",
     )
     parser.add_argument(
         "--follow",
         choices=["search", "anchor", "truth"],
         default="search",
         help="what the supervised data's stream continues from: the local search (default), "
-        "or, with --target truth and no search at all, the closed-form anchor or the truth",
+        "or, with --target truth or bones and no search at all, the closed-form anchor or the "
+        "truth",
     )
     parser.add_argument(
         "--reward",
@@ -203,13 +214,15 @@ def run(args: argparse.Namespace) -> int:
     """Train, save and print the final evaluation."""
     from fpg_gym.commands.output import emit_json
     from fpg_gym.outputs import check_output
+    from policies.pose_sampler import LINEAR_WEIGHTS_SUFFIX
     from policies.sampler import FEATURE_SETS, WEIGHTS_SUFFIX, model_paths
     from policies.training import TrainConfig, config_dict, train_sampler
 
     # Before any work: MODEL.json and MODEL.pt must not be inputs, folders or unwritable.
     inputs = [item for item in [args.graph, *(args.clips or []), *(args.val_clips or [])] if item]
     json_path, stem = model_paths(args.out)
-    for target in (json_path, stem.with_name(stem.name + WEIGHTS_SUFFIX)):
+    suffix = LINEAR_WEIGHTS_SUFFIX if args.kind == "linear" else WEIGHTS_SUFFIX
+    for target in (json_path, stem.with_name(stem.name + suffix)):
         check_output(target, [i for i in inputs if i != "default"])
 
     features = (

@@ -1,0 +1,182 @@
+"""The linear pose-space sampler (:mod:`policies.pose_sampler`): it learns a sensor's
+systematic offset from the truth, in the pose, and its files are arrays and JSON only."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fpg_gym import metrics, skeleton
+from fpg_gym import poses as pose_utils
+from fpg_gym.errors import DataFormatError
+from fpg_gym.io import load_default_clips
+from fpg_gym.io.recording import Recording
+from fpg_gym.reconstruct import Reconstructor, TemporalConfig
+from policies.learned_optimizers import LearnedSampler
+from policies.loading import load_sampler
+from policies.pose_sampler import LINEAR_FEATURES, LinearPoseSampler, fit_linear
+from policies.sampler import SamplerSpec
+from policies.training import collect_imitation_data
+
+#: The simulated sensor's systematic error: the head 7 cm forward of the truth's, in the
+#: body's own frame (the kind of offset a Kinect's joint centres have from Vicon's).
+HEAD = skeleton.JOINT_NAMES.index("Head")
+FORWARD = 0.07
+
+
+def _spec() -> SamplerSpec:
+    return SamplerSpec.for_layout(
+        "linear", "ridge", action_mode="absolute", features=list(LINEAR_FEATURES)
+    )
+
+
+def _recording(name: str, frames: int = 90) -> Recording:
+    """A clip whose sensor is its truth with the head moved forward."""
+    truth = load_default_clips([name])[0].positions[:frames].astype(np.float32)
+    local, placement = pose_utils.normalise(truth)
+    local = np.array(local, dtype=np.float64)
+    local[:, HEAD, 2] += FORWARD  # +Z is forward in the normalised frame
+    sensor = pose_utils.denormalise(local, placement).astype(np.float32)
+    states = np.full((len(truth), skeleton.NUM_JOINTS), skeleton.TRACKED, np.int8)
+    return Recording(sensor, states, np.arange(len(truth)) / 30.0, ground_truth=truth)
+
+
+def _fit(graph: Any) -> LinearPoseSampler:
+    spec = _spec()
+    options = {"temporal": TemporalConfig.off()}
+    groups = []
+    for name in ("run", "jump", "dance_a"):  # one cross-validation group per clip
+        data = collect_imitation_data(
+            graph,
+            [_recording(name)],
+            spec,
+            target="bones",
+            follow="anchor",
+            reconstructor_options=options,
+        )
+        groups.append((data.observations, data.actions))
+    sampler, report = fit_linear(spec, groups)
+    assert report["frames"] == sum(len(g[0]) for g in groups) and report["groups"] == 3
+    chosen = report["cv_error"][f"fusion {report['fusion']:g}"]
+    assert chosen < report["anchor_error"]
+    assert sampler.spec.hyperparameters["penalty"] == report["penalty"]
+    return sampler
+
+
+@pytest.fixture(scope="module")
+def sampler(graph: Any) -> LinearPoseSampler:
+    return _fit(graph)
+
+
+def _error(graph: Any, optimizer: Any, recording: Recording) -> float:
+    with Reconstructor(graph, ragdoll=False, temporal=TemporalConfig.off()) as reconstructor:
+        poses = reconstructor.reconstruct(recording, optimizer, rng=0).poses
+    assert recording.ground_truth is not None
+    return float(metrics.frame_error(recording.ground_truth, poses).mean())
+
+
+def test_the_sampler_removes_a_systematic_sensor_offset(graph: Any, sampler: Any) -> None:
+    held_out = _recording("walk")  # neither in the graph nor trained or validated on
+    anchor = _error(graph, "closed-form", held_out)
+    # The offset moves one bone of 19 by at most FORWARD: that much of Eq. 13 is its share.
+    share = FORWARD / skeleton.NUM_BONES
+    mean = _error(graph, LearnedSampler(sampler, samples=1), held_out)
+    assert anchor - mean > 0.4 * share
+    # learned: picks by posterior (the model's selection), near the mean; the lowest energy
+    # picks points back towards the anchor, which fits the sensor.
+    learned = _error(graph, LearnedSampler(sampler), held_out)
+    by_energy = _error(graph, LearnedSampler(sampler, prior_weight=0.0, anchor=True), held_out)
+    assert anchor - learned > 0.4 * share
+    assert by_energy > learned
+
+
+def test_fit_linear_checks_its_arguments() -> None:
+    spec = _spec()
+    rows = np.zeros((4, spec.observation_size), np.float32)
+    actions = np.zeros((4, spec.latent_dim), np.float32)
+    with pytest.raises(ValueError, match="at least 2"):
+        fit_linear(spec, [(rows, actions)])
+    with pytest.raises(ValueError, match="penalties"):
+        fit_linear(spec, [(rows, actions)] * 2, penalties=[-1.0])
+
+
+def test_files_round_trip_and_bad_arrays_are_refused(sampler: Any, tmp_path: Path) -> None:
+    path = sampler.save(tmp_path / "linear")
+    assert (tmp_path / "linear.npz").is_file() and path == tmp_path / "linear.json"
+    loaded = load_sampler(tmp_path / "linear")
+    assert isinstance(loaded, LinearPoseSampler)
+    observations = np.random.default_rng(0).uniform(-0.5, 0.5, (3, sampler.spec.observation_size))
+    observations[:, sampler.layout.slices["latent_mask"]] = 1.0
+    for mine, theirs in zip(
+        sampler.distribution(observations), loaded.distribution(observations), strict=True
+    ):
+        np.testing.assert_array_equal(mine, theirs)
+    arrays = dict(np.load(tmp_path / "linear.npz", allow_pickle=False))
+    arrays["weights"] = arrays["weights"][:-1]
+    np.savez(tmp_path / "linear.npz", **arrays)
+    with pytest.raises(DataFormatError, match="weights"):
+        load_sampler(tmp_path / "linear")
+    (tmp_path / "linear.npz").write_bytes(b"not an npz")
+    with pytest.raises(DataFormatError, match="linear sampler"):
+        load_sampler(tmp_path / "linear")
+    (tmp_path / "linear.npz").unlink()
+    with pytest.raises(FileNotFoundError, match=r"linear\.npz"):
+        load_sampler(tmp_path / "linear")
+
+
+def test_a_linear_sampler_needs_absolute_anchored_actions() -> None:
+    spec = SamplerSpec.for_layout("linear", "ridge", action_mode="delta")
+    with pytest.raises(ValueError, match="absolute"):
+        LinearPoseSampler(spec, {})
+
+
+def test_the_closed_form_takes_a_prior() -> None:
+    """``quadratic_minimiser``'s prior: none or a zero weight leave the minimiser as it was, a
+    dominant weight gives the prior's mean, and a middle weight lies between them."""
+    from fpg_gym.reconstruct.closed_form import quadratic_minimiser
+
+    rng = np.random.default_rng(3)
+    n, dim = 5, 4
+    basis = np.linalg.qr(rng.standard_normal((60, dim)))[0].T[None].repeat(n, axis=0)
+    arguments = {
+        "sensor": rng.standard_normal((n, 60)) * 0.1,
+        "reliability": rng.uniform(0.2, 1.0, (n, 20)),
+        "mean": rng.standard_normal((n, 60)) * 0.1,
+        "basis": basis,
+        "std": rng.uniform(0.05, 0.2, (n, dim)),
+    }
+    plain = quadratic_minimiser(**arguments)
+    prior = rng.standard_normal((n, dim))
+    zero = quadratic_minimiser(**arguments, prior_mean=prior, prior_precision=np.zeros((n, dim)))
+    np.testing.assert_allclose(zero, plain, atol=1e-12)
+    strong = quadratic_minimiser(
+        **arguments, prior_mean=prior, prior_precision=np.full((n, dim), 1e9)
+    )
+    np.testing.assert_allclose(strong, prior, atol=1e-5)
+    middle = quadratic_minimiser(**arguments, prior_mean=prior, prior_precision=np.ones((n, dim)))
+    assert np.all(np.linalg.norm(middle - prior, axis=1) < np.linalg.norm(plain - prior, axis=1))
+
+
+def test_train_sampler_cli_trains_a_linear_sampler(tmp_path: Path) -> None:
+    """``fpg-gym train-sampler --kind linear``: numpy only, a model that loads, and refused
+    settings named."""
+    from fpg_gym.cli import main
+
+    out = tmp_path / "linear"
+    command = [
+        "train-sampler", "--kind", "linear", "--target", "bones", "--follow", "anchor",
+        "--graph", "default", "--clips", "run", "jump", "cartwheel", "--timesteps", "240",
+        "--max-frames", "30", "--eval-episodes", "1", "--quiet", "--out", str(out),
+    ]  # fmt: skip
+    assert main(command) == 0
+    sampler = load_sampler(out)
+    assert isinstance(sampler, LinearPoseSampler) and (tmp_path / "linear.npz").is_file()
+    assert sampler.spec.hyperparameters["target"] == "bones"
+    assert "linear" in sampler.spec.training["history"][0]
+    with pytest.raises(ValueError, match="kind 'linear'"):
+        from policies.training import TrainConfig
+
+        TrainConfig(kind="linear", out=str(out), target="best")
