@@ -99,7 +99,7 @@ class LearnedSampler(BaseOptimizer):
         self.sampler = _sampler(model)
         self.samples = int(samples)
         self.std_scale = float(std_scale)
-        # The model's own selection (a linear sampler's, chosen on validation), unless given.
+        # The model's own selection (a linear sampler sets one), unless given.
         chosen = dict(self.sampler.spec.hyperparameters.get("selection") or {})
         weight = chosen.get("prior_weight") if prior_weight is None else prior_weight
         if weight is not None and not float(weight) >= 0:

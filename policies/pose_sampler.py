@@ -72,7 +72,7 @@ LINEAR_FEATURES: tuple[str, ...] = tuple(
 )
 #: Suffix of the linear sampler's weights (a numpy ``.npz`` of arrays).
 LINEAR_WEIGHTS_SUFFIX = ".npz"
-#: Ridge penalties tried on the validation pairs (standardised regressors).
+#: Ridge penalties tried by cross-validation (standardised regressors).
 PENALTIES: tuple[float, ...] = (1.0, 10.0, 100.0, 1000.0, 10000.0, 100000.0)
 #: Fusion weights tried by cross-validation (:attr:`LinearPoseSampler.fusion`; 0: the
 #: learned mean alone).
