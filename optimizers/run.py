@@ -228,7 +228,7 @@ class OptimizerRun:
         choice = recommend() if callable(recommend) and self.asks else None
         x, energy = (self.best_x, self.best) if choice is None else choice
         return SearchResult(
-            x=np.array(x, dtype=np.float64),
+            x=np.asarray(x, dtype=np.float64),
             energy=float(energy),
             evaluations=self.evaluations,
             asks=self.asks,

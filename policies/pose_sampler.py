@@ -10,25 +10,25 @@ observation's own frame).
 Model
 -----
 For each frame, the anchor's pose ``x_a = decode(anchor)`` (the closed-form point,
-:func:`policies.sampler.quadratic_anchor`) and the regressors of :func:`pose_regressors`: the
+:func:`policies.sampler.quadratic_anchor`) and the regressors of :func:`_regressors`: the
 anchor pose, the sensor pose, the continuity prediction and the previous reconstruction each as
 an offset from the anchor pose (zero when missing), the reliability and its three terms, the
 bone lengths and the context. A ridge regression (standardised regressors) predicts
 ``delta``, the offset of the target pose from ``x_a``. The Gaussian's mean is the anchor moved
 by ``delta`` as closely as the frame's latent space allows, measured on the bone vectors
 (Shum et al. 2013 Eq. 9 is linear, ``decode(z) = m + (s z) B``, and FPG Eq. 13 scores bone
-vectors: a least-squares solve per frame). With a *fusion* weight ``w`` the mean is then the
-minimiser of the closed form's quadratic energy (its sensor and motion terms) plus
-``w |(z - mu) / sigma|^2`` (:func:`fpg_gym.reconstruct.closed_form.quadratic_minimiser`'s
-prior). Its spread per latent axis is the root-mean-square error of out-of-group means.
+vectors: a least-squares solve per frame). With a *fusion* weight ``w`` set in the model's
+``hyperparameters["fusion"]`` (none by default) the mean is then the minimiser of the closed
+form's quadratic energy (its sensor and motion terms) plus ``w |(z - mu) / sigma|^2``
+(:func:`fpg_gym.reconstruct.closed_form.quadratic_minimiser`'s prior): steadier, less far
+from the anchor. Its spread per latent axis is the root-mean-square error of out-of-group means.
 
 The target is the ground truth's latent point of ``collect_imitation_data``: with
 ``target="bones"`` (the default of ``fpg-gym train-sampler --kind linear``) the point whose
 bone directions at the frame's bone lengths are the truth's, which is what Eq. 13 scores after
 the reconstructor gives the output those lengths (:func:`policies.imitation.truth_latent`).
-:func:`fit_linear` chooses the penalty and the fusion weight by leave-one-group-out
-cross-validation (groups: subjects or sets of takes) and fits on every group. Deterministic:
-no seed changes the model.
+:func:`fit_linear` chooses the penalty by leave-one-group-out cross-validation (groups:
+subjects or sets of takes) and fits on every group. Deterministic: no seed changes the model.
 
 ``learned:`` and ``learned+search:`` pick among their points by posterior (:data:`SELECTION`),
 because a lower energy is not a more accurate pose on real data.
@@ -46,22 +46,20 @@ from typing import Any
 
 import numpy as np
 
+from fpg_gym import poses as pose_utils
 from fpg_gym.env_observation import CONTEXT_NAMES
 from fpg_gym.errors import DataFormatError
 from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import quadratic_minimiser
-from fpg_gym.skeleton import BONES
 from policies.sampler import DEFAULT_FEATURES, GaussianSampler, SamplerSpec, model_paths
 
 __all__ = [
-    "FUSIONS",
     "LINEAR_FEATURES",
     "LINEAR_WEIGHTS_SUFFIX",
     "PENALTIES",
     "SELECTION",
     "LinearPoseSampler",
     "fit_linear",
-    "pose_regressors",
 ]
 
 #: Observation fields the linear sampler reads (its :class:`~policies.sampler.FeatureMap`):
@@ -74,9 +72,6 @@ LINEAR_FEATURES: tuple[str, ...] = tuple(
 LINEAR_WEIGHTS_SUFFIX = ".npz"
 #: Ridge penalties tried by cross-validation (standardised regressors).
 PENALTIES: tuple[float, ...] = (1.0, 10.0, 100.0, 1000.0, 10000.0, 100000.0)
-#: Fusion weights tried by cross-validation (:attr:`LinearPoseSampler.fusion`; 0: the
-#: learned mean alone).
-FUSIONS: tuple[float, ...] = (0.0, 0.003, 0.01, 0.03, 0.1)
 #: How ``learned:`` and ``learned+search:`` pick among their points with a linear sampler
 #: (:class:`policies.learned_optimizers.LearnedSampler`): by posterior, the learned Gaussian as
 #: prior with weight 1, the anchor not among the points. A point a standard deviation from the
@@ -90,48 +85,42 @@ _ARRAYS = ("regressor_mean", "regressor_scale", "weights", "bias", "std")
 
 
 def _fields(spec: SamplerSpec, features: np.ndarray) -> dict[str, np.ndarray]:
-    """The named fields ``(n, ...)`` of feature rows ``(n, F)`` and the anchor actions
-    ``(n, L)`` (``"anchor"``), as :class:`~policies.sampler.FeatureMap` laid them out."""
+    """The named fields ``(n, ...)`` of feature rows ``(n, F)`` as
+    :class:`~policies.sampler.FeatureMap` laid them out, the anchor actions ``(n, L)``
+    (``"anchor"``), the mask of the axes in use ``(n, L)`` (``"mask"``) and the principal
+    directions scaled by their spread ``(n, L, 60)``, zero on unused axes (``"axes"``)."""
     layout = spec.layout
-    out, start = {}, 0
+    out: dict[str, np.ndarray] = {}
+    start = 0
     for name in spec.features:
         shape = layout.shapes[name]
         size = int(np.prod(shape))
         out[name] = features[:, start : start + size].astype(np.float64)
         start += size
     out["anchor"] = features[:, start : start + layout.latent_dim].astype(np.float64)
+    out["mask"] = out["latent_mask"] > 0.5
+    basis = out["latent_basis"].reshape(len(features), layout.latent_dim, -1)
+    out["axes"] = basis * np.where(out["mask"], out["latent_std"], 0.0)[:, :, None]
     return out
-
-
-def _axes(fields: dict[str, np.ndarray], latent_dim: int) -> tuple[np.ndarray, np.ndarray]:
-    """Each frame's principal directions scaled by their spread ``(n, L, 60)`` (zero on unused
-    axes) and the mask ``(n, L)``."""
-    mask = fields["latent_mask"] > 0.5
-    basis = fields["latent_basis"].reshape(len(mask), latent_dim, -1)
-    scaled = basis * np.where(mask, fields["latent_std"], 0.0)[:, :, None]
-    return scaled, mask
 
 
 def _decode(fields: dict[str, np.ndarray], actions: np.ndarray, spec: SamplerSpec) -> np.ndarray:
     """Normalised poses ``(n, 60)`` of absolute actions ``(n, L)``: ``m + (s z) B``."""
-    scaled, _ = _axes(fields, spec.latent_dim)
     z = spec.action_scale * np.asarray(actions, dtype=np.float64)
-    return fields["latent_mean"] + np.einsum("nl,nlp->np", z, scaled)
-
-
-def _bone_design(fields: dict[str, np.ndarray], spec: SamplerSpec) -> np.ndarray:
-    """Each frame's bone vectors per unit of its whitened axes ``(n, 57, L)`` (zero on unused
-    axes): the bone vectors of ``decode(z)`` are ``bones(m) + design z`` (Shum Eq. 9)."""
-    scaled, _ = _axes(fields, spec.latent_dim)
-    joints = scaled.reshape(len(scaled), spec.latent_dim, -1, 3)
-    bones = joints[:, :, BONES[:, 1]] - joints[:, :, BONES[:, 0]]
-    return bones.reshape(len(scaled), spec.latent_dim, -1).transpose(0, 2, 1)
+    return fields["latent_mean"] + np.einsum("nl,nlp->np", z, fields["axes"])
 
 
 def _bone_offsets(poses: np.ndarray) -> np.ndarray:
-    """Bone vectors ``(n, 57)`` of pose offsets ``(n, 60)``."""
-    joints = poses.reshape(len(poses), -1, 3)
-    return (joints[:, BONES[:, 1]] - joints[:, BONES[:, 0]]).reshape(len(poses), -1)
+    """Bone vectors ``(n, 57)`` of poses or pose offsets ``(n, 60)``."""
+    return pose_utils.bone_vectors(poses.reshape(len(poses), -1, 3)).reshape(len(poses), -1)
+
+
+def _bone_design(fields: dict[str, np.ndarray]) -> np.ndarray:
+    """Each frame's bone vectors per unit of its whitened axes ``(n, 57, L)`` (zero on unused
+    axes): the bone vectors of ``decode(z)`` are ``bones(m) + design z`` (Shum Eq. 9)."""
+    axes = fields["axes"]
+    bones = pose_utils.bone_vectors(axes.reshape(*axes.shape[:2], -1, 3))
+    return bones.reshape(*axes.shape[:2], -1).transpose(0, 2, 1)
 
 
 def _solve_bones(design: np.ndarray, bones: np.ndarray) -> np.ndarray:
@@ -143,38 +132,61 @@ def _solve_bones(design: np.ndarray, bones: np.ndarray) -> np.ndarray:
     return np.linalg.solve(gram, rhs[..., None])[..., 0]
 
 
-def _encode_offset(fields: dict[str, np.ndarray], delta: np.ndarray, spec: SamplerSpec) -> Any:
+def _encode_offset(
+    fields: dict[str, np.ndarray], delta: np.ndarray, spec: SamplerSpec, design: Any = None
+) -> Any:
     """Actions ``(n, L)`` that move a point by pose offsets ``delta`` ``(n, 60)`` as closely as
     each frame's latent space allows, measured on the bone vectors (FPG Eq. 13 scores bone
-    vectors, and the reconstructor keeps only the bones' directions): zero on unused axes."""
-    z = _solve_bones(_bone_design(fields, spec), _bone_offsets(delta))
-    return z / spec.action_scale
+    vectors, and the reconstructor keeps only the bones' directions): zero on unused axes.
+    ``design``: :func:`_bone_design` of ``fields`` when the caller has it."""
+    design = _bone_design(fields) if design is None else design
+    return _solve_bones(design, _bone_offsets(delta)) / spec.action_scale
 
 
-def pose_regressors(spec: SamplerSpec, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """The regressors ``(n, R)`` of feature rows ``(n, F)`` and the anchor's pose ``(n, 60)``.
-
-    Regressors: the anchor pose; the sensor pose, the continuity prediction and the previous
-    reconstruction minus the anchor pose (the last two zero when the frame has no prediction);
-    the reliability and its terms; the context.
-    """
-    fields = _fields(spec, features)
-    anchor_pose = _decode(fields, fields["anchor"], spec)
-    has_prediction = fields["context"][:, CONTEXT_NAMES.index("has_prediction")] > 0.5
-    history = has_prediction[:, None]
-    past = (
-        [
-            np.where(history, fields["prediction"] - anchor_pose, 0.0),
-            np.where(history, fields["previous"] - anchor_pose, 0.0),
-        ]
-        if spec.hyperparameters.get("history", True)
-        else []
+def _fuse(
+    spec: SamplerSpec,
+    fields: dict[str, np.ndarray],
+    mean: np.ndarray,
+    std: np.ndarray,
+    fusion: float,
+) -> np.ndarray:
+    """Mean actions ``(n, L)`` relative to the anchor: ``mean`` itself, or with a ``fusion``
+    weight ``w`` the minimiser of the closed form's quadratic energy plus
+    ``w |(z - mu) / sigma|^2`` (the anchor's sensor and motion terms keep the learned point
+    steady; ``std``: the spread in action units ``(L,)``)."""
+    if fusion <= 0.0:
+        return mean
+    scale, mask = spec.action_scale, fields["mask"]
+    spread = scale * np.maximum(std, 1e-6)
+    fused = quadratic_minimiser(
+        fields["kinect"],
+        fields["reliability"],
+        fields["latent_mean"],
+        fields["latent_basis"].reshape(len(mask), spec.latent_dim, -1),
+        fields["latent_std"],
+        prediction=fields["prediction"],
+        has_prediction=fields["context"][:, CONTEXT_NAMES.index("has_prediction")] > 0.5,
+        mask=mask,
+        weights=spec.energy_weights,
+        style=spec.anchor_style,
+        prior_mean=scale * (fields["anchor"] + mean),
+        prior_precision=np.broadcast_to(fusion / spread**2, mask.shape),
     )
-    regressors = np.concatenate(
+    return np.where(mask, fused / scale - fields["anchor"], 0.0)
+
+
+def _regressors(spec: SamplerSpec, fields: dict[str, np.ndarray]) -> np.ndarray:
+    """The regressors ``(n, R)``: the anchor pose; the sensor pose, the continuity prediction
+    and the previous reconstruction minus the anchor pose (the last two zero when the frame has
+    no prediction); the reliability and its terms; the bone lengths; the context."""
+    anchor_pose = _decode(fields, fields["anchor"], spec)
+    history = fields["context"][:, [CONTEXT_NAMES.index("has_prediction")]] > 0.5
+    return np.concatenate(
         [
             anchor_pose,
             fields["kinect"] - anchor_pose,
-            *past,
+            np.where(history, fields["prediction"] - anchor_pose, 0.0),
+            np.where(history, fields["previous"] - anchor_pose, 0.0),
             fields["reliability"],
             fields["reliability_terms"],
             fields["bone_lengths"],
@@ -182,7 +194,6 @@ def pose_regressors(spec: SamplerSpec, features: np.ndarray) -> tuple[np.ndarray
         ],
         axis=1,
     )
-    return regressors, anchor_pose
 
 
 class LinearPoseSampler(GaussianSampler):
@@ -206,62 +217,25 @@ class LinearPoseSampler(GaussianSampler):
         super().__init__(spec, seed)
         self.arrays = {name: np.asarray(arrays[name], dtype=np.float64) for name in _ARRAYS}
 
-    def offset(self, features: np.ndarray) -> np.ndarray:
-        """The predicted pose offsets ``(n, 60)`` of the truth from the anchor's pose."""
-        regressors, _ = pose_regressors(self.spec, features)
-        a = self.arrays
-        return ((regressors - a["regressor_mean"]) / a["regressor_scale"]) @ a["weights"] + a[
-            "bias"
-        ]
-
     @property
     def fusion(self) -> float:
         """Weight of the learned mean as a prior in the closed form (0: the mean alone)."""
         return float(self.spec.hyperparameters.get("fusion", 0.0))
 
-    def _mean(self, fields: dict[str, np.ndarray], offsets: np.ndarray) -> np.ndarray:
-        """Mean actions ``(n, L)`` relative to the anchor, of pose offsets ``(n, 60)``: the
-        offsets moved into each frame's latent space, then, with a ``fusion`` weight ``w``,
-        the minimiser of the closed form's quadratic energy plus ``w |(z - mu) / sigma|^2``
-        (the anchor's sensor and motion terms keep the learned point steady)."""
-        mean = _encode_offset(fields, offsets, self.spec)
-        if self.fusion <= 0.0:
-            return mean
-        spec, scale = self.spec, self.spec.action_scale
-        n = len(offsets)
-        mask = fields["latent_mask"] > 0.5
-        has_prediction = fields["context"][:, CONTEXT_NAMES.index("has_prediction")] > 0.5
-        spread = scale * np.maximum(self.arrays["std"], 1e-6)
-        fused = quadratic_minimiser(
-            fields["kinect"],
-            fields["reliability"],
-            fields["latent_mean"],
-            fields["latent_basis"].reshape(n, spec.latent_dim, -1),
-            fields["latent_std"],
-            prediction=fields[str(spec.hyperparameters.get("fusion_target", "prediction"))],
-            has_prediction=has_prediction,
-            mask=mask,
-            weights=self._fusion_weights(),
-            style=spec.anchor_style,
-            prior_mean=scale * (fields["anchor"] + mean),
-            prior_precision=np.broadcast_to(self.fusion / spread**2, mask.shape),
-        )
-        return np.where(mask, fused / scale - fields["anchor"], 0.0)
-
-    def _fusion_weights(self) -> list[float]:
-        """The closed form's energy weights in the fusion, the motion term's multiplied by
-        ``hyperparameters["fusion_motion"]`` (1)."""
-        w_c, w_s, w_k, w_m = self.spec.energy_weights
-        return [w_c, w_s, w_k, w_m * float(self.spec.hyperparameters.get("fusion_motion", 1.0))]
+    def offset(self, features: np.ndarray) -> np.ndarray:
+        """The predicted pose offsets ``(n, 60)`` of the target from the anchor's pose, for
+        feature rows ``(n, F)``."""
+        return _predict(self.arrays, _regressors(self.spec, _fields(self.spec, features)))
 
     def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Mean (relative to the anchor) and std ``(n, L)``: the predicted pose offset projected
+        """Mean (relative to the anchor) and std ``(n, L)``: the predicted pose offset moved
         into each frame's latent space (fused with the closed form, see :attr:`fusion`), and
-        the validation spread."""
+        the cross-validated spread."""
         fields = _fields(self.spec, features)
-        mean = self._mean(fields, self.offset(features))
-        mask = fields["latent_mask"] > 0.5
-        std = np.where(mask, self.arrays["std"], 0.0)
+        offsets = _predict(self.arrays, _regressors(self.spec, fields))
+        mean = _encode_offset(fields, offsets, self.spec)
+        mean = _fuse(self.spec, fields, mean, self.arrays["std"], self.fusion)
+        std = np.where(fields["mask"], self.arrays["std"], 0.0)
         return mean, np.maximum(std, 1e-6)
 
     def save(self, path: str | os.PathLike[str]) -> Path:
@@ -285,7 +259,8 @@ class LinearPoseSampler(GaussianSampler):
         DataFormatError
             If the file is not an ``.npz`` of the arrays and shapes ``spec`` describes.
         """
-        size = len(pose_regressors(spec, np.zeros((1, spec.feature_map().size)))[0][0])
+        blank = _fields(spec, np.zeros((1, spec.feature_map().size)))
+        size = _regressors(spec, blank).shape[1]
         shapes = {
             "regressor_mean": (size,),
             "regressor_scale": (size,),
@@ -308,14 +283,6 @@ class LinearPoseSampler(GaussianSampler):
         if np.any(arrays["regressor_scale"] <= 0):
             raise DataFormatError(weights, "expected positive scales", field="regressor_scale")
         return cls(spec, arrays, seed)
-
-
-def _targets(spec: SamplerSpec, features: np.ndarray, actions: np.ndarray) -> Any:
-    """Regressors, the anchor pose and the target pose offsets ``decode(a*) - x_a`` of
-    imitation pairs."""
-    regressors, anchor_pose = pose_regressors(spec, features)
-    target = _decode(_fields(spec, features), actions, spec)
-    return regressors, anchor_pose, target - anchor_pose
 
 
 def _sums(x: np.ndarray, y: np.ndarray) -> dict[str, Any]:
@@ -355,117 +322,100 @@ def fit_linear(
     groups: Sequence[tuple[np.ndarray, np.ndarray]],
     *,
     penalties: Sequence[float] = PENALTIES,
-    fusions: Sequence[float] = FUSIONS,
 ) -> tuple[LinearPoseSampler, dict[str, Any]]:
     """Fit the linear sampler on groups of ``(observations, truth actions)`` pairs.
 
     Leave-one-group-out cross-validation (groups: subjects, or sets of takes, so that each
-    choice is made on data no fit saw) chooses the ridge penalty, then the fusion weight
-    (:attr:`LinearPoseSampler.fusion`), each by the mean FPG Eq. 13 of the out-of-group means
-    in the frames' latent spaces; the spread per latent axis is the root-mean-square error of
-    the chosen penalty's out-of-group means. The model is then fitted on every group.
+    choice is made on data no fit saw) chooses the ridge penalty by the mean FPG Eq. 13 of the
+    out-of-group means in the frames' latent spaces; the spread per latent axis is the
+    root-mean-square error of the chosen penalty's out-of-group means. The model is then
+    fitted on every group.
 
     Parameters
     ----------
     spec : SamplerSpec
-        Kind ``"linear"``; its hyper-parameters receive ``penalty``, ``fusion`` and
-        ``selection`` (:data:`SELECTION`).
+        Kind ``"linear"``; its hyper-parameters receive ``penalty`` and ``selection``
+        (:data:`SELECTION`); a ``fusion`` weight already there is kept
+        (:attr:`LinearPoseSampler.fusion`).
     groups : sequence of (ndarray (n, N), ndarray (n, L))
         Observations and ground-truth actions (``collect_imitation_data`` with target
         ``"bones"`` or ``"truth"``), at least two groups.
-    penalties, fusions : sequences of float
-        The settings tried.
+    penalties : sequence of float
+        The ridge penalties tried.
 
     Returns
     -------
     sampler : LinearPoseSampler
     report : dict
-        ``penalty``, ``fusion``, ``cv_error`` (m, by setting), ``anchor_error`` (m: the
+        ``penalty``, ``cv_error`` (m, by penalty), ``anchor_error`` (m: the
         anchor's error in the same measure), ``frames``, ``groups``.
     """
     if len(groups) < 2:
         raise ValueError(f"groups: expected at least 2 for cross-validation, got {len(groups)}")
     if not penalties or min(penalties) < 0:
         raise ValueError(f"penalties: expected non-negative values, got {list(penalties)}")
-    if not fusions or min(fusions) < 0:
-        raise ValueError(f"fusions: expected non-negative values, got {list(fusions)}")
     feature_map = spec.feature_map()
     parts = []
     for observations, actions in groups:
-        features, _ = feature_map.transform(observations)
-        regressors, _, targets = _targets(spec, features, actions)
-        fields = _fields(spec, features)
+        fields = _fields(spec, feature_map.transform(observations)[0])
+        targets = _decode(fields, actions, spec) - _decode(fields, fields["anchor"], spec)
         parts.append(
             {
-                "regressors": regressors,
+                "regressors": _regressors(spec, fields),
                 "targets": targets,
                 "target_bones": _bone_offsets(targets),
-                "design": _bone_design(fields, spec),
+                "design": _bone_design(fields),
                 "fields": fields,
-                "mask": fields["latent_mask"] > 0.5,
                 "actions": np.asarray(actions, dtype=np.float64),
             }
         )
     frames = sum(len(p["regressors"]) for p in parts)
     sums = [_sums(p["regressors"], p["targets"]) for p in parts]
-    size = parts[0]["regressors"].shape[1]
-    blank = {
-        "regressor_mean": np.zeros(size),
-        "regressor_scale": np.ones(size),
-        "weights": np.zeros((size, 60)),
-        "bias": np.zeros(60),
-        "std": np.ones(spec.latent_dim),
-    }
-    trial = LinearPoseSampler(spec, blank)
 
-    def cv_error(offsets: list[np.ndarray], fusion: float) -> float:
-        trial.spec.hyperparameters["fusion"] = fusion
+    def cv_error(means: list[np.ndarray]) -> float:
+        """Mean Eq. 13 in the latent spaces of each group's out-of-group means."""
         total = sum(
-            _bone_errors(trial._mean(part["fields"], offset), part, spec).sum()
-            for offset, part in zip(offsets, parts, strict=True)
+            _bone_errors(mean, part, spec).sum() for mean, part in zip(means, parts, strict=True)
         )
         return float(total / frames)
 
     errors: dict[str, float] = {}
     chosen: tuple[float, float, list[np.ndarray]] | None = None
     for penalty in penalties:
-        offsets = [
-            _predict(_ridge(sums[:g] + sums[g + 1 :], penalty), part["regressors"])
+        means = [
+            _encode_offset(
+                part["fields"],
+                _predict(_ridge(sums[:g] + sums[g + 1 :], penalty), part["regressors"]),
+                spec,
+                part["design"],
+            )
             for g, part in enumerate(parts)
         ]
-        errors[f"penalty {penalty:g}"] = error = cv_error(offsets, 0.0)
+        errors[f"{penalty:g}"] = error = cv_error(means)
         if chosen is None or error < chosen[0]:
-            chosen = (error, penalty, offsets)
+            chosen = (error, penalty, means)
     assert chosen is not None
-    _, penalty, offsets = chosen
+    _, penalty, means = chosen
     # The spread: the out-of-group error of the chosen penalty's means, per latent axis.
     squares, counts = np.zeros(spec.latent_dim), np.zeros(spec.latent_dim)
-    for offset, part in zip(offsets, parts, strict=True):
-        mean = part["fields"]["anchor"] + _encode_offset(part["fields"], offset, spec)
-        squares += (np.where(part["mask"], part["actions"] - mean, 0.0) ** 2).sum(axis=0)
-        counts += part["mask"].sum(axis=0)
+    for mean, part in zip(means, parts, strict=True):
+        mask = part["fields"]["mask"]
+        miss = part["actions"] - (part["fields"]["anchor"] + mean)
+        squares += (np.where(mask, miss, 0.0) ** 2).sum(axis=0)
+        counts += mask.sum(axis=0)
     used = counts > 0
     std = np.sqrt(squares / np.maximum(counts, 1))
     std = np.where(used, std, float(np.median(std[used])) if used.any() else 1.0)
-    trial.arrays["std"] = std
-    best_fusion = (np.inf, 0.0)
-    for fusion in fusions:
-        errors[f"fusion {fusion:g}"] = error = cv_error(offsets, fusion)
-        best_fusion = min(best_fusion, (error, fusion))
-    fusion = best_fusion[1]
     spec.hyperparameters = {
         **spec.hyperparameters,
         "penalty": penalty,
-        "fusion": fusion,
         "selection": dict(SELECTION),
     }
     sampler = LinearPoseSampler(spec, {**_ridge(sums, penalty), "std": std})
-    zero = [np.zeros((len(p["regressors"]), 60)) for p in parts]
     report = {
         "penalty": penalty,
-        "fusion": fusion,
         "cv_error": errors,
-        "anchor_error": cv_error(zero, 0.0),
+        "anchor_error": cv_error([np.zeros_like(m) for m in means]),
         "frames": frames,
         "groups": len(parts),
     }

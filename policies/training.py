@@ -747,9 +747,9 @@ def _train_linear(
     t0 = time.perf_counter()
     sampler, report = fit_linear(spec, groups)
     seconds["train"] = time.perf_counter() - t0
-    chosen = f"fusion {report['fusion']:g}"
+    chosen = f"{report['penalty']:g}"
     say(
-        f"linear sampler: penalty {report['penalty']:g}, fusion {report['fusion']:g}; "
+        f"linear sampler: penalty {report['penalty']:g}; "
         f"cross-validated Eq. 13 in the latent spaces {report['cv_error'][chosen]:.4f} m "
         f"against the anchor's {report['anchor_error']:.4f} m ({seconds['train']:.1f} s)"
     )

@@ -378,9 +378,9 @@ def _train_linear(
     sampler.spec.training = {**info, **report, "command": task["command"]}
     path = Path(task["out"]) / f"sampler_{name}_linear"
     sampler.save(path)
-    best = report["cv_error"][f"fusion {report['fusion']:g}"]
+    best = report["cv_error"][f"{report['penalty']:g}"]
     print(
-        f"{name}: linear sampler, penalty {report['penalty']:g}, fusion {report['fusion']:g}, "
+        f"{name}: linear sampler, penalty {report['penalty']:g}, "
         f"cross-validated Eq. 13 in the latent spaces {best:.4f} m (anchor "
         f"{report['anchor_error']:.4f})",
         file=sys.stderr,

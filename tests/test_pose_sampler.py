@@ -60,7 +60,7 @@ def _fit(graph: Any) -> LinearPoseSampler:
         groups.append((data.observations, data.actions))
     sampler, report = fit_linear(spec, groups)
     assert report["frames"] == sum(len(g[0]) for g in groups) and report["groups"] == 3
-    chosen = report["cv_error"][f"fusion {report['fusion']:g}"]
+    chosen = report["cv_error"][f"{report['penalty']:g}"]
     assert chosen < report["anchor_error"]
     assert sampler.spec.hyperparameters["penalty"] == report["penalty"]
     return sampler
@@ -180,3 +180,21 @@ def test_train_sampler_cli_trains_a_linear_sampler(tmp_path: Path) -> None:
         from policies.training import TrainConfig
 
         TrainConfig(kind="linear", out=str(out), target="best")
+
+
+def test_fusion_pulls_the_mean_towards_the_closed_form(sampler: Any) -> None:
+    """``hyperparameters["fusion"]``: none leaves the learned mean; a weight moves it towards
+    the closed form's point (the anchor), less so as the weight grows."""
+    import copy
+
+    rng = np.random.default_rng(0)
+    observations = rng.uniform(-0.3, 0.3, (4, sampler.spec.observation_size))
+    observations[:, sampler.layout.slices["latent_mask"]] = 1.0
+    observations[:, sampler.layout.slices["latent_std"]] = 0.1
+    fused = copy.deepcopy(sampler)
+    mean, _, anchor = sampler.distribution(observations)
+    gaps = []
+    for weight in (1e-3, 1e3):
+        fused.spec.hyperparameters["fusion"] = weight
+        gaps.append(np.linalg.norm(fused.distribution(observations)[0] - mean))
+    assert gaps[0] > gaps[1] and gaps[1] < 1e-2 * np.linalg.norm(mean - anchor)
