@@ -235,6 +235,12 @@ def bone_vectors(poses: FloatArray) -> np.ndarray:
     return poses[..., skeleton.BONES[:, 1], :] - poses[..., skeleton.BONES[:, 0], :]
 
 
+def flat_bone_vectors(poses: FloatArray) -> np.ndarray:
+    """:func:`bone_vectors` of flat poses (or offsets, directions): ``(..., 60) -> (..., 57)``."""
+    poses = np.asarray(poses)
+    return bone_vectors(poses.reshape(*poses.shape[:-1], -1, 3)).reshape(*poses.shape[:-1], -1)
+
+
 def bone_lengths(poses: FloatArray) -> np.ndarray:
     """Bone lengths in metres: ``(..., 20, 3) -> (..., 19)``."""
     poses64 = np.asarray(poses, dtype=np.float64)

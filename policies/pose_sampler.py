@@ -14,21 +14,29 @@ For each frame, the anchor's pose ``x_a = decode(anchor)`` (the closed-form poin
 anchor pose, the sensor pose, the continuity prediction and the previous reconstruction each as
 an offset from the anchor pose (zero when missing), the reliability and its three terms, the
 bone lengths and the context. A ridge regression (standardised regressors) predicts
-``delta``, the offset of the target pose from ``x_a``. The Gaussian's mean is the anchor moved
-by ``delta`` as closely as the frame's latent space allows, measured on the bone vectors
-(Shum et al. 2013 Eq. 9 is linear, ``decode(z) = m + (s z) B``, and FPG Eq. 13 scores bone
-vectors: a least-squares solve per frame). With a *fusion* weight ``w`` set in the model's
-``hyperparameters["fusion"]`` (none by default) the mean is then the minimiser of the closed
-form's quadratic energy (its sensor and motion terms) plus ``w |(z - mu) / sigma|^2``
-(:func:`fpg_gym.reconstruct.closed_form.quadratic_minimiser`'s prior): steadier, less far
-from the anchor. Its spread per latent axis is the root-mean-square error of out-of-group means.
+``delta``, the offset of the target pose from ``x_a``; ``x_a + delta`` is the learned pose.
+The Gaussian's mean is the point of the frame's latent space that fits it:
+
+* with a *pose weight* ``w > 0`` (the model's ``hyperparameters["pose_weight"]``), the
+  minimiser of the closed form's quadratic energy with the learned pose in place of the
+  sensor pose, every joint at reliability ``w``, and the closed form's motion term (FPG
+  Eq. 14) towards the continuity prediction
+  (:func:`fpg_gym.reconstruct.closed_form.quadratic_minimiser`): the motion term keeps the
+  point steady from frame to frame, as it keeps the anchor;
+* with ``w = 0`` (and in models saved without one), the anchor moved by ``delta`` as closely
+  as the frame's latent space allows, measured on the bone vectors (Shum et al. 2013 Eq. 9 is
+  linear, ``decode(z) = m + (s z) B``, and FPG Eq. 13 scores bone vectors: a least-squares
+  solve per frame); with no motion term it shakes more than the anchor.
+
+Its spread per latent axis is the root-mean-square error of out-of-group means.
 
 The target is the ground truth's latent point of ``collect_imitation_data``: with
 ``target="bones"`` (the default of ``fpg-gym train-sampler --kind linear``) the point whose
 bone directions at the frame's bone lengths are the truth's, which is what Eq. 13 scores after
 the reconstructor gives the output those lengths (:func:`policies.imitation.truth_latent`).
-:func:`fit_linear` chooses the penalty by leave-one-group-out cross-validation (groups:
-subjects or sets of takes) and fits on every group. Deterministic: no seed changes the model.
+:func:`fit_linear` chooses the penalty and the pose weight by leave-one-group-out
+cross-validation (groups: subjects or sets of takes) and fits on every group. Deterministic:
+no seed changes the model.
 
 ``learned:`` and ``learned+search:`` pick among their points by posterior (:data:`SELECTION`),
 because a lower energy is not a more accurate pose on real data.
@@ -80,6 +88,9 @@ PENALTIES: tuple[float, ...] = (1.0, 10.0, 100.0, 1000.0, 10000.0, 100000.0)
 #: learned mean: on held-out data a lower energy was not a more accurate pose (with weight
 #: 0.01 the draws the energy picked added jitter on UI-PRMD and error on the embedded clips).
 SELECTION: dict[str, Any] = {"prior_weight": 1.0, "anchor": False}
+#: The :attr:`LinearPoseSampler.pose_weight` values tried by cross-validation (0: the learned
+#: offset moved into the latent space alone, without the closed form's motion term).
+POSE_WEIGHTS: tuple[float, ...] = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0)
 #: Arrays of a model file and their shapes (``F`` regressors, ``L`` latent axes, pose size 60).
 _ARRAYS = ("regressor_mean", "regressor_scale", "weights", "bias", "std")
 
@@ -110,17 +121,10 @@ def _decode(fields: dict[str, np.ndarray], actions: np.ndarray, spec: SamplerSpe
     return fields["latent_mean"] + np.einsum("nl,nlp->np", z, fields["axes"])
 
 
-def _bone_offsets(poses: np.ndarray) -> np.ndarray:
-    """Bone vectors ``(n, 57)`` of poses or pose offsets ``(n, 60)``."""
-    return pose_utils.bone_vectors(poses.reshape(len(poses), -1, 3)).reshape(len(poses), -1)
-
-
 def _bone_design(fields: dict[str, np.ndarray]) -> np.ndarray:
     """Each frame's bone vectors per unit of its whitened axes ``(n, 57, L)`` (zero on unused
     axes): the bone vectors of ``decode(z)`` are ``bones(m) + design z`` (Shum Eq. 9)."""
-    axes = fields["axes"]
-    bones = pose_utils.bone_vectors(axes.reshape(*axes.shape[:2], -1, 3))
-    return bones.reshape(*axes.shape[:2], -1).transpose(0, 2, 1)
+    return pose_utils.flat_bone_vectors(fields["axes"]).transpose(0, 2, 1)
 
 
 def _solve_bones(design: np.ndarray, bones: np.ndarray) -> np.ndarray:
@@ -140,27 +144,22 @@ def _encode_offset(
     vectors, and the reconstructor keeps only the bones' directions): zero on unused axes.
     ``design``: :func:`_bone_design` of ``fields`` when the caller has it."""
     design = _bone_design(fields) if design is None else design
-    return _solve_bones(design, _bone_offsets(delta)) / spec.action_scale
+    return _solve_bones(design, pose_utils.flat_bone_vectors(delta)) / spec.action_scale
 
 
-def _fuse(
-    spec: SamplerSpec,
-    fields: dict[str, np.ndarray],
-    mean: np.ndarray,
-    std: np.ndarray,
-    fusion: float,
+def _fit_pose(
+    spec: SamplerSpec, fields: dict[str, np.ndarray], offsets: np.ndarray, weight: float
 ) -> np.ndarray:
-    """Mean actions ``(n, L)`` relative to the anchor: ``mean`` itself, or with a ``fusion``
-    weight ``w`` the minimiser of the closed form's quadratic energy plus
-    ``w |(z - mu) / sigma|^2`` (the anchor's sensor and motion terms keep the learned point
-    steady; ``std``: the spread in action units ``(L,)``)."""
-    if fusion <= 0.0:
-        return mean
+    """Mean actions ``(n, L)`` relative to the anchor of the closed form fitted to the learned
+    pose: the minimiser of the closed form's quadratic energy with the learned pose
+    (the anchor's pose plus ``offsets`` ``(n, 60)``) in place of the sensor pose, every joint
+    at reliability ``weight``, and its motion term (FPG Eq. 14) towards the continuity
+    prediction, which keeps the point steady from frame to frame."""
     scale, mask = spec.action_scale, fields["mask"]
-    spread = scale * np.maximum(std, 1e-6)
-    fused = quadratic_minimiser(
-        fields["kinect"],
-        fields["reliability"],
+    pose = _decode(fields, fields["anchor"], spec) + offsets
+    fitted = quadratic_minimiser(
+        pose,
+        np.full_like(fields["reliability"], weight),
         fields["latent_mean"],
         fields["latent_basis"].reshape(len(mask), spec.latent_dim, -1),
         fields["latent_std"],
@@ -169,10 +168,8 @@ def _fuse(
         mask=mask,
         weights=spec.energy_weights,
         style=spec.anchor_style,
-        prior_mean=scale * (fields["anchor"] + mean),
-        prior_precision=np.broadcast_to(fusion / spread**2, mask.shape),
     )
-    return np.where(mask, fused / scale - fields["anchor"], 0.0)
+    return np.where(mask, fitted / scale - fields["anchor"], 0.0)
 
 
 def _regressors(spec: SamplerSpec, fields: dict[str, np.ndarray]) -> np.ndarray:
@@ -218,9 +215,11 @@ class LinearPoseSampler(GaussianSampler):
         self.arrays = {name: np.asarray(arrays[name], dtype=np.float64) for name in _ARRAYS}
 
     @property
-    def fusion(self) -> float:
-        """Weight of the learned mean as a prior in the closed form (0: the mean alone)."""
-        return float(self.spec.hyperparameters.get("fusion", 0.0))
+    def pose_weight(self) -> float:
+        """Reliability given to the learned pose when the closed form is fitted to it
+        (:func:`_fit_pose`; 0: no closed form, the learned offset moved into the latent space on
+        the bone vectors)."""
+        return float(self.spec.hyperparameters.get("pose_weight", 0.0))
 
     def offset(self, features: np.ndarray) -> np.ndarray:
         """The predicted pose offsets ``(n, 60)`` of the target from the anchor's pose, for
@@ -228,13 +227,16 @@ class LinearPoseSampler(GaussianSampler):
         return _predict(self.arrays, _regressors(self.spec, _fields(self.spec, features)))
 
     def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Mean (relative to the anchor) and std ``(n, L)``: the predicted pose offset moved
-        into each frame's latent space (fused with the closed form, see :attr:`fusion`), and
-        the cross-validated spread."""
+        """Mean (relative to the anchor) and std ``(n, L)``: the point of each frame's latent
+        space that fits the learned pose (the closed form fitted to it, or with no
+        :attr:`pose_weight` the offset moved on the bone vectors), and the cross-validated
+        spread."""
         fields = _fields(self.spec, features)
         offsets = _predict(self.arrays, _regressors(self.spec, fields))
-        mean = _encode_offset(fields, offsets, self.spec)
-        mean = _fuse(self.spec, fields, mean, self.arrays["std"], self.fusion)
+        if self.pose_weight > 0.0:
+            mean = _fit_pose(self.spec, fields, offsets, self.pose_weight)
+        else:
+            mean = _encode_offset(fields, offsets, self.spec)
         std = np.where(fields["mask"], self.arrays["std"], 0.0)
         return mean, np.maximum(std, 1e-6)
 
@@ -317,86 +319,124 @@ def _bone_errors(actions: np.ndarray, part: dict[str, Any], spec: SamplerSpec) -
     return np.linalg.norm(miss, axis=2).mean(axis=1)
 
 
+def _shake(actions: np.ndarray, part: dict[str, Any], spec: SamplerSpec) -> np.ndarray:
+    """Per frame with two predecessors in its episode, the mean joint length of the second
+    difference of the poses the anchor moved by mean ``actions`` decodes to (m per frame²; the
+    jitter of :func:`fpg_gym.metrics.jitter` before the output stage, in the frames' normalised
+    poses)."""
+    fields, episodes = part["fields"], part["episodes"]
+    poses = _decode(fields, fields["anchor"] + actions, spec).reshape(len(actions), -1, 3)
+    steady = (episodes[2:] == episodes[1:-1]) & (episodes[1:-1] == episodes[:-2])
+    second = poses[2:] - 2.0 * poses[1:-1] + poses[:-2]
+    return np.linalg.norm(second, axis=2).mean(axis=1)[steady]
+
+
 def fit_linear(
     spec: SamplerSpec,
-    groups: Sequence[tuple[np.ndarray, np.ndarray]],
+    groups: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
     *,
     penalties: Sequence[float] = PENALTIES,
+    pose_weights: Sequence[float] = POSE_WEIGHTS,
 ) -> tuple[LinearPoseSampler, dict[str, Any]]:
-    """Fit the linear sampler on groups of ``(observations, truth actions)`` pairs.
+    """Fit the linear sampler on groups of ``(observations, truth actions, episodes)``.
 
     Leave-one-group-out cross-validation (groups: subjects, or sets of takes, so that each
-    choice is made on data no fit saw) chooses the ridge penalty by the mean FPG Eq. 13 of the
-    out-of-group means in the frames' latent spaces; the spread per latent axis is the
-    root-mean-square error of the chosen penalty's out-of-group means. The model is then
-    fitted on every group.
+    choice is made on data no fit saw) chooses, on the out-of-group means:
+
+    1. the ridge penalty, by the mean FPG Eq. 13 in the frames' latent spaces of the learned
+       offsets moved into them (:func:`_encode_offset`);
+    2. then the :attr:`LinearPoseSampler.pose_weight`: the lowest mean Eq. 13 among the
+       weights whose means shake no more than the anchor's (:func:`_shake`, averaged over the
+       frames), else the steadiest. The motion term's target is the continuity prediction of
+       the collected streams (which followed the anchor), so this is an open-loop estimate.
+
+    The spread per latent axis is the root-mean-square error of the chosen settings'
+    out-of-group means. The model is then fitted on every group.
 
     Parameters
     ----------
     spec : SamplerSpec
-        Kind ``"linear"``; its hyper-parameters receive ``penalty`` and ``selection``
-        (:data:`SELECTION`); a ``fusion`` weight already there is kept
-        (:attr:`LinearPoseSampler.fusion`).
-    groups : sequence of (ndarray (n, N), ndarray (n, L))
-        Observations and ground-truth actions (``collect_imitation_data`` with target
-        ``"bones"`` or ``"truth"``), at least two groups.
-    penalties : sequence of float
-        The ridge penalties tried.
+        Kind ``"linear"``; its hyper-parameters receive ``penalty``, ``pose_weight`` and
+        ``selection`` (:data:`SELECTION`).
+    groups : sequence of (ndarray (n, N), ndarray (n, L), ndarray (n,))
+        Observations, ground-truth actions (``collect_imitation_data`` with target ``"bones"``
+        or ``"truth"``) and each frame's episode (its consecutive frames are a stream), at
+        least two groups.
+    penalties, pose_weights : sequence of float
+        The ridge penalties and pose weights tried.
 
     Returns
     -------
     sampler : LinearPoseSampler
     report : dict
-        ``penalty``, ``cv_error`` (m, by penalty), ``anchor_error`` (m: the
-        anchor's error in the same measure), ``frames``, ``groups``.
+        ``penalty``, ``cv_error`` (m, by penalty), ``pose_weight``, ``cv_pose`` (by pose
+        weight: ``error`` in m and ``shake`` in m per frame²), ``anchor_error`` and
+        ``anchor_shake`` (the anchor's in the same measures), ``frames``, ``groups``.
     """
     if len(groups) < 2:
         raise ValueError(f"groups: expected at least 2 for cross-validation, got {len(groups)}")
     if not penalties or min(penalties) < 0:
         raise ValueError(f"penalties: expected non-negative values, got {list(penalties)}")
+    if not pose_weights or not all(np.isfinite(w) and w >= 0 for w in pose_weights):
+        raise ValueError(f"pose_weights: expected finite values >= 0, got {list(pose_weights)}")
     feature_map = spec.feature_map()
     parts = []
-    for observations, actions in groups:
+    for observations, actions, episodes in groups:
         fields = _fields(spec, feature_map.transform(observations)[0])
         targets = _decode(fields, actions, spec) - _decode(fields, fields["anchor"], spec)
         parts.append(
             {
                 "regressors": _regressors(spec, fields),
                 "targets": targets,
-                "target_bones": _bone_offsets(targets),
+                "target_bones": pose_utils.flat_bone_vectors(targets),
                 "design": _bone_design(fields),
                 "fields": fields,
                 "actions": np.asarray(actions, dtype=np.float64),
+                "episodes": np.asarray(episodes),
             }
         )
     frames = sum(len(p["regressors"]) for p in parts)
     sums = [_sums(p["regressors"], p["targets"]) for p in parts]
 
-    def cv_error(means: list[np.ndarray]) -> float:
-        """Mean Eq. 13 in the latent spaces of each group's out-of-group means."""
-        total = sum(
-            _bone_errors(mean, part, spec).sum() for mean, part in zip(means, parts, strict=True)
-        )
-        return float(total / frames)
+    def mean_of(measure: Any, means: list[np.ndarray]) -> float:
+        """``measure``'s mean over every group's frames of its out-of-group means."""
+        values = [measure(mean, part, spec) for mean, part in zip(means, parts, strict=True)]
+        return float(np.concatenate(values).mean())
 
     errors: dict[str, float] = {}
     chosen: tuple[float, float, list[np.ndarray]] | None = None
     for penalty in penalties:
-        means = [
-            _encode_offset(
-                part["fields"],
-                _predict(_ridge(sums[:g] + sums[g + 1 :], penalty), part["regressors"]),
-                spec,
-                part["design"],
-            )
+        offsets = [
+            _predict(_ridge(sums[:g] + sums[g + 1 :], penalty), part["regressors"])
             for g, part in enumerate(parts)
         ]
-        errors[f"{penalty:g}"] = error = cv_error(means)
+        means = [
+            _encode_offset(part["fields"], offset, spec, part["design"])
+            for offset, part in zip(offsets, parts, strict=True)
+        ]
+        errors[f"{penalty:g}"] = error = mean_of(_bone_errors, means)
         if chosen is None or error < chosen[0]:
-            chosen = (error, penalty, means)
+            chosen = (error, penalty, offsets)
     assert chosen is not None
-    _, penalty, means = chosen
-    # The spread: the out-of-group error of the chosen penalty's means, per latent axis.
+    _, penalty, offsets = chosen
+    anchor = [np.zeros_like(p["actions"]) for p in parts]
+    anchor_error, anchor_shake = mean_of(_bone_errors, anchor), mean_of(_shake, anchor)
+    candidates = {}
+    for weight in pose_weights:
+        means = [
+            _fit_pose(spec, part["fields"], offset, weight)
+            if weight > 0.0
+            else _encode_offset(part["fields"], offset, spec, part["design"])
+            for offset, part in zip(offsets, parts, strict=True)
+        ]
+        candidates[weight] = (mean_of(_bone_errors, means), mean_of(_shake, means), means)
+    steady = [w for w, (_, shake, _) in candidates.items() if shake <= anchor_shake]
+    if steady:
+        pose_weight = min(steady, key=lambda w: candidates[w][0])
+    else:
+        pose_weight = min(candidates, key=lambda w: candidates[w][1])
+    means = candidates[pose_weight][2]
+    # The spread: the out-of-group error of the chosen settings' means, per latent axis.
     squares, counts = np.zeros(spec.latent_dim), np.zeros(spec.latent_dim)
     for mean, part in zip(means, parts, strict=True):
         mask = part["fields"]["mask"]
@@ -409,13 +449,17 @@ def fit_linear(
     spec.hyperparameters = {
         **spec.hyperparameters,
         "penalty": penalty,
+        "pose_weight": pose_weight,
         "selection": dict(SELECTION),
     }
     sampler = LinearPoseSampler(spec, {**_ridge(sums, penalty), "std": std})
     report = {
         "penalty": penalty,
         "cv_error": errors,
-        "anchor_error": cv_error([np.zeros_like(m) for m in means]),
+        "pose_weight": pose_weight,
+        "cv_pose": {f"{w:g}": {"error": e, "shake": j} for w, (e, j, _) in candidates.items()},
+        "anchor_error": anchor_error,
+        "anchor_shake": anchor_shake,
         "frames": frames,
         "groups": len(parts),
     }

@@ -743,15 +743,22 @@ def _train_linear(
         [names.index(c.name.removesuffix("~mirror")) for c in train_clips]
     ) % min(LINEAR_GROUPS, len(names))
     group = group_of_clip[clip_of_episode[data.episodes]]
-    groups = [(data.observations[group == g], data.actions[group == g]) for g in np.unique(group)]
+    groups = [
+        (data.observations[take], data.actions[take], data.episodes[take])
+        for take in (group == g for g in np.unique(group))
+    ]
     t0 = time.perf_counter()
     sampler, report = fit_linear(spec, groups)
     seconds["train"] = time.perf_counter() - t0
     chosen = f"{report['penalty']:g}"
+    weighted = report["cv_pose"][f"{report['pose_weight']:g}"]["error"]
     say(
-        f"linear sampler: penalty {report['penalty']:g}; "
-        f"cross-validated Eq. 13 in the latent spaces {report['cv_error'][chosen]:.4f} m "
-        f"against the anchor's {report['anchor_error']:.4f} m ({seconds['train']:.1f} s)"
+        f"linear sampler: penalty {report['penalty']:g}, pose weight "
+        f"{report['pose_weight']:g}; cross-validated Eq. 13 in the latent spaces "
+        f"{report['cv_error'][chosen]:.4f} m with the offset alone, "
+        f"{weighted:.4f} m with the pose "
+        f"weight, against the anchor's {report['anchor_error']:.4f} m "
+        f"({seconds['train']:.1f} s)"
     )
     return sampler, [{"linear": report}]
 

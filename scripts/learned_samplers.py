@@ -373,16 +373,16 @@ def _train_linear(
     ``{out}/sampler_{name}_linear``."""
 
     t0 = time.process_time()
-    sampler, report = fit_linear(spec, [(d.observations, d.actions) for d in groups])
+    sampler, report = fit_linear(spec, [(d.observations, d.actions, d.episodes) for d in groups])
     cpu = time.process_time() - t0
     sampler.spec.training = {**info, **report, "command": task["command"]}
     path = Path(task["out"]) / f"sampler_{name}_linear"
     sampler.save(path)
     best = report["cv_error"][f"{report['penalty']:g}"]
     print(
-        f"{name}: linear sampler, penalty {report['penalty']:g}, "
-        f"cross-validated Eq. 13 in the latent spaces {best:.4f} m (anchor "
-        f"{report['anchor_error']:.4f})",
+        f"{name}: linear sampler, penalty {report['penalty']:g}, pose weight "
+        f"{report['pose_weight']:g}, cross-validated Eq. 13 in the latent spaces {best:.4f} m "
+        f"(anchor {report['anchor_error']:.4f}); by pose weight {json.dumps(report['cv_pose'])}",
         file=sys.stderr,
         flush=True,
     )

@@ -45,15 +45,14 @@ def quadratic_minimiser(
     mask: np.ndarray | None = None,
     weights: Sequence[float] = EnergyWeights().paper_terms(),
     style: float = DEFAULT_STYLE,
-    prior_mean: np.ndarray | None = None,
-    prior_precision: np.ndarray | None = None,
 ) -> np.ndarray:
     """Whitened latent points ``(n, L)`` minimising the quadratic energy, batched over frames.
 
     Parameters
     ----------
     sensor : ndarray, shape (n, 60)
-        Normalised sensor poses as 60-vectors.
+        Normalised sensor poses as 60-vectors (or any pose to fit, such as the learned pose of
+        :mod:`policies.pose_sampler`).
     reliability : ndarray, shape (n, 20)
     mean : ndarray, shape (n, 60)
         Latent mean of each frame.
@@ -72,10 +71,6 @@ def quadratic_minimiser(
         (:meth:`EnergyWeights.paper_terms`).
     style : float
         Ridge weight as a multiple of ``w_s / J``.
-    prior_mean, prior_precision : ndarray, shape (n, L), optional
-        A Gaussian prior on the whitened point, added to the energy as
-        ``sum_l p_l (z_l - mu_l)^2`` (a learned sampler's mean and weight,
-        :mod:`policies.pose_sampler`); none by default.
 
     Returns
     -------
@@ -104,12 +99,6 @@ def quadratic_minimiser(
     a += _WHITENED_PRIOR * eye / np.maximum(std, 1e-6)[:, :, None] ** 2
     b = np.einsum("nlk,nk->nl", basis, joint_weights * (sensor - mean))
     b += motion[:, None] * np.einsum("nlk,nk->nl", basis, prediction - mean)
-    if prior_mean is not None and prior_precision is not None:
-        # p (u / s - mu)^2 in the metres u = s z the system is solved for.
-        safe = np.maximum(std, 1e-9)
-        precision = np.asarray(prior_precision, dtype=np.float64) / safe**2
-        a += precision[:, :, None] * eye
-        b += precision * safe * np.asarray(prior_mean, dtype=np.float64)
     valid = mask[:, :, None] & mask[:, None, :]
     a = np.where(valid, a, eye)
     b = np.where(mask, b, 0.0)
