@@ -44,6 +44,8 @@ axes or K candidates) are zeros, marked by ``context``, ``latent_mask`` and ``ca
 
 from __future__ import annotations
 
+import functools
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
@@ -96,7 +98,7 @@ class ObservationField:
     @property
     def size(self) -> int:
         """Number of values."""
-        return int(np.prod(self.shape))
+        return math.prod(self.shape)
 
 
 class ObservationLayout:
@@ -175,6 +177,15 @@ class ObservationLayout:
         context = self.slices["context"]
         self.high[context.start : context.start + 3] = 1.0  # the flags
         self.high[context.start + 4] = 1.0  # progress
+        self.low.flags.writeable = False
+        self.high.flags.writeable = False
+
+    @staticmethod
+    @functools.lru_cache(maxsize=32)
+    def of(latent_dim: int, candidates: int) -> ObservationLayout:
+        """The layout of ``latent_dim`` and ``candidates``, built once (layouts are read-only;
+        a learned sampler asks for its own on every frame)."""
+        return ObservationLayout(latent_dim, candidates)
 
     # ------------------------------------------------------------------ reading
 

@@ -96,9 +96,8 @@ def truth_latent(
     target = target * np.asarray(problem.lengths, dtype=np.float64)[:, None]
     latent = problem.latent
     # Bone vectors are linear in z: decode(z) = m + (z s) B (Shum Eq. 9).
-    axes = (latent.std[:, None] * latent.basis).reshape(latent.dim, -1, 3)
-    design = pose_utils.bone_vectors(axes).reshape(latent.dim, -1).T
-    offset = pose_utils.bone_vectors(latent.mean.reshape(-1, 3)).reshape(-1)
+    design = pose_utils.flat_bone_vectors(latent.std[:, None] * latent.basis).T
+    offset = pose_utils.flat_bone_vectors(latent.mean)
     z, *_ = np.linalg.lstsq(design, target.reshape(-1) - offset, rcond=None)
     return np.asarray(z, dtype=np.float64)
 

@@ -47,6 +47,7 @@ kind ``"linear"``) and ``MODEL.npz`` (arrays only, read with ``allow_pickle=Fals
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -105,7 +106,7 @@ def _fields(spec: SamplerSpec, features: np.ndarray) -> dict[str, np.ndarray]:
     start = 0
     for name in spec.features:
         shape = layout.shapes[name]
-        size = int(np.prod(shape))
+        size = math.prod(shape)
         out[name] = features[:, start : start + size].astype(np.float64)
         start += size
     out["anchor"] = features[:, start : start + layout.latent_dim].astype(np.float64)

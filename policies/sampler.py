@@ -468,7 +468,7 @@ class SamplerSpec:
             raise ValueError(f"anchor: expected one of {ANCHORS}, got {self.anchor!r}")
         if len(self.energy_weights) != 4:
             raise ValueError(f"energy_weights: expected 4 weights, got {self.energy_weights}")
-        size = ObservationLayout(self.latent_dim, self.candidates).size
+        size = ObservationLayout.of(self.latent_dim, self.candidates).size
         if size != self.observation_size:
             raise ValueError(
                 f"observation_size {self.observation_size} does not match latent_dim "
@@ -486,7 +486,7 @@ class SamplerSpec:
             algo=algo,
             latent_dim=latent_dim,
             candidates=candidates,
-            observation_size=ObservationLayout(latent_dim, candidates).size,
+            observation_size=ObservationLayout.of(latent_dim, candidates).size,
             **kwargs,
         )
 
@@ -511,7 +511,7 @@ class SamplerSpec:
     @property
     def layout(self) -> ObservationLayout:
         """The observation layout the model was trained on."""
-        return ObservationLayout(self.latent_dim, self.candidates)
+        return ObservationLayout.of(self.latent_dim, self.candidates)
 
     def feature_map(self) -> FeatureMap:
         """The model's :class:`FeatureMap`."""
