@@ -257,8 +257,8 @@ def _uiprmd_data(
     others = [
         load_recording(p) for s, ps in subjects.items() if s not in (held_out, subject) for p in ps
     ]
-    sensor_map, _, _ = real_kinect._fold_maps("uiprmd", graph, others, True, False)
-    paths = real_kinect._episodes(subjects[subject], reps) if reps else subjects[subject]
+    sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, others, True, False)
+    paths = real_kinect.repetitions(subjects[subject], reps) if reps else subjects[subject]
     recordings = [load_recording(p) for p in paths]
     return collect_imitation_data(
         graph,
@@ -441,7 +441,7 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
         torch.set_num_threads(1)
     imported = Path(task["imported"])
     held_out, thres1 = task["subject"], task["thres1"]
-    subjects = real_kinect._by_subject(imported / "recordings")
+    subjects = real_kinect.by_subject(imported / "recordings")
     train_subjects = [s for s in sorted(subjects) if s != held_out]
     # The validation subject: the first training subject after the held-out one (cyclic).
     val_subject = train_subjects[next((i for i, s in enumerate(train_subjects) if s > held_out), 0)]
@@ -469,10 +469,10 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
     )
     graph = real_kinect.uiprmd_graph(imported, {held_out}, thres1)
     train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
-    sensor_map, _, _ = real_kinect._fold_maps("uiprmd", graph, train_recs, True, False)
+    sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, train_recs, True, False)
     episodes = [
         (path.stem, load_recording(path))
-        for path in real_kinect._episodes(subjects[held_out], task["reps"])
+        for path in real_kinect.repetitions(subjects[held_out], task["reps"])
     ]
     rows = _score(graph, {**options, "sensor_map": sensor_map}, trained["models"], episodes)
     result = {
@@ -644,7 +644,7 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
     """The UI-PRMD leave-subjects-out protocol (see the module docstring)."""
     folder = args.out / "uiprmd"
     folder.mkdir(parents=True, exist_ok=True)
-    imported = real_kinect._imported(args.work, args.data.parent)
+    imported = real_kinect.imported_uiprmd(args.work, args.data.parent)
     command = "python scripts/learned_samplers.py " + " ".join(
         shlex.quote(a) for a in (args.argv or [])
     )

@@ -74,7 +74,9 @@ DEFAULT_METHODS = (
 )
 
 
-def _imported(work: Path, data: Path) -> Path:
+def imported_uiprmd(work: Path, data: Path) -> Path:
+    """The UI-PRMD import under ``work`` (``work/ui_prmd``), made from ``data/ui_prmd`` the
+    first time."""
     out = work / "ui_prmd"
     if not (out / "import.json").is_file():
         print(f"importing UI-PRMD into {out} ...", file=sys.stderr)
@@ -82,14 +84,15 @@ def _imported(work: Path, data: Path) -> Path:
     return out
 
 
-def _by_subject(folder: Path) -> dict[str, list[Path]]:
+def by_subject(folder: Path) -> dict[str, list[Path]]:
+    """The imported recordings ``m*_s*_e*.npz`` of ``folder`` by subject (``s01`` ...)."""
     groups: dict[str, list[Path]] = defaultdict(list)
     for path in sorted(folder.glob("m*_s*_e*.npz")):
         groups[path.stem.split("_")[1]].append(path)
     return dict(groups)
 
 
-def _episodes(paths: list[Path], reps: int) -> list[Path]:
+def repetitions(paths: list[Path], reps: int) -> list[Path]:
     """``reps`` repetitions per exercise, from the middle of the session (first ones are
     often badly segmented)."""
     by_movement: dict[str, list[Path]] = defaultdict(list)
@@ -122,7 +125,7 @@ def _bandai_graph(work: Path, data: Path) -> FilteredPoseGraph:
     return FilteredPoseGraph.load(path)
 
 
-def _fold_maps(
+def fold_maps(
     database: str,
     graph: FilteredPoseGraph,
     train: list[Recording],
@@ -152,7 +155,7 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
     """One held-out subject with one database: every method on every chosen episode."""
     work, data = Path(task["work"]), Path(task["data"])
     imported = Path(task["imported"])
-    subjects = _by_subject(imported / "recordings")
+    subjects = by_subject(imported / "recordings")
     held_out = task["subject"]
     train = [load_recording(p) for s, ps in subjects.items() if s != held_out for p in ps]
     database = task["database"]
@@ -163,7 +166,7 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
         graph = default_graph()
     else:
         graph = _bandai_graph(work, data)
-    sensor_map, output_map, map_info = _fold_maps(
+    sensor_map, output_map, map_info = fold_maps(
         database, graph, train, task["maps"], task["database_maps"]
     )
     kinect_to_vicon = DefinitionMap.fit(
@@ -191,7 +194,7 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
         options["temporal"] = TemporalConfig(placement=False)
     rows = []
     with MethodRunner(graph, budget=task["budget"], reconstructor_options=options) as runner:
-        for path in _episodes(subjects[held_out], task["reps"]):
+        for path in repetitions(subjects[held_out], task["reps"]):
             recording = load_recording(path)
             truth = recording.ground_truth
             assert truth is not None
@@ -320,7 +323,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"no UI-PRMD data under {args.data}", file=sys.stderr)
         return 2
     args.work.mkdir(parents=True, exist_ok=True)
-    imported = _imported(args.work, args.data)
+    imported = imported_uiprmd(args.work, args.data)
     if "bandai" in args.databases:
         _bandai_graph(args.work, args.data)  # once, before the workers
     tasks = [

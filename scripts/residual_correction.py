@@ -225,8 +225,8 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int) -> str:
     from fpg_gym.definitions import fit_sensor_maps
     from fpg_gym.io.recording import load_recording
 
-    imported = real_kinect._imported(work, data_root)
-    subjects = real_kinect._by_subject(imported / "recordings")
+    imported = real_kinect.imported_uiprmd(work, data_root)
+    subjects = real_kinect.by_subject(imported / "recordings")
     names = sorted(subjects)
     graphs: dict[tuple[str, ...], FilteredPoseGraph] = {}
 
@@ -252,7 +252,7 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int) -> str:
                 [
                     load_recording(p)
                     for p in (
-                        real_kinect._episodes(subjects[s], train_reps)
+                        real_kinect.repetitions(subjects[s], train_reps)
                         if train_reps
                         else subjects[s]
                     )
@@ -267,7 +267,7 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int) -> str:
         predict = ridge(merged([parts[s] for s in others]), penalty)
         test = frame_data(
             Reconstructor(graph_without({held_out}), sensor_map=sensor_map),
-            [load_recording(p) for p in real_kinect._episodes(subjects[held_out], 1)],
+            [load_recording(p) for p in real_kinect.repetitions(subjects[held_out], 1)],
         )
         base, jb = scores(test["outputs"], test)
         fixed, jf = scores(corrected(test, predict(test["x"]), alpha), test)
