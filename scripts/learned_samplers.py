@@ -594,14 +594,16 @@ def _method_kind(method: str, models: dict[str, dict[str, str]]) -> tuple[str, s
 def uiprmd_table(results: list[dict[str, Any]]) -> str:
     """The UI-PRMD table: per method, mean error with its 95 % CI (episodes), the change
     against closed-form with its CI (paired), jitter, CPU ms per frame; learned rows pool the
-    seeds (one row per seed below)."""
+    seeds (one row per seed below, when there are several)."""
     rows = [r for result in results for r in result["rows"]]
     models = {res["subject"]: res["models"] for res in results}
+    # One row per seed only when there are several (the linear sampler has one model).
+    several = len({seed for fold in models.values() for seed in fold}) > 1
     rng = np.random.default_rng(2016)
     by: dict[str, dict[str, dict[str, Any]]] = {}
     for row in rows:
         name, seed = _method_kind(row["method"], models)
-        for key in [name] + ([f"{name} (seed {seed})"] if seed is not None else []):
+        for key in [name] + ([f"{name} (seed {seed})"] if seed is not None and several else []):
             episodes = by.setdefault(key, {})
             slot = episodes.setdefault(row["episode"], {"error": [], "jitter": [], "cpu": []})
             slot["error"].append(row["error"])
