@@ -66,6 +66,7 @@ __all__ = [
     "LINEAR_FEATURES",
     "LINEAR_WEIGHTS_SUFFIX",
     "PENALTIES",
+    "POSE_WEIGHTS",
     "SELECTION",
     "LinearPoseSampler",
     "fit_linear",
