@@ -377,6 +377,8 @@ def fit_linear(
     """
     if len(groups) < 2:
         raise ValueError(f"groups: expected at least 2 for cross-validation, got {len(groups)}")
+    if any(len(group) != 3 for group in groups):
+        raise ValueError("groups: expected (observations, actions, episodes) triples")
     if not penalties or min(penalties) < 0:
         raise ValueError(f"penalties: expected non-negative values, got {list(penalties)}")
     if not pose_weights or not all(np.isfinite(w) and w >= 0 for w in pose_weights):

@@ -109,6 +109,8 @@ def test_fit_linear_checks_its_arguments() -> None:
         fit_linear(spec, [(rows, actions, episodes)])
     with pytest.raises(ValueError, match="penalties"):
         fit_linear(spec, [(rows, actions, episodes)] * 2, penalties=[-1.0])
+    with pytest.raises(ValueError, match="triples"):
+        fit_linear(spec, [(rows, actions)] * 2)  # type: ignore[list-item]
     with pytest.raises(ValueError, match="pose_weights"):
         fit_linear(spec, [(rows, actions, episodes)] * 2, pose_weights=[float("nan")])
 
