@@ -27,6 +27,7 @@ import numpy as np
 
 from fpg_gym import metrics
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.definitions import DefinitionMap
 from fpg_gym.env import REWARD_MODES
 from fpg_gym.graph import load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, resolve_clips
@@ -48,6 +49,7 @@ from policies.imitation import (
     truth_latent,
 )
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
+from policies.paired_recordings import group_pattern, paired_recordings
 from policies.pose_sampler import LINEAR_FEATURES, fit_linear
 from policies.rl import train_rl
 from policies.sampler import (
@@ -159,8 +161,12 @@ def evaluate_agents(
     latent_dim: int = 20,
     seed: int = 0,
     progress: bool = False,
+    reconstructor_options: dict[str, Any] | None = None,
 ) -> dict[str, dict[str, float]]:
     """Reconstruct ``recordings`` with each agent (an optimiser name or object) and summarise.
+
+    The reconstructors run the env's per-frame problem (temporal stage off, no ragdoll) with
+    ``reconstructor_options`` on top (a sensor map, a sensor blend...).
 
     Returns, per agent: ``mean_energy``, ``mean_error`` (FPG Eq. 13, m) with
     ``error_ci_low``/``error_ci_high`` (its 95 % bootstrap interval over the recordings,
@@ -174,7 +180,14 @@ def evaluate_agents(
     # (fpg_gym.reconstruct.batched; each stream as alone with seed + i).
     reconstructors = [
         Reconstructor(
-            graph, k=k, latent_dim=latent_dim, ragdoll=False, temporal=TemporalConfig.off()
+            graph,
+            **{
+                "k": k,
+                "latent_dim": latent_dim,
+                "ragdoll": False,
+                "temporal": TemporalConfig.off(),
+                **(reconstructor_options or {}),
+            },
         )
         for _ in recordings
     ]
@@ -279,7 +292,7 @@ class TrainConfig:
 
     Attributes
     ----------
-    kind : {"supervised", "rl"}
+    kind : {"supervised", "rl", "linear"}
     out : str
         Model path (``MODEL``: writes ``MODEL.json`` + ``MODEL.pt``; checkpoints in
         ``MODEL.checkpoints/``).
@@ -348,6 +361,18 @@ class TrainConfig:
         Supervised: start over instead of going on from the checkpoints of a stopped run with
         the same settings (:mod:`policies.checkpoints`); needed when the folder holds a run
         with other settings.
+    recordings : list of str, optional
+        Kind ``"linear"``: learn from these paired recordings (files or folders of sensor
+        streams with ground truth, :mod:`policies.paired_recordings`) instead of simulated
+        streams of clips; a seeded ``val_share`` of their groups is held out.
+    group_pattern : str, optional
+        With ``recordings``: regular expression on the file names whose first group names a
+        recording's group (e.g. its subject); each recording is its own group otherwise.
+    sensor_map : str, optional
+        Joint-definition map of the sensor (``fpg-gym fit-map``), for the data and the
+        evaluation, as ``fpg-gym reconstruct --sensor-map`` uses it.
+    sensor_blend : float
+        The reconstructor's ``sensor_blend`` for the data and the evaluation (0).
     """
 
     kind: str
@@ -385,6 +410,10 @@ class TrainConfig:
     address: str | None = None
     progress: bool = True
     restart: bool = False
+    recordings: list[str] | None = None
+    group_pattern: str | None = None
+    sensor_map: str | None = None
+    sensor_blend: float = 0.0
 
     def __post_init__(self) -> None:
         if self.kind not in ("supervised", "rl", "linear"):
@@ -422,6 +451,19 @@ class TrainConfig:
             raise ValueError(f"workers: expected >= 1, got {self.workers}")
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
+        if self.recordings is not None:
+            if self.kind != "linear":
+                raise ValueError(
+                    "recordings: only kind 'linear' learns from paired recordings "
+                    f"(got {self.kind!r})"
+                )
+            if self.clips is not None or self.val_clips is not None:
+                raise ValueError("recordings: give clips or recordings, not both")
+        elif self.group_pattern is not None:
+            raise ValueError("group_pattern: only used with recordings")
+        group_pattern(self.group_pattern)  # a regular expression with a group
+        if not (np.isfinite(self.sensor_blend) and 0.0 <= self.sensor_blend <= 1.0):
+            raise ValueError(f"sensor_blend: expected a value in [0, 1], got {self.sensor_blend}")
         if self.kind == "rl" and (self.backend != "local" or self.workers != 1):
             raise ValueError(
                 "backend and workers: they split the supervised data collection; "
@@ -437,7 +479,19 @@ class TrainConfig:
             settings.pop(name)
         if self.graph != "default" and Path(self.graph).is_file():
             settings["graph_sha256"] = hashlib.sha256(Path(self.graph).read_bytes()).hexdigest()
+        if self.sensor_map is not None and Path(self.sensor_map).is_file():
+            settings["sensor_map_sha256"] = hashlib.sha256(
+                Path(self.sensor_map).read_bytes()
+            ).hexdigest()
         return settings
+
+    def reconstructor_options(self) -> dict[str, Any]:
+        """The reconstructor settings of the data and the evaluation: ``sensor_blend`` and the
+        ``sensor_map`` read from its file."""
+        options: dict[str, Any] = {"sensor_blend": self.sensor_blend}
+        if self.sensor_map is not None:
+            options["sensor_map"] = DefinitionMap.load(self.sensor_map)
+        return options
 
     @property
     def total_timesteps(self) -> int:
@@ -512,30 +566,58 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     seconds: dict[str, float] = {}
     scenarios = list(config.scenarios or DEFAULT_EPISODE_SCENARIOS)
     graph = _load_graph(config.graph)
-    clips = training_clips(config.clips, units=config.units, progress=config.progress)
-    if config.val_clips:
-        val_clips = training_clips(config.val_clips, units=config.units)
-        train_clips = clips
-    else:
-        train_clips, val_clips = split_clips(clips, config.val_share, config.seed)
-    clash = _held_out_clash(config.graph, list(train_clips) + list(val_clips))
-    if config.mirror:
-        train_clips = list(train_clips) + [mirror_clip(c) for c in train_clips]
-    if clash:
-        raise ValueError(
-            f"--clips {clash}: these are the held-out evaluation clips of the default graph; "
-            "train on other clips (the default: the clips the default graph is built from)"
+    options = config.reconstructor_options()
+    paired = None
+    if config.recordings is not None:
+        paired = paired_recordings(
+            config.recordings,
+            pattern=config.group_pattern,
+            val_share=config.val_share,
+            episodes=config.eval_episodes,
+            max_frames=config.max_frames,
+            seed=config.seed,
         )
-    say(
-        f"train-sampler: {config.kind}"
-        + (f" ({config.algo})" if config.kind == "rl" else f" (target {config.target})")
-        + f", {len(train_clips)} training clips, {len(val_clips)} validation clips, "
-        f"scenarios {','.join(scenarios)}, {config.total_timesteps} timesteps, seed {config.seed}"
-    )
-    val_seeds = [10_000 + config.seed]
-    validation = simulate_episodes(val_clips, scenarios, val_seeds, max_frames=config.max_frames)[
-        : config.eval_episodes
-    ]
+        validation = paired.validation
+        say(
+            f"train-sampler: linear (target {config.target}), "
+            f"{len(paired.train)} training recordings in "
+            f"{len(paired.info['training_groups'])} groups, {len(validation)} held-out "
+            f"recordings of the groups {', '.join(paired.info['validation_groups'])}, "
+            f"seed {config.seed}"
+        )
+        training_data: dict[str, Any] = dict(paired.info)
+    else:
+        clips = training_clips(config.clips, units=config.units, progress=config.progress)
+        if config.val_clips:
+            val_clips = training_clips(config.val_clips, units=config.units)
+            train_clips = clips
+        else:
+            train_clips, val_clips = split_clips(clips, config.val_share, config.seed)
+        clash = _held_out_clash(config.graph, list(train_clips) + list(val_clips))
+        if config.mirror:
+            train_clips = list(train_clips) + [mirror_clip(c) for c in train_clips]
+        if clash:
+            raise ValueError(
+                f"--clips {clash}: these are the held-out evaluation clips of the default "
+                "graph; train on other clips (the default: the clips the default graph is "
+                "built from)"
+            )
+        say(
+            f"train-sampler: {config.kind}"
+            + (f" ({config.algo})" if config.kind == "rl" else f" (target {config.target})")
+            + f", {len(train_clips)} training clips, {len(val_clips)} validation clips, "
+            f"scenarios {','.join(scenarios)}, {config.total_timesteps} timesteps, "
+            f"seed {config.seed}"
+        )
+        val_seeds = [10_000 + config.seed]
+        validation = simulate_episodes(
+            val_clips, scenarios, val_seeds, max_frames=config.max_frames
+        )[: config.eval_episodes]
+        training_data = {
+            "clips": [c.name for c in train_clips],
+            "validation_clips": [c.name for c in val_clips],
+            "scenarios": scenarios,
+        }
     out_json, stem = model_paths(config.out)
     checkpoints = stem.with_name(stem.name + ".checkpoints")
     # A supervised run goes on from a stopped one's files (or refuses other settings) now,
@@ -547,9 +629,9 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     )
     training_info: dict[str, Any] = {
         "graph": config.graph,
-        "clips": [c.name for c in train_clips],
-        "validation_clips": [c.name for c in val_clips],
-        "scenarios": scenarios,
+        **training_data,
+        "sensor_map": config.sensor_map,
+        "sensor_blend": config.sensor_blend,
         "timesteps": config.total_timesteps,
         "seed": config.seed,
         "max_frames": config.max_frames,
@@ -564,10 +646,30 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             k=config.k,
             latent_dim=config.latent_dim,
             seed=config.seed,
+            reconstructor_options=options,
         )
         return table
 
-    if run is not None and config.kind == "linear":
+    if run is not None and paired is not None:
+        spec = _imitation_spec(config, "linear", "ridge", LINEAR_FEATURES)
+        data = _collect_pairs(
+            config,
+            graph,
+            [recording for _, recording in paired.train],
+            spec,
+            run,
+            options,
+            frames=config.timesteps,
+            started=time.perf_counter(),
+            seconds=seconds,
+            say=say,
+        )
+        names = sorted({group for group, _ in paired.train})
+        group_of_episode = np.array([names.index(group) for group, _ in paired.train])
+        sampler, history = _fit_linear_groups(
+            spec, data, group_of_episode[data.episodes], seconds, say
+        )
+    elif run is not None and config.kind == "linear":
         sampler, history = _train_linear(config, graph, train_clips, scenarios, run, seconds, say)
     elif run is not None:
         sampler, history = _train_supervised(
@@ -691,6 +793,36 @@ def _imitation_pairs(
     recordings = [recordings[i] for i in order]
     # Each episode's clip (simulate_episodes: seed outermost, then clip, then scenario).
     clip_of_episode = (order // len(scenarios)) % len(train_clips)
+    data = _collect_pairs(
+        config,
+        graph,
+        recordings,
+        spec,
+        run,
+        config.reconstructor_options(),
+        frames=config.total_timesteps,
+        started=t0,
+        seconds=seconds,
+        say=say,
+    )
+    return data, clip_of_episode
+
+
+def _collect_pairs(
+    config: TrainConfig,
+    graph: Any,
+    recordings: Sequence[Any],
+    spec: SamplerSpec,
+    run: RunCheckpoints,
+    options: dict[str, Any],
+    *,
+    frames: int | None,
+    started: float,
+    seconds: dict[str, float],
+    say: Callable[[str], None],
+) -> ImitationData:
+    """Imitation pairs of ``recordings`` (at most ``frames``), collected as ``config`` says
+    with the reconstructor ``options``, or read back from a stopped run's checkpoints."""
     collected = run.collected_episodes()
     if collected:
         say(f"{run.folder}: going on from {len(collected)} collected episodes")
@@ -700,9 +832,10 @@ def _imitation_pairs(
         spec,
         target=config.target,
         follow=config.follow,
-        frames=config.total_timesteps,
+        frames=frames,
         seed=config.seed,
         progress=config.progress,
+        reconstructor_options=options,
         workers=config.workers,
         backend=config.backend,
         address=config.address,
@@ -710,12 +843,12 @@ def _imitation_pairs(
         on_chunk=run.save_chunk,
     )
     data = run.merged_data(data)
-    seconds["data"] = time.perf_counter() - t0
+    seconds["data"] = time.perf_counter() - started
     say(
         f"imitation data: {len(data)} frames from {len(set(data.episodes.tolist()))} episodes "
         f"in {seconds['data']:.1f} s"
     )
-    return data, clip_of_episode
+    return data
 
 
 def _train_linear(
@@ -727,8 +860,8 @@ def _train_linear(
     seconds: dict[str, float],
     say: Callable[[str], None],
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
-    """The linear pose-space sampler (:mod:`policies.pose_sampler`): its settings chosen by
-    cross-validation over ``LINEAR_GROUPS`` groups of whole clips."""
+    """The linear pose-space sampler (:mod:`policies.pose_sampler`) on simulated streams of
+    ``train_clips``: its settings chosen by cross-validation over groups of whole clips."""
 
     spec = _imitation_spec(config, "linear", "ridge", LINEAR_FEATURES)
     data, clip_of_episode = _imitation_pairs(
@@ -737,12 +870,27 @@ def _train_linear(
     # Whole clips per group (a clip and its mirror image together), so that cross-validation
     # scores each setting on motions its fit did not see.
     names = sorted({c.name.removesuffix("~mirror") for c in train_clips})
-    if len(names) < 2:
-        raise ValueError("kind 'linear': cross-validation needs at least 2 training clips")
-    group_of_clip = np.array(
-        [names.index(c.name.removesuffix("~mirror")) for c in train_clips]
-    ) % min(LINEAR_GROUPS, len(names))
-    group = group_of_clip[clip_of_episode[data.episodes]]
+    group_of_clip = np.array([names.index(c.name.removesuffix("~mirror")) for c in train_clips])
+    return _fit_linear_groups(
+        spec, data, group_of_clip[clip_of_episode[data.episodes]], seconds, say
+    )
+
+
+def _fit_linear_groups(
+    spec: SamplerSpec,
+    data: ImitationData,
+    unit: np.ndarray,
+    seconds: dict[str, float],
+    say: Callable[[str], None],
+) -> tuple[GaussianSampler, list[dict[str, Any]]]:
+    """:func:`fit_linear` on ``data``, cross-validated over ``LINEAR_GROUPS`` groups of whole
+    units (``unit``: each frame's clip or recording group, an integer), dealt in turn."""
+    units = np.unique(unit)
+    if len(units) < 2:
+        raise ValueError(
+            "kind 'linear': cross-validation needs at least 2 training clips or groups"
+        )
+    group = np.searchsorted(units, unit) % min(LINEAR_GROUPS, len(units))
     groups = [
         (data.observations[take], data.actions[take], data.episodes[take])
         for take in (group == g for g in np.unique(group))
@@ -756,9 +904,8 @@ def _train_linear(
         f"linear sampler: penalty {report['penalty']:g}, pose weight "
         f"{report['pose_weight']:g}; cross-validated Eq. 13 in the latent spaces "
         f"{report['cv_error'][chosen]:.4f} m with the offset alone, "
-        f"{weighted:.4f} m with the pose "
-        f"weight, against the anchor's {report['anchor_error']:.4f} m "
-        f"({seconds['train']:.1f} s)"
+        f"{weighted:.4f} m with the pose weight, against the anchor's "
+        f"{report['anchor_error']:.4f} m ({seconds['train']:.1f} s)"
     )
     return sampler, [{"linear": report}]
 

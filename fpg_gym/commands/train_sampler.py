@@ -36,12 +36,16 @@ examples:
       --clips @runs/split/graph_takes.txt --max-frames 150 --out runs/sampler_bandai
   fpg-gym train-sampler --kind supervised --target truth --follow anchor --graph default \\
       --out runs/sampler_truth       # learns the simulated ground truth, no search
-  fpg-gym train-sampler --kind linear --target bones --follow anchor --graph default \
+  fpg-gym train-sampler --kind linear --target bones --follow anchor --graph default \\
       --out runs/sampler_linear      # the pose-space ridge sampler, numpy only
+  fpg-gym train-sampler --kind linear --target bones --follow anchor --graph runs/vicon.npz \\
+      --recordings runs/ui_prmd/recordings --group-pattern '_(s[0-9]+)_' \\
+      --sensor-map runs/kinect.json --sensor-blend 0.5 --out runs/sampler_real
+                                     # real paired data, subjects held out whole
 
 The samplers of docs/methods.md (ground truth of real UI-PRMD subjects, left out in turn, and of
-simulated Bandai takes; 3 seeds each) come from
-  python scripts/learned_samplers.py --protocols uiprmd,sim --seeds 0,1,2
+simulated Bandai takes) come from
+  python scripts/learned_samplers.py --protocols uiprmd,sim --seeds 0
 and each model's JSON records the command that wrote it (training.command).
 """
 
@@ -90,7 +94,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=0.2,
         metavar="S",
-        help="share of --clips held out for evaluation (0.2)",
+        help="share of --clips (or of the --recordings' groups) held out for evaluation (0.2)",
+    )
+    parser.add_argument(
+        "--recordings",
+        nargs="+",
+        default=None,
+        metavar="PATH",
+        help="--kind linear: learn from paired recordings (files, or folders of .npz: sensor "
+        "streams with ground truth, e.g. fpg-gym import-uiprmd's) instead of simulated clips",
+    )
+    parser.add_argument(
+        "--group-pattern",
+        default=None,
+        metavar="REGEX",
+        help="with --recordings: regular expression on the file names whose first group names "
+        "a recording's group, e.g. '_(s[0-9]+)_' (UI-PRMD's subjects); groups are held out and "
+        "cross-validated whole (default: each recording is its own group)",
+    )
+    parser.add_argument(
+        "--sensor-map",
+        metavar="MAP.json",
+        default=None,
+        help="joint-definition map of the sensor (fpg-gym fit-map) for the training data and "
+        "the evaluation: give the one reconstruct --sensor-map will use",
+    )
+    parser.add_argument(
+        "--sensor-blend",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="the reconstructor's sensor blend for the training data and the evaluation (0): "
+        "give the one reconstruct --sensor-blend will use",
     )
     parser.add_argument(
         "--scenarios",
@@ -219,7 +254,17 @@ def run(args: argparse.Namespace) -> int:
     from policies.training import TrainConfig, config_dict, train_sampler
 
     # Before any work: MODEL.json and MODEL.pt must not be inputs, folders or unwritable.
-    inputs = [item for item in [args.graph, *(args.clips or []), *(args.val_clips or [])] if item]
+    inputs = [
+        item
+        for item in [
+            args.graph,
+            args.sensor_map,
+            *(args.clips or []),
+            *(args.val_clips or []),
+            *(args.recordings or []),
+        ]
+        if item
+    ]
     json_path, stem = model_paths(args.out)
     suffix = LINEAR_WEIGHTS_SUFFIX if args.kind == "linear" else WEIGHTS_SUFFIX
     for target in (json_path, stem.with_name(stem.name + suffix)):
@@ -262,6 +307,10 @@ def run(args: argparse.Namespace) -> int:
         address=args.address,
         progress=not args.quiet,
         restart=args.restart,
+        recordings=args.recordings,
+        group_pattern=args.group_pattern,
+        sensor_map=args.sensor_map,
+        sensor_blend=args.sensor_blend,
     )
     result = train_sampler(config)
     if args.json:

@@ -1,0 +1,172 @@
+"""Paired recordings to train a sampler on: sensor streams with their ground truth.
+
+``fpg-gym train-sampler --kind linear --recordings PATH ...`` learns from real paired data (a
+Kinect stream recorded with a mocap reference, such as ``fpg-gym import-uiprmd``'s repetitions)
+instead of simulated streams of mocap clips. Recordings are grouped (by default each is its own
+group; ``group_pattern``, a regular expression on the file name whose first group names the
+group, puts a subject's recordings together): a seeded share of the groups is held out for the
+final evaluation, and the cross-validation of :func:`policies.pose_sampler.fit_linear` leaves
+whole groups out, so no setting is chosen on a group its fit saw.
+"""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from fpg_gym.errors import DataFormatError
+from fpg_gym.io import read_recording
+
+__all__ = ["PairedRecordings", "group_pattern", "paired_recordings", "recording_paths"]
+
+#: What a folder given to ``--recordings`` is read for.
+RECORDING_GLOB = "*.npz"
+
+
+def recording_paths(items: Sequence[str | Path]) -> list[Path]:
+    """The recording files of ``items``: files as given, folders read for ``*.npz`` (sorted).
+
+    Raises
+    ------
+    FileNotFoundError
+        An item that does not exist, or a folder without recordings.
+    """
+    paths: list[Path] = []
+    for item in items:
+        path = Path(item)
+        if path.is_dir():
+            found = sorted(path.glob(RECORDING_GLOB))
+            if not found:
+                raise FileNotFoundError(f"{path}: no recordings ({RECORDING_GLOB}) in this folder")
+            paths.extend(found)
+        elif path.is_file():
+            paths.append(path)
+        else:
+            raise FileNotFoundError(f"{path}: no such recording or folder")
+    return paths
+
+
+def group_pattern(pattern: str | None) -> re.Pattern[str] | None:
+    """``pattern`` compiled, checked to have a group (None stays None).
+
+    Raises
+    ------
+    ValueError
+        Not a regular expression, or one without a group.
+    """
+    if pattern is None:
+        return None
+    try:
+        compiled = re.compile(pattern)
+    except re.error as error:
+        raise ValueError(
+            f"group_pattern: {pattern!r} is not a regular expression ({error})"
+        ) from None
+    if compiled.groups < 1:
+        raise ValueError(
+            f"group_pattern: {pattern!r} has no group; its first group names a recording's "
+            "group, e.g. '_(s[0-9]+)_' for UI-PRMD's subjects"
+        )
+    return compiled
+
+
+@dataclass
+class PairedRecordings:
+    """Recordings split into training and held-out groups.
+
+    Attributes
+    ----------
+    train : list of (str, Recording)
+        The training recordings with their group.
+    validation : list of Recording
+        Recordings of the held-out groups, spread over them (at most ``episodes``).
+    info : dict
+        Files, groups and the split, for the model's ``training`` record.
+    """
+
+    train: list[tuple[str, Any]]
+    validation: list[Any]
+    info: dict[str, Any]
+
+
+def paired_recordings(
+    items: Sequence[str | Path],
+    *,
+    pattern: str | None = None,
+    val_share: float = 0.2,
+    episodes: int = 6,
+    max_frames: int | None = None,
+    seed: int = 0,
+) -> PairedRecordings:
+    """Read paired recordings and hold out a seeded share of their groups.
+
+    Parameters
+    ----------
+    items : sequence of path
+        Recording files or folders (:func:`recording_paths`), in any format
+        :func:`fpg_gym.io.read_recording` reads that carries ground truth.
+    pattern : str, optional
+        Regular expression searched in each file name (without suffix); its first group is the
+        recording's group. None: each recording is its own group.
+    val_share : float
+        Share of the groups held out (at least one; at least two groups stay for the
+        cross-validation).
+    episodes : int
+        Held-out recordings kept for the evaluation, spread over the held-out ones.
+    max_frames : int, optional
+        Keep the first frames of each recording.
+    seed : int
+        Seed of the held-out groups' draw.
+
+    Raises
+    ------
+    DataFormatError
+        A recording without ground truth.
+    ValueError
+        A file name the pattern does not match, or fewer than 3 groups.
+    """
+    compiled = group_pattern(pattern)
+    loaded: list[tuple[str, Path, Any]] = []
+    for path in recording_paths(items):
+        recording = read_recording(path)
+        if recording.ground_truth is None:
+            raise DataFormatError(
+                path,
+                "no ground truth: a sampler learns from paired recordings (a sensor stream "
+                "with its reference, e.g. fpg-gym import-uiprmd's repetitions)",
+            )
+        if compiled is None:
+            group = path.stem
+        else:
+            match = compiled.search(path.stem)
+            if match is None or match.group(1) is None:
+                raise ValueError(
+                    f"{path}: group_pattern {compiled.pattern!r} does not match {path.stem!r}"
+                )
+            group = match.group(1)
+        loaded.append((group, path, recording.head(max_frames)))
+    groups = sorted({group for group, _, _ in loaded})
+    if len(groups) < 3:
+        raise ValueError(
+            f"recordings: {len(groups)} group(s) ({', '.join(groups)}); a held-out group and "
+            "cross-validation over the others need at least 3"
+        )
+    held = min(max(1, round(val_share * len(groups))), len(groups) - 2)
+    rng = np.random.default_rng(seed)
+    held_out = sorted(str(g) for g in rng.choice(groups, size=held, replace=False))
+    train = [(group, recording) for group, _, recording in loaded if group not in held_out]
+    candidates = [recording for group, _, recording in loaded if group in held_out]
+    step = max(1, len(candidates) // max(episodes, 1))
+    validation = candidates[::step][:episodes]
+    info = {
+        "recordings": [str(path) for _, path, _ in loaded],
+        "group_pattern": pattern,
+        "training_groups": [g for g in groups if g not in held_out],
+        "validation_groups": held_out,
+    }
+    return PairedRecordings(train, validation, info)
