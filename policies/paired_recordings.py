@@ -20,35 +20,20 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.errors import DataFormatError
-from fpg_gym.io import read_recording
+from fpg_gym.io import expand_inputs, read_recording
 
 __all__ = ["PairedRecordings", "group_pattern", "paired_recordings", "recording_paths"]
 
-#: What a folder given to ``--recordings`` is read for.
-RECORDING_GLOB = "*.npz"
-
-
 def recording_paths(items: Sequence[str | Path]) -> list[Path]:
-    """The recording files of ``items``: files as given, folders read for ``*.npz`` (sorted).
+    """The recording files of ``items``: files as given, folders read (recursively, sorted)
+    for ``.npz`` files (:func:`fpg_gym.io.expand_inputs`).
 
     Raises
     ------
     FileNotFoundError
         An item that does not exist, or a folder without recordings.
     """
-    paths: list[Path] = []
-    for item in items:
-        path = Path(item)
-        if path.is_dir():
-            found = sorted(path.glob(RECORDING_GLOB))
-            if not found:
-                raise FileNotFoundError(f"{path}: no recordings ({RECORDING_GLOB}) in this folder")
-            paths.extend(found)
-        elif path.is_file():
-            paths.append(path)
-        else:
-            raise FileNotFoundError(f"{path}: no such recording or folder")
-    return paths
+    return expand_inputs(items, lambda path: path.suffix == ".npz", "recordings (.npz)")
 
 
 def group_pattern(pattern: str | None) -> re.Pattern[str] | None:

@@ -44,10 +44,10 @@ def test_groups_are_held_out_whole(tmp_path: Path) -> None:
 
 def test_bad_recordings_and_patterns_are_named(tmp_path: Path) -> None:
     folder = _write(tmp_path / "recordings", frames=10)
-    with pytest.raises(FileNotFoundError, match="missing"):
+    with pytest.raises(FileNotFoundError, match="missing: no such file"):
         recording_paths([tmp_path / "missing"])
     (tmp_path / "empty").mkdir()
-    with pytest.raises(FileNotFoundError, match="no recordings"):
+    with pytest.raises(FileNotFoundError, match="holds no recordings"):
         recording_paths([tmp_path / "empty"])
     with pytest.raises(ValueError, match="no group"):
         group_pattern("s[0-9]+")
