@@ -632,7 +632,8 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         **training_data,
         "sensor_map": config.sensor_map,
         "sensor_blend": config.sensor_blend,
-        "timesteps": config.total_timesteps,
+        # Recordings: every frame unless timesteps caps them.
+        "timesteps": config.timesteps if paired is not None else config.total_timesteps,
         "seed": config.seed,
         "max_frames": config.max_frames,
         "versions": _versions(config.kind),
