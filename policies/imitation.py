@@ -90,10 +90,7 @@ def truth_latent(
         return np.asarray(problem.encode(local), dtype=np.float64)
     if metric != "bones":
         raise ValueError(f"metric: expected 'joints' or 'bones', got {metric!r}")
-    vectors = pose_utils.bone_vectors(local)
-    norms = np.linalg.norm(vectors, axis=1, keepdims=True)
-    target = np.where(norms > 1e-9, vectors / np.maximum(norms, 1e-9), 0.0)
-    target = target * np.asarray(problem.lengths, dtype=np.float64)[:, None]
+    target = pose_utils.bone_directions(local) * np.asarray(problem.lengths, np.float64)[:, None]
     latent = problem.latent
     # Bone vectors are linear in z: decode(z) = m + (z s) B (Shum Eq. 9).
     design = pose_utils.flat_bone_vectors(latent.std[:, None] * latent.basis).T

@@ -24,6 +24,7 @@ from fpg_gym.io import expand_inputs, read_recording
 
 __all__ = ["PairedRecordings", "group_pattern", "paired_recordings", "recording_paths"]
 
+
 def recording_paths(items: Sequence[str | Path]) -> list[Path]:
     """The recording files of ``items``: files as given, folders read (recursively, sorted)
     for ``.npz`` files (:func:`fpg_gym.io.expand_inputs`).

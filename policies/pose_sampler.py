@@ -47,7 +47,6 @@ kind ``"linear"``) and ``MODEL.npz`` (arrays only, read with ``allow_pickle=Fals
 
 from __future__ import annotations
 
-import math
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -60,7 +59,13 @@ from fpg_gym.env_observation import CONTEXT_NAMES
 from fpg_gym.errors import DataFormatError
 from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import quadratic_minimiser
-from policies.sampler import DEFAULT_FEATURES, GaussianSampler, SamplerSpec, model_paths
+from policies.sampler import (
+    DEFAULT_FEATURES,
+    FeatureMap,
+    GaussianSampler,
+    SamplerSpec,
+    model_paths,
+)
 
 __all__ = [
     "LINEAR_FEATURES",
@@ -97,29 +102,24 @@ POSE_WEIGHTS: tuple[float, ...] = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0)
 _ARRAYS = ("regressor_mean", "regressor_scale", "weights", "bias", "std")
 
 
-def _fields(spec: SamplerSpec, features: np.ndarray) -> dict[str, np.ndarray]:
-    """The named fields ``(n, ...)`` of feature rows ``(n, F)`` as
-    :class:`~policies.sampler.FeatureMap` laid them out, the anchor actions ``(n, L)``
-    (``"anchor"``), the mask of the axes in use ``(n, L)`` (``"mask"``) and the principal
-    directions scaled by their spread ``(n, L, 60)``, zero on unused axes (``"axes"``)."""
-    layout = spec.layout
-    out: dict[str, np.ndarray] = {}
-    start = 0
-    for name in spec.features:
-        shape = layout.shapes[name]
-        size = math.prod(shape)
-        out[name] = features[:, start : start + size].astype(np.float64)
-        start += size
-    out["anchor"] = features[:, start : start + layout.latent_dim].astype(np.float64)
+def _fields(feature_map: FeatureMap, features: np.ndarray) -> dict[str, np.ndarray]:
+    """The named parts ``(n, ...)`` of feature rows ``(n, F)`` (:meth:`FeatureMap.split`:
+    each field flat, the anchor actions ``(n, L)`` as ``"anchor"``), with the mask of the axes
+    in use ``(n, L)`` (``"mask"``), the principal directions scaled by their spread
+    ``(n, L, 60)``, zero on unused axes (``"axes"``), and the anchor's pose ``(n, 60)``
+    (``"anchor_pose"``)."""
+    out = feature_map.split(features)
     out["mask"] = out["latent_mask"] > 0.5
-    basis = out["latent_basis"].reshape(len(features), layout.latent_dim, -1)
+    basis = out["latent_basis"].reshape(len(features), feature_map.layout.latent_dim, -1)
     out["axes"] = basis * np.where(out["mask"], out["latent_std"], 0.0)[:, :, None]
+    out["anchor_pose"] = _decode(out, out["anchor"], feature_map.action_scale)
     return out
 
 
-def _decode(fields: dict[str, np.ndarray], actions: np.ndarray, spec: SamplerSpec) -> np.ndarray:
-    """Normalised poses ``(n, 60)`` of absolute actions ``(n, L)``: ``m + (s z) B``."""
-    z = spec.action_scale * np.asarray(actions, dtype=np.float64)
+def _decode(fields: dict[str, np.ndarray], actions: np.ndarray, scale: float) -> np.ndarray:
+    """Normalised poses ``(n, 60)`` of absolute actions ``(n, L)`` (``scale`` whitened units
+    per action unit): ``m + (s z) B``."""
+    z = scale * np.asarray(actions, dtype=np.float64)
     return fields["latent_mean"] + np.einsum("nl,nlp->np", z, fields["axes"])
 
 
@@ -158,7 +158,7 @@ def _fit_pose(
     at reliability ``weight``, and its motion term (FPG Eq. 14) towards the continuity
     prediction, which keeps the point steady from frame to frame."""
     scale, mask = spec.action_scale, fields["mask"]
-    pose = _decode(fields, fields["anchor"], spec) + offsets
+    pose = fields["anchor_pose"] + offsets
     fitted = quadratic_minimiser(
         pose,
         np.full_like(fields["reliability"], weight),
@@ -174,11 +174,11 @@ def _fit_pose(
     return np.where(mask, fitted / scale - fields["anchor"], 0.0)
 
 
-def _regressors(spec: SamplerSpec, fields: dict[str, np.ndarray]) -> np.ndarray:
+def _regressors(fields: dict[str, np.ndarray]) -> np.ndarray:
     """The regressors ``(n, R)``: the anchor pose; the sensor pose, the continuity prediction
     and the previous reconstruction minus the anchor pose (the last two zero when the frame has
     no prediction); the reliability and its terms; the bone lengths; the context."""
-    anchor_pose = _decode(fields, fields["anchor"], spec)
+    anchor_pose = fields["anchor_pose"]
     history = fields["context"][:, [CONTEXT_NAMES.index("has_prediction")]] > 0.5
     return np.concatenate(
         [
@@ -223,18 +223,13 @@ class LinearPoseSampler(GaussianSampler):
         the bone vectors)."""
         return float(self.spec.hyperparameters.get("pose_weight", 0.0))
 
-    def offset(self, features: np.ndarray) -> np.ndarray:
-        """The predicted pose offsets ``(n, 60)`` of the target from the anchor's pose, for
-        feature rows ``(n, F)``."""
-        return _predict(self.arrays, _regressors(self.spec, _fields(self.spec, features)))
-
     def gaussian_features(self, features: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Mean (relative to the anchor) and std ``(n, L)``: the point of each frame's latent
         space that fits the learned pose (the closed form fitted to it, or with no
         :attr:`pose_weight` the offset moved on the bone vectors), and the cross-validated
         spread."""
-        fields = _fields(self.spec, features)
-        offsets = _predict(self.arrays, _regressors(self.spec, fields))
+        fields = _fields(self.features, features)
+        offsets = _predict(self.arrays, _regressors(fields))
         if self.pose_weight > 0.0:
             mean = _fit_pose(self.spec, fields, offsets, self.pose_weight)
         else:
@@ -263,8 +258,8 @@ class LinearPoseSampler(GaussianSampler):
         DataFormatError
             If the file is not an ``.npz`` of the arrays and shapes ``spec`` describes.
         """
-        blank = _fields(spec, np.zeros((1, spec.feature_map().size)))
-        size = _regressors(spec, blank).shape[1]
+        feature_map = spec.feature_map()
+        size = _regressors(_fields(feature_map, np.zeros((1, feature_map.size)))).shape[1]
         shapes = {
             "regressor_mean": (size,),
             "regressor_scale": (size,),
@@ -327,7 +322,8 @@ def _shake(actions: np.ndarray, part: dict[str, Any], spec: SamplerSpec) -> np.n
     jitter of :func:`fpg_gym.metrics.jitter` before the output stage, in the frames' normalised
     poses)."""
     fields, episodes = part["fields"], part["episodes"]
-    poses = _decode(fields, fields["anchor"] + actions, spec).reshape(len(actions), -1, 3)
+    poses = _decode(fields, fields["anchor"] + actions, spec.action_scale)
+    poses = poses.reshape(len(actions), -1, 3)
     steady = (episodes[2:] == episodes[1:-1]) & (episodes[1:-1] == episodes[:-2])
     second = poses[2:] - 2.0 * poses[1:-1] + poses[:-2]
     return np.linalg.norm(second, axis=2).mean(axis=1)[steady]
@@ -386,11 +382,11 @@ def fit_linear(
     feature_map = spec.feature_map()
     parts = []
     for observations, actions, episodes in groups:
-        fields = _fields(spec, feature_map.transform(observations)[0])
-        targets = _decode(fields, actions, spec) - _decode(fields, fields["anchor"], spec)
+        fields = _fields(feature_map, feature_map.transform(observations)[0])
+        targets = _decode(fields, actions, spec.action_scale) - fields["anchor_pose"]
         parts.append(
             {
-                "regressors": _regressors(spec, fields),
+                "regressors": _regressors(fields),
                 "targets": targets,
                 "target_bones": pose_utils.flat_bone_vectors(targets),
                 "design": _bone_design(fields),

@@ -349,6 +349,23 @@ class FeatureMap:
         """Features ``(..., size)`` float32 of observations ``(..., layout.size)``."""
         return self.transform(observation)[0]
 
+    def split(self, features: np.ndarray) -> dict[str, np.ndarray]:
+        """The named parts ``(n, size_of_field)`` float64 of feature rows ``(n, size)``, the
+        inverse of :meth:`transform`'s concatenation: each field flat, and the anchor actions
+        ``(n, L)`` under ``"anchor"`` (zero without an anchor)."""
+        rows = np.asarray(features, dtype=np.float64)
+        parts: dict[str, np.ndarray] = {}
+        start = 0
+        for name in self.fields:
+            size = self.layout.slices[name].stop - self.layout.slices[name].start
+            parts[name] = rows[:, start : start + size]
+            start += size
+        dim = self.layout.latent_dim
+        parts["anchor"] = (
+            rows[:, start : start + dim] if start < rows.shape[1] else (np.zeros((len(rows), dim)))
+        )
+        return parts
+
     def wrap(self, env: Any) -> SamplerFeatures:
         """``env`` seen through this map (a Gymnasium wrapper): observations become features
         and an action ``a`` becomes ``anchor + a`` (the env should not clip actions then)."""

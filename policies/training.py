@@ -665,19 +665,21 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             seconds=seconds,
             say=say,
         )
-        names = sorted({group for group, _ in paired.train})
-        group_of_episode = np.array([names.index(group) for group, _ in paired.train])
+        group_of_episode = np.array([group for group, _ in paired.train])
         sampler, history = _fit_linear_groups(
             spec, data, group_of_episode[data.episodes], seconds, say
         )
     elif run is not None and config.kind == "linear":
-        sampler, history = _train_linear(config, graph, train_clips, scenarios, run, seconds, say)
+        sampler, history = _train_linear(
+            config, graph, train_clips, scenarios, options, run, seconds, say
+        )
     elif run is not None:
         sampler, history = _train_supervised(
             config,
             graph,
             train_clips,
             scenarios,
+            options,
             training_info,
             evaluate,
             checkpoints,
@@ -774,14 +776,15 @@ def _imitation_pairs(
     graph: Any,
     train_clips: Sequence[Any],
     scenarios: Sequence[str],
+    options: dict[str, Any],
     spec: SamplerSpec,
     run: RunCheckpoints,
     seconds: dict[str, float],
     say: Callable[[str], None],
 ) -> tuple[ImitationData, np.ndarray]:
     """The supervised and linear samplers' training pairs: simulated streams of the training
-    clips, collected (or read back from a stopped run's checkpoints) as ``config`` says; and
-    the index in ``train_clips`` of each episode's clip."""
+    clips, collected (or read back from a stopped run's checkpoints) as ``config`` says with
+    the reconstructor ``options``; and the index in ``train_clips`` of each episode's clip."""
 
     t0 = time.perf_counter()
     frames_per_pass = sum(
@@ -800,7 +803,7 @@ def _imitation_pairs(
         recordings,
         spec,
         run,
-        config.reconstructor_options(),
+        options,
         frames=config.total_timesteps,
         started=t0,
         seconds=seconds,
@@ -857,6 +860,7 @@ def _train_linear(
     graph: Any,
     train_clips: Sequence[Any],
     scenarios: Sequence[str],
+    options: dict[str, Any],
     run: RunCheckpoints,
     seconds: dict[str, float],
     say: Callable[[str], None],
@@ -866,12 +870,11 @@ def _train_linear(
 
     spec = _imitation_spec(config, "linear", "ridge", LINEAR_FEATURES)
     data, clip_of_episode = _imitation_pairs(
-        config, graph, train_clips, scenarios, spec, run, seconds, say
+        config, graph, train_clips, scenarios, options, spec, run, seconds, say
     )
     # Whole clips per group (a clip and its mirror image together), so that cross-validation
     # scores each setting on motions its fit did not see.
-    names = sorted({c.name.removesuffix("~mirror") for c in train_clips})
-    group_of_clip = np.array([names.index(c.name.removesuffix("~mirror")) for c in train_clips])
+    group_of_clip = np.array([c.name.removesuffix("~mirror") for c in train_clips])
     return _fit_linear_groups(
         spec, data, group_of_clip[clip_of_episode[data.episodes]], seconds, say
     )
@@ -885,13 +888,13 @@ def _fit_linear_groups(
     say: Callable[[str], None],
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
     """:func:`fit_linear` on ``data``, cross-validated over ``LINEAR_GROUPS`` groups of whole
-    units (``unit``: each frame's clip or recording group, an integer), dealt in turn."""
-    units = np.unique(unit)
+    units (``unit``: each frame's clip or recording group, a label), dealt in sorted order."""
+    units, index = np.unique(unit, return_inverse=True)
     if len(units) < 2:
         raise ValueError(
             "kind 'linear': cross-validation needs at least 2 training clips or groups"
         )
-    group = np.searchsorted(units, unit) % min(LINEAR_GROUPS, len(units))
+    group = index % min(LINEAR_GROUPS, len(units))
     groups = [
         (data.observations[take], data.actions[take], data.episodes[take])
         for take in (group == g for g in np.unique(group))
@@ -916,6 +919,7 @@ def _train_supervised(
     graph: Any,
     train_clips: Sequence[Any],
     scenarios: Sequence[str],
+    options: dict[str, Any],
     training_info: dict[str, Any],
     evaluate: Callable[..., dict[str, Any]],
     checkpoints: Path,
@@ -925,7 +929,9 @@ def _train_supervised(
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
 
     spec = _imitation_spec(config, "supervised", "mlp", config.features, epochs=config.epochs)
-    data, _ = _imitation_pairs(config, graph, train_clips, scenarios, spec, run, seconds, say)
+    data, _ = _imitation_pairs(
+        config, graph, train_clips, scenarios, options, spec, run, seconds, say
+    )
     # Validation pairs: a tenth of the episodes, by whole episodes.
     episode_ids = np.unique(data.episodes)
     rng = np.random.default_rng(config.seed + 1)
