@@ -249,14 +249,14 @@ def _uiprmd_data(
     options: dict[str, Any],
     reps: int,
     thres1: float,
+    excluded: frozenset[str] = frozenset(),
 ) -> Any:
     """Ground-truth imitation data of one training ``subject``, collected with a database and
-    sensor map that lack both it and the held-out subject."""
+    sensor map that lack it, the held-out subject and the ``excluded`` ones."""
 
-    graph = real_kinect.uiprmd_graph(imported, {held_out, subject}, thres1)
-    others = [
-        load_recording(p) for s, ps in subjects.items() if s not in (held_out, subject) for p in ps
-    ]
+    left_out = {held_out, subject, *excluded}
+    graph = real_kinect.uiprmd_graph(imported, left_out, thres1)
+    others = [load_recording(p) for s, ps in subjects.items() if s not in left_out for p in ps]
     sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, others, True, False)
     paths = real_kinect.repetitions(subjects[subject], reps) if reps else subjects[subject]
     recordings = [load_recording(p) for p in paths]
@@ -441,15 +441,18 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
         torch.set_num_threads(1)
     imported = Path(task["imported"])
     held_out, thres1 = task["subject"], task["thres1"]
+    excluded = frozenset(task["exclude_training"])
     subjects = real_kinect.by_subject(imported / "recordings")
-    train_subjects = [s for s in sorted(subjects) if s != held_out]
+    train_subjects = [s for s in sorted(subjects) if s != held_out and s not in excluded]
     # The validation subject: the first training subject after the held-out one (cyclic).
     val_subject = train_subjects[next((i for i, s in enumerate(train_subjects) if s > held_out), 0)]
     options: dict[str, Any] = {"sensor_blend": task["blend"]}
     spec = _spec(task)
     t0 = time.process_time()
     data = {
-        s: _uiprmd_data(imported, subjects, held_out, s, spec, options, task["train_reps"], thres1)
+        s: _uiprmd_data(
+            imported, subjects, held_out, s, spec, options, task["train_reps"], thres1, excluded
+        )
         for s in train_subjects
     }
     data_cpu = time.process_time() - t0
@@ -458,6 +461,7 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
         "held_out": held_out,
         "validation_subject": val_subject,
         "train_subjects": [s for s in train_subjects if s != val_subject],
+        "excluded_from_training": sorted(excluded),
     }
     trained = _train_seeds(
         spec,
@@ -467,7 +471,7 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
         held_out,
         info,
     )
-    graph = real_kinect.uiprmd_graph(imported, {held_out}, thres1)
+    graph = real_kinect.uiprmd_graph(imported, {held_out, *excluded}, thres1)
     train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
     sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, train_recs, True, False)
     episodes = [
@@ -659,6 +663,7 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
             "thres1": args.uiprmd_thres1,
             "blend": args.sensor_blend,
             "train_reps": args.train_reps,
+            "exclude_training": [s for s in args.exclude_training.split(",") if s],
             "reps": args.reps,
             "epochs": args.epochs,
             "hidden": [int(w) for w in args.hidden.split(",")],
@@ -688,7 +693,8 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
     episodes = len({r["episode"] for res in results for r in res["rows"]})
     report = (
         f"### uiprmd (leave-subjects-out, held out {args.subjects}, {episodes} episodes, "
-        f"seeds {args.seeds}, sensor blend {args.sensor_blend}, temporal defaults)\n\n"
+        f"seeds {args.seeds}, sensor blend {args.sensor_blend}, temporal defaults"
+        f"{', trained without ' + args.exclude_training if args.exclude_training else ''})\n\n"
         f"{uiprmd_table(results)}\n\nWall time {wall:.0f} s ({args.workers} workers); "
         f"training CPU per sampler: "
         f"{np.mean([v for res in results for v in res['train_cpu_s'].values()]):.0f} s, data "
@@ -715,6 +721,13 @@ def main(argv: list[str] | None = None) -> int:
     group.add_argument("--reps", type=int, default=1, help="scored repetitions per exercise")
     group.add_argument(
         "--train-reps", type=int, default=0, help="training reps per exercise (0: all, default)"
+    )
+    group.add_argument(
+        "--exclude-training",
+        default="",
+        metavar="LIST",
+        help="subjects no fold trains on (database, sensor map, sampler), still scored when "
+        "held out, e.g. s05 (its hip markers are flagged by import-uiprmd); default: none",
     )
     group.add_argument("--epochs", type=int, default=40)
     group.add_argument("--hidden", default="256,256", help="MLP layer widths")

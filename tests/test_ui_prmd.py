@@ -21,9 +21,11 @@ from fpg_gym.io.ui_prmd import (
     HAND_EXTENSION_M,
     KINECT20_SOURCE,
     KINECT_PARENTS,
+    PLAUSIBLE_PELVIS_WIDTH_M,
     VICON_MARKERS,
     kinect_forward_kinematics,
     parse_repetition_name,
+    pelvis_width,
     read_kinect_repetition,
     read_vicon_markers,
     vicon_joint_centres,
@@ -313,6 +315,9 @@ def test_import_command_on_a_fixture(tmp_path, rng, capsys):
     assert summary["repetitions"] == 2 and summary["sessions"] == 1
     report = json.loads((out / "import.json").read_text())["session_reports"][0]
     assert report["lags"] == [0, 5]
+    # The fixture's ASIS markers sit 4 cm outside hips about 18 cm apart: a plausible pelvis.
+    assert 0.2 < report["pelvis_width_m"] < 0.32
+    assert report["warnings"] == [] and summary["warnings"] == []
     recording = load_recording(out / "recordings" / "m02_s07_e02.npz")
     assert recording.ground_truth is not None
     assert recording.metadata["lag_frames"] == 5 and recording.metadata["ground_truth"] == "vicon"
@@ -350,6 +355,34 @@ def test_import_command_on_a_fixture(tmp_path, rng, capsys):
     assert "--calibration-map: only used with --calibrate-output" in capsys.readouterr().err
 
 
+def test_import_warns_of_an_implausible_pelvis(tmp_path, rng, capsys):
+    """ASIS markers 0.44 m apart (as UI-PRMD's s05): the session is written, with a warning
+    naming it and the width, because the Harrington hip centres scale with that width."""
+    root = tmp_path / "UI-PRMD"
+    joints22 = _standing_joints22(60, rng)
+    joints22[:, :, 0] += 0.2 * np.sin(np.linspace(0, 6, 60))[:, None]
+    stem = "m01_s05_e01"
+    _write_kinect(root, stem, joints22)
+    times = np.arange(0, 59 / 30.0, 0.01)
+    vicon22 = np.stack([np.interp(times * 30.0, np.arange(60), joints22[:, j, a])
+                        for j in range(22) for a in range(3)], 1).reshape(-1, 22, 3)  # fmt: skip
+    markers = _markers_for(vicon22, rng)
+    left, right = VICON_MARKERS.index("LASI"), VICON_MARKERS.index("RASI")
+    middle = 0.5 * (markers[:, left] + markers[:, right])
+    half = np.array([0.22, 0.0, 0.0])
+    markers[:, left], markers[:, right] = middle + half, middle - half
+    _write_vicon(root, stem, markers)
+    assert pelvis_width(markers) == pytest.approx(np.full(len(markers), 0.44))
+    paired, report = pair_repetitions(root, find_repetitions(root)["m01_s05"])
+    assert len(paired) == 1 and report.pelvis_width_m == pytest.approx(0.44, abs=0.01)
+    assert len(report.warnings) == 1
+    assert report.warnings[0].startswith("m01_s05: the Vicon pelvis markers LASI-RASI are 44")
+    assert main(["import-uiprmd", str(root), "--out", str(tmp_path / "o"), "--workers", "1"]) == 0
+    printed = capsys.readouterr().out
+    assert "warning: m01_s05: the Vicon pelvis markers" in printed
+    assert (tmp_path / "o" / "recordings" / f"{stem}.npz").is_file()
+
+
 def test_import_refuses_bad_arguments(tmp_path, capsys):
     with pytest.raises(FileNotFoundError, match="not a UI-PRMD folder"):
         find_repetitions(tmp_path)
@@ -370,8 +403,21 @@ def test_real_uiprmd_session_pairs_against_vicon():
     assert len(sessions) == 10 and all(len(reps) == 10 for reps in sessions.values())
     paired, report = pair_repetitions(root, sessions["m07_s02"])
     assert len(paired) == 10 and not report.skipped
+    assert report.warnings == [] and 0.24 < report.pelvis_width_m < 0.29
     errors = [metrics.mean_error(p.recording.ground_truth, p.recording.positions) for p in paired]
     # Raw Kinect v2 against Vicon joint centres: a few centimetres (README: about 5-7 cm).
     assert 0.02 < float(np.mean(errors)) < 0.1
     heights = [np.ptp(p.recording.positions[0, :, 1]) for p in paired]
     assert all(1.3 < h < 2.0 for h in heights)
+
+
+def test_real_uiprmd_s05_pelvis_markers_are_flagged():
+    """s05's ASIS markers sit about 0.44 m apart in every session (the other subjects 0.24-0.28
+    m), out of :data:`PLAUSIBLE_PELVIS_WIDTH_M`: the import flags its hip centres."""
+    root = shared_path("ui_prmd")
+    vicon = Path(root) / "Segmented Movements" / "Vicon" / "Positions"
+    low, high = PLAUSIBLE_PELVIS_WIDTH_M
+    for stem, plausible in (("m07_s05_e01", False), ("m07_s01_e01", True)):
+        markers, _ = read_vicon_markers(vicon / f"{stem}_positions.txt.gz")
+        width = float(np.median(pelvis_width(markers)))
+        assert (low <= width <= high) is plausible, (stem, width)

@@ -44,18 +44,25 @@ def run(args: argparse.Namespace) -> int:
     summary = import_uiprmd(
         args.root, args.out, subjects=subjects, max_lag=args.max_lag, workers=args.workers
     )
-    print(f"{'session':<10} {'reps':>4} {'frames':>7} {'alignment (mm)':>15} {'lags':>12}")
+    print(
+        f"{'session':<10} {'reps':>4} {'frames':>7} {'alignment (mm)':>15} {'lags':>12} "
+        f"{'pelvis (mm)':>12}"
+    )
     for report in summary["session_reports"]:
         lags = report["lags"]
         span = f"{min(lags)}..{max(lags)}" if lags else "-"
         mean = report["mean_alignment_m"]
         shown = f"{1000 * mean:.1f}" if mean is not None else "-"
+        width = report["pelvis_width_m"]
+        pelvis = f"{1000 * width:.0f}" if width is not None else "-"
         print(
             f"{report['session']:<10} {len(report['repetitions']):>4} "
-            f"{sum(report['frames']):>7} {shown:>15} {span:>12}"
+            f"{sum(report['frames']):>7} {shown:>15} {span:>12} {pelvis:>12}"
         )
     for name, why in summary["skipped"].items():
         print(f"skipped {name}: {why}")
+    for warning in summary["warnings"]:
+        print(f"warning: {warning}")
     mean = summary["mean_alignment_m"]
     print(
         f"{summary['repetitions']} repetitions in {summary['sessions']} sessions written to "

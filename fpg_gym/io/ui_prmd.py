@@ -75,12 +75,14 @@ __all__ = [
     "JOINT_CENTRE_RULE",
     "KINECT_FPS",
     "KINECT_PARENTS",
+    "PLAUSIBLE_PELVIS_WIDTH_M",
     "VICON_FPS",
     "VICON_MARKERS",
     "RepetitionId",
     "kinect_forward_kinematics",
     "kinect_to_kinect20",
     "parse_repetition_name",
+    "pelvis_width",
     "read_kinect_repetition",
     "read_vicon_markers",
     "vicon_joint_centres",
@@ -111,6 +113,10 @@ VICON_MARKERS: tuple[str, ...] = tuple(
 )
 #: Name of the joint-centre rule of :func:`vicon_joint_centres` (stored in imported files).
 JOINT_CENTRE_RULE = "harrington2007-hips+rab2002-shoulders+lateral-markers-v1"
+#: Inter-ASIS widths (LASI to RASI, metres) the hip rule is trusted with: beyond adult pelvises
+#: at both ends (UI-PRMD's sessions of s01-s04 and s06-s08 measure 0.24-0.28 m; s05's markers
+#: sit 0.43-0.46 m apart, which puts its Harrington hip centres 0.29-0.32 m apart).
+PLAUSIBLE_PELVIS_WIDTH_M = (0.18, 0.34)
 _KNEE_OFFSET_M = 0.057
 _ANKLE_OFFSET_M = 0.042
 _NAME = re.compile(r"^m(\d+)_s(\d+)_e(\d+)_(positions|angles)\.txt(\.gz)?$")
@@ -333,6 +339,18 @@ def _medial(marker: np.ndarray, proximal: np.ndarray, lateral_axis: np.ndarray) 
     return _unit(medial)
 
 
+def pelvis_width(markers: np.ndarray) -> np.ndarray:
+    """The inter-ASIS width ``PW`` (LASI to RASI) of each frame ``(T,)``, in the markers' unit;
+    the Harrington hip rule scales with it (:func:`vicon_joint_centres`).
+
+    Parameters
+    ----------
+    markers : ndarray, shape (T, 39, 3)
+        Markers in :data:`VICON_MARKERS` order.
+    """
+    return np.linalg.norm(markers[:, _MARKER["LASI"]] - markers[:, _MARKER["RASI"]], axis=-1)
+
+
 def vicon_joint_centres(markers: np.ndarray) -> np.ndarray:
     """Kinect-20 joint centres ``(T, 20, 3)`` from Plug-in-Gait markers (:data:`JOINT_CENTRE_RULE`).
 
@@ -349,7 +367,7 @@ def vicon_joint_centres(markers: np.ndarray) -> np.ndarray:
     depth = np.linalg.norm(forward, axis=-1, keepdims=True)
     forward = _unit(forward - np.sum(forward * left, axis=-1, keepdims=True) * left)
     up = np.cross(forward, left)
-    width = np.linalg.norm(m["LASI"] - m["RASI"], axis=-1, keepdims=True)
+    width = pelvis_width(markers)[:, None]
     # Harrington et al. 2007 (mm in the paper; the constants in metres here).
     back = -(0.24 * depth + 0.0099) * forward
     down = -(0.30 * width + 0.0109) * up

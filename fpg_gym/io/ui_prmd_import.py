@@ -12,7 +12,10 @@ session from Vicon space into the Kinect's camera space. Written under ``OUT``:
     The whole Vicon repetition's joint centres at 30 Hz (a positions clip, readable by
     ``build-graph``), in the same space.
 ``import.json``
-    Per session: alignment error, lags, frames; repetitions skipped and why.
+    Per session: alignment error, lags, frames, the Vicon pelvis width; repetitions skipped and
+    why; warnings (a pelvis width outside :data:`~fpg_gym.io.ui_prmd.PLAUSIBLE_PELVIS_WIDTH_M`,
+    whose hip centres, and so ``HipCenter`` and the hip and spine bones of the ground truth,
+    are suspect; the session is still written).
 
 Every file is written to a temporary name and renamed into place, so an interrupted import
 leaves complete files only (re-running the import rewrites the same files).
@@ -41,9 +44,11 @@ from fpg_gym.io.recording import Recording, write_recording
 from fpg_gym.io.ui_prmd import (
     JOINT_CENTRE_RULE,
     KINECT_FPS,
+    PLAUSIBLE_PELVIS_WIDTH_M,
     VICON_FPS,
     RepetitionId,
     parse_repetition_name,
+    pelvis_width,
     read_kinect_repetition,
     read_vicon_markers,
     vicon_joint_centres,
@@ -85,6 +90,8 @@ class SessionReport:
     alignment_m: list[float] = field(default_factory=list)
     frames: list[int] = field(default_factory=list)
     skipped: dict[str, str] = field(default_factory=dict)
+    pelvis_width_m: float | None = None
+    warnings: list[str] = field(default_factory=list)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready summary."""
@@ -98,6 +105,10 @@ class SessionReport:
             else None,
             "frames": self.frames,
             "skipped": self.skipped,
+            "pelvis_width_m": None
+            if self.pelvis_width_m is None
+            else round(self.pelvis_width_m, 4),
+            "warnings": self.warnings,
         }
 
 
@@ -164,6 +175,7 @@ def pair_repetitions(
     report = SessionReport(session=repetitions[0].session if repetitions else "")
     kinect: list[tuple[RepetitionId, Recording]] = []
     vicon: list[np.ndarray] = []
+    widths: list[float] = []
     for rep in repetitions:
         kin_pos, kin_ang, vic = _files(folder, rep)
         if not vic.is_file():
@@ -176,10 +188,19 @@ def pair_repetitions(
             report.skipped[rep.name] = str(error)
             continue
         centres = vicon_joint_centres(markers)
+        widths.append(float(np.median(pelvis_width(markers))))
         kinect.append((rep, recording))
         vicon.append(poses.resample(centres, VICON_FPS, KINECT_FPS))
     if not kinect:
         return [], report
+    report.pelvis_width_m = width = float(np.median(widths))
+    low, high = PLAUSIBLE_PELVIS_WIDTH_M
+    if not low <= width <= high:
+        report.warnings.append(
+            f"{report.session}: the Vicon pelvis markers LASI-RASI are {1000 * width:.0f} mm "
+            f"apart (expected {1000 * low:.0f}-{1000 * high:.0f} mm): the hip centres, so "
+            "HipCenter and the ground truth's hip and spine bones, are suspect"
+        )
     pairing = pair_session(
         [r.positions.astype(np.float64) for _, r in kinect], vicon, max_lag=max_lag
     )
@@ -312,6 +333,7 @@ def import_uiprmd(
         "sessions": len(reports),
         "repetitions": len(alignment),
         "skipped": {k: v for r in reports for k, v in r["skipped"].items()},
+        "warnings": [w for r in reports for w in r["warnings"]],
         "mean_alignment_m": round(float(np.mean(alignment)), 5) if alignment else None,
         "median_lag_frames": float(np.median(lags)) if lags else None,
         "session_reports": reports,
