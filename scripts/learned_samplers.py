@@ -21,7 +21,8 @@ diagnostic rows run through the Python API: the sampler's anchor alone and its m
   truth of the training subjects' real streams (every repetition; ``--train-reps N``: N per
   exercise); its imitation data of a training subject is collected with a database that lacks
   that subject too (nested), so the truth is never among the candidates, as on the held-out
-  subject. ``--model linear`` (default): the linear pose-space sampler
+  subject. ``--exclude-training LIST``: subjects no fold trains on (database, map, sampler),
+  still scored when held out. ``--model linear`` (default): the linear pose-space sampler
   (:mod:`policies.pose_sampler`, target ``bones``), its settings chosen by leave-one-subject-out
   cross-validation over the seven training subjects, deterministic (one model per fold
   whatever ``--seeds``). ``--model mlp``: the supervised MLP (target ``truth``), one per
