@@ -652,6 +652,14 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
     folder = args.out / "uiprmd"
     folder.mkdir(parents=True, exist_ok=True)
     imported = real_kinect.imported_uiprmd(args.work, args.data.parent)
+    excluded = [s for s in args.exclude_training.split(",") if s]
+    known = real_kinect.by_subject(imported / "recordings")
+    unknown = sorted(set(excluded) - set(known))
+    if unknown:
+        raise SystemExit(
+            f"--exclude-training: no subject {', '.join(unknown)} in {imported} "
+            f"(it has {', '.join(sorted(known))})"
+        )
     command = "python scripts/learned_samplers.py " + " ".join(
         shlex.quote(a) for a in (args.argv or [])
     )
@@ -664,7 +672,7 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
             "thres1": args.uiprmd_thres1,
             "blend": args.sensor_blend,
             "train_reps": args.train_reps,
-            "exclude_training": [s for s in args.exclude_training.split(",") if s],
+            "exclude_training": excluded,
             "reps": args.reps,
             "epochs": args.epochs,
             "hidden": [int(w) for w in args.hidden.split(",")],
