@@ -49,7 +49,7 @@ from policies.imitation import (
     truth_latent,
 )
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
-from policies.paired_recordings import group_pattern, paired_recordings
+from policies.paired_recordings import PairedRecordings, group_pattern, paired_recordings
 from policies.pose_sampler import LINEAR_FEATURES, fit_linear
 from policies.rl import train_rl
 from policies.sampler import (
@@ -651,27 +651,10 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         )
         return table
 
-    if run is not None and paired is not None:
-        spec = _imitation_spec(config, "linear", "ridge", LINEAR_FEATURES)
-        data = _collect_pairs(
-            config,
-            graph,
-            [recording for _, recording in paired.train],
-            spec,
-            run,
-            options,
-            frames=config.timesteps,
-            started=time.perf_counter(),
-            seconds=seconds,
-            say=say,
-        )
-        group_of_episode = np.array([group for group, _ in paired.train])
-        sampler, history = _fit_linear_groups(
-            spec, data, group_of_episode[data.episodes], seconds, say
-        )
-    elif run is not None and config.kind == "linear":
+    if run is not None and config.kind == "linear":
+        source = paired if paired is not None else train_clips
         sampler, history = _train_linear(
-            config, graph, train_clips, scenarios, options, run, seconds, say
+            config, graph, source, scenarios, options, run, seconds, say
         )
     elif run is not None:
         sampler, history = _train_supervised(
@@ -858,26 +841,41 @@ def _collect_pairs(
 def _train_linear(
     config: TrainConfig,
     graph: Any,
-    train_clips: Sequence[Any],
+    source: PairedRecordings | Sequence[Any],
     scenarios: Sequence[str],
     options: dict[str, Any],
     run: RunCheckpoints,
     seconds: dict[str, float],
     say: Callable[[str], None],
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
-    """The linear pose-space sampler (:mod:`policies.pose_sampler`) on simulated streams of
-    ``train_clips``: its settings chosen by cross-validation over groups of whole clips."""
+    """The linear pose-space sampler (:mod:`policies.pose_sampler`) on the training
+    recordings of paired ``source``, its settings chosen by cross-validation over their
+    groups, or on simulated streams of the clips ``source``, over groups of whole clips."""
 
     spec = _imitation_spec(config, "linear", "ridge", LINEAR_FEATURES)
-    data, clip_of_episode = _imitation_pairs(
-        config, graph, train_clips, scenarios, options, spec, run, seconds, say
-    )
-    # Whole clips per group (a clip and its mirror image together), so that cross-validation
-    # scores each setting on motions its fit did not see.
-    group_of_clip = np.array([c.name.removesuffix("~mirror") for c in train_clips])
-    return _fit_linear_groups(
-        spec, data, group_of_clip[clip_of_episode[data.episodes]], seconds, say
-    )
+    if isinstance(source, PairedRecordings):
+        data = _collect_pairs(
+            config,
+            graph,
+            [recording for _, recording in source.train],
+            spec,
+            run,
+            options,
+            frames=config.timesteps,
+            started=time.perf_counter(),
+            seconds=seconds,
+            say=say,
+        )
+        unit = np.array([group for group, _ in source.train])[data.episodes]
+    else:
+        data, clip_of_episode = _imitation_pairs(
+            config, graph, source, scenarios, options, spec, run, seconds, say
+        )
+        # Whole clips per group (a clip and its mirror image together), so that
+        # cross-validation scores each setting on motions its fit did not see.
+        group_of_clip = np.array([c.name.removesuffix("~mirror") for c in source])
+        unit = group_of_clip[clip_of_episode[data.episodes]]
+    return _fit_linear_groups(spec, data, unit, seconds, say)
 
 
 def _fit_linear_groups(

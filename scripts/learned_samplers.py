@@ -259,8 +259,7 @@ def _uiprmd_data(
     graph = real_kinect.uiprmd_graph(imported, left_out, thres1)
     others = [load_recording(p) for s, ps in subjects.items() if s not in left_out for p in ps]
     sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, others, True, False)
-    paths = real_kinect.repetitions(subjects[subject], reps) if reps else subjects[subject]
-    recordings = [load_recording(p) for p in paths]
+    recordings = [load_recording(p) for p in real_kinect.repetitions(subjects[subject], reps)]
     return collect_imitation_data(
         graph,
         recordings,

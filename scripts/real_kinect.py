@@ -94,7 +94,9 @@ def by_subject(folder: Path) -> dict[str, list[Path]]:
 
 def repetitions(paths: list[Path], reps: int) -> list[Path]:
     """``reps`` repetitions per exercise, from the middle of the session (first ones are
-    often badly segmented)."""
+    often badly segmented); every one of ``paths``, in their order, when ``reps`` is 0."""
+    if reps <= 0:
+        return list(paths)
     by_movement: dict[str, list[Path]] = defaultdict(list)
     for path in paths:
         by_movement[path.stem.split("_")[0]].append(path)

@@ -249,14 +249,7 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int) -> str:
         parts = {
             s: frame_data(
                 Reconstructor(graph_without({held_out, s}), sensor_map=sensor_map),
-                [
-                    load_recording(p)
-                    for p in (
-                        real_kinect.repetitions(subjects[s], train_reps)
-                        if train_reps
-                        else subjects[s]
-                    )
-                ],
+                [load_recording(p) for p in real_kinect.repetitions(subjects[s], train_reps)],
             )
             for s in others
         }
