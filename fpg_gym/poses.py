@@ -241,6 +241,35 @@ def flat_bone_vectors(poses: FloatArray) -> np.ndarray:
     return bone_vectors(poses.reshape(*poses.shape[:-1], -1, 3)).reshape(*poses.shape[:-1], -1)
 
 
+def latent_bone_design(axes: FloatArray) -> np.ndarray:
+    """Bone vectors per unit of each latent axis: ``(..., L, 60) -> (..., 57, L)``.
+
+    A pose linear in its latent coordinates, ``m + z A`` (Shum Eq. 9, ``A`` the axes scaled by
+    their spread), has the bone vectors ``bones(m) + design @ z``: the design of a
+    least-squares fit on bone vectors (:func:`fit_bone_vectors`; FPG Eq. 13 scores bone
+    vectors).
+    """
+    return np.swapaxes(flat_bone_vectors(axes), -1, -2)
+
+
+def fit_bone_vectors(design: FloatArray, bones: FloatArray) -> np.ndarray:
+    """Least-squares latent coordinates ``(..., L)`` whose bone vectors ``design @ z`` are
+    closest to ``bones`` ``(..., 57)``.
+
+    ``design`` is :func:`latent_bone_design` ``(..., 57, L)``. Solved by the normal equations
+    with a ridge of 1e-10 of the system's mean diagonal: it keeps every system regular and
+    gives unused (all-zero) axes 0, and moves the others by about that much (the same as a
+    minimum-norm least-squares solve to about 1e-6).
+    """
+    design = np.asarray(design, dtype=np.float64)
+    gram = np.einsum("...bl,...bk->...lk", design, design)
+    diagonal = np.einsum("...ll->...l", gram)
+    ridge = np.maximum(1e-10 * diagonal.mean(axis=-1), 1e-300)
+    gram += ridge[..., None, None] * np.eye(design.shape[-1])
+    rhs = np.einsum("...bl,...b->...l", design, np.asarray(bones, dtype=np.float64))
+    return np.linalg.solve(gram, rhs[..., None])[..., 0]
+
+
 def bone_lengths(poses: FloatArray) -> np.ndarray:
     """Bone lengths in metres: ``(..., 20, 3) -> (..., 19)``."""
     poses64 = np.asarray(poses, dtype=np.float64)

@@ -93,10 +93,9 @@ def truth_latent(
     target = pose_utils.bone_directions(local) * np.asarray(problem.lengths, np.float64)[:, None]
     latent = problem.latent
     # Bone vectors are linear in z: decode(z) = m + (z s) B (Shum Eq. 9).
-    design = pose_utils.flat_bone_vectors(latent.std[:, None] * latent.basis).T
+    design = pose_utils.latent_bone_design(latent.std[:, None] * latent.basis)
     offset = pose_utils.flat_bone_vectors(latent.mean)
-    z, *_ = np.linalg.lstsq(design, target.reshape(-1) - offset, rcond=None)
-    return np.asarray(z, dtype=np.float64)
+    return pose_utils.fit_bone_vectors(design, target.reshape(-1) - offset)
 
 
 @dataclass

@@ -59,6 +59,7 @@ from fpg_gym.env_observation import CONTEXT_NAMES
 from fpg_gym.errors import DataFormatError
 from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import quadratic_minimiser
+from policies.ridge import fit_ridge, predict_ridge, ridge_sums
 from policies.sampler import (
     DEFAULT_FEATURES,
     FeatureMap,
@@ -123,30 +124,17 @@ def _decode(fields: dict[str, np.ndarray], actions: np.ndarray, scale: float) ->
     return fields["latent_mean"] + np.einsum("nl,nlp->np", z, fields["axes"])
 
 
-def _bone_design(fields: dict[str, np.ndarray]) -> np.ndarray:
-    """Each frame's bone vectors per unit of its whitened axes ``(n, 57, L)`` (zero on unused
-    axes): the bone vectors of ``decode(z)`` are ``bones(m) + design z`` (Shum Eq. 9)."""
-    return pose_utils.flat_bone_vectors(fields["axes"]).transpose(0, 2, 1)
-
-
-def _solve_bones(design: np.ndarray, bones: np.ndarray) -> np.ndarray:
-    """Least-squares whitened offsets ``(n, L)`` whose bone vectors are closest to ``bones``
-    ``(n, 57)`` (zero on unused axes, a tiny ridge keeps every system regular)."""
-    gram = np.einsum("nbl,nbk->nlk", design, design)
-    gram += 1e-9 * np.eye(design.shape[2])
-    rhs = np.einsum("nbl,nb->nl", design, bones)
-    return np.linalg.solve(gram, rhs[..., None])[..., 0]
-
-
 def _encode_offset(
     fields: dict[str, np.ndarray], delta: np.ndarray, spec: SamplerSpec, design: Any = None
 ) -> Any:
     """Actions ``(n, L)`` that move a point by pose offsets ``delta`` ``(n, 60)`` as closely as
     each frame's latent space allows, measured on the bone vectors (FPG Eq. 13 scores bone
     vectors, and the reconstructor keeps only the bones' directions): zero on unused axes.
-    ``design``: :func:`_bone_design` of ``fields`` when the caller has it."""
-    design = _bone_design(fields) if design is None else design
-    return _solve_bones(design, pose_utils.flat_bone_vectors(delta)) / spec.action_scale
+    ``design``: the frames' :func:`~fpg_gym.poses.latent_bone_design` when the caller has it."""
+    design = pose_utils.latent_bone_design(fields["axes"]) if design is None else design
+    return (
+        pose_utils.fit_bone_vectors(design, pose_utils.flat_bone_vectors(delta)) / spec.action_scale
+    )
 
 
 def _fit_pose(
@@ -229,7 +217,7 @@ class LinearPoseSampler(GaussianSampler):
         :attr:`pose_weight` the offset moved on the bone vectors), and the cross-validated
         spread."""
         fields = _fields(self.features, features)
-        offsets = _predict(self.arrays, _regressors(fields))
+        offsets = predict_ridge(self.arrays, _regressors(fields))
         if self.pose_weight > 0.0:
             mean = _fit_pose(self.spec, fields, offsets, self.pose_weight)
         else:
@@ -282,30 +270,6 @@ class LinearPoseSampler(GaussianSampler):
         if np.any(arrays["regressor_scale"] <= 0):
             raise DataFormatError(weights, "expected positive scales", field="regressor_scale")
         return cls(spec, arrays, seed)
-
-
-def _sums(x: np.ndarray, y: np.ndarray) -> dict[str, Any]:
-    return {"n": len(x), "sx": x.sum(0), "sy": y.sum(0), "xx": x.T @ x, "xy": x.T @ y}
-
-
-def _ridge(sums: list[dict[str, Any]], penalty: float) -> dict[str, np.ndarray]:
-    """The ridge fit of the pooled ``sums`` (regressors standardised by their pooled mean and
-    spread, an unpenalised intercept)."""
-    n = sum(s["n"] for s in sums)
-    mean = sum(s["sx"] for s in sums) / n
-    bias = sum(s["sy"] for s in sums) / n
-    xx = sum(s["xx"] for s in sums) - n * np.outer(mean, mean)
-    xy = sum(s["xy"] for s in sums) - n * np.outer(mean, bias)
-    scale = np.sqrt(np.maximum(np.diag(xx) / n, 0.0))
-    scale = np.where(scale > 1e-9, scale, 1.0)
-    gram = xx / np.outer(scale, scale) + penalty * np.eye(len(mean))
-    weights = np.linalg.solve(gram, xy / scale[:, None])
-    return {"regressor_mean": mean, "regressor_scale": scale, "weights": weights, "bias": bias}
-
-
-def _predict(model: dict[str, np.ndarray], regressors: np.ndarray) -> np.ndarray:
-    scaled = (regressors - model["regressor_mean"]) / model["regressor_scale"]
-    return scaled @ model["weights"] + model["bias"]
 
 
 def _bone_errors(actions: np.ndarray, part: dict[str, Any], spec: SamplerSpec) -> np.ndarray:
@@ -389,14 +353,14 @@ def fit_linear(
                 "regressors": _regressors(fields),
                 "targets": targets,
                 "target_bones": pose_utils.flat_bone_vectors(targets),
-                "design": _bone_design(fields),
+                "design": pose_utils.latent_bone_design(fields["axes"]),
                 "fields": fields,
                 "actions": np.asarray(actions, dtype=np.float64),
                 "episodes": np.asarray(episodes),
             }
         )
     frames = sum(len(p["regressors"]) for p in parts)
-    sums = [_sums(p["regressors"], p["targets"]) for p in parts]
+    sums = [ridge_sums(p["regressors"], p["targets"]) for p in parts]
 
     def mean_of(measure: Any, means: list[np.ndarray]) -> float:
         """``measure``'s mean over every group's frames of its out-of-group means."""
@@ -407,7 +371,7 @@ def fit_linear(
     chosen: tuple[float, float, list[np.ndarray]] | None = None
     for penalty in penalties:
         offsets = [
-            _predict(_ridge(sums[:g] + sums[g + 1 :], penalty), part["regressors"])
+            predict_ridge(fit_ridge(sums[:g] + sums[g + 1 :], penalty), part["regressors"])
             for g, part in enumerate(parts)
         ]
         means = [
@@ -452,7 +416,7 @@ def fit_linear(
         "pose_weight": pose_weight,
         "selection": dict(SELECTION),
     }
-    sampler = LinearPoseSampler(spec, {**_ridge(sums, penalty), "std": std})
+    sampler = LinearPoseSampler(spec, {**fit_ridge(sums, penalty), "std": std})
     report = {
         "penalty": penalty,
         "cv_error": errors,
@@ -464,3 +428,16 @@ def fit_linear(
         "groups": len(parts),
     }
     return sampler, report
+
+
+def describe_fit(report: dict[str, Any]) -> str:
+    """One line on :func:`fit_linear`'s ``report``: the chosen settings and their
+    cross-validated errors against the anchor's."""
+    chosen = report["cv_error"][f"{report['penalty']:g}"]
+    weighted = report["cv_pose"][f"{report['pose_weight']:g}"]["error"]
+    return (
+        f"linear sampler: penalty {report['penalty']:g}, pose weight "
+        f"{report['pose_weight']:g}; cross-validated Eq. 13 in the latent spaces "
+        f"{chosen:.4f} m with the offset alone, {weighted:.4f} m with the pose weight, "
+        f"against the anchor's {report['anchor_error']:.4f} m"
+    )

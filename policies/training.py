@@ -50,7 +50,7 @@ from policies.imitation import (
 )
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
 from policies.paired_recordings import PairedRecordings, group_pattern, paired_recordings
-from policies.pose_sampler import LINEAR_FEATURES, fit_linear
+from policies.pose_sampler import LINEAR_FEATURES, describe_fit, fit_linear
 from policies.rl import train_rl
 from policies.sampler import (
     DEFAULT_FEATURES,
@@ -900,15 +900,7 @@ def _fit_linear_groups(
     t0 = time.perf_counter()
     sampler, report = fit_linear(spec, groups)
     seconds["train"] = time.perf_counter() - t0
-    chosen = f"{report['penalty']:g}"
-    weighted = report["cv_pose"][f"{report['pose_weight']:g}"]["error"]
-    say(
-        f"linear sampler: penalty {report['penalty']:g}, pose weight "
-        f"{report['pose_weight']:g}; cross-validated Eq. 13 in the latent spaces "
-        f"{report['cv_error'][chosen]:.4f} m with the offset alone, "
-        f"{weighted:.4f} m with the pose weight, against the anchor's "
-        f"{report['anchor_error']:.4f} m ({seconds['train']:.1f} s)"
-    )
+    say(f"{describe_fit(report)} ({seconds['train']:.1f} s)")
     return sampler, [{"linear": report}]
 
 

@@ -68,7 +68,7 @@ from fpg_gym.io.recording import load_recording
 from fpg_gym.methods import MethodRunner
 from fpg_gym.reconstruct import Reconstructor
 from policies.learned_optimizers import LearnedSampler
-from policies.pose_sampler import LINEAR_FEATURES, fit_linear
+from policies.pose_sampler import LINEAR_FEATURES, describe_fit, fit_linear
 from policies.sampler import FEATURE_SETS, SamplerSpec
 from policies.supervised import SupervisedSampler, fit_supervised
 from policies.training import collect_imitation_data, simulate_episodes, truth_latent
@@ -378,11 +378,8 @@ def _train_linear(
     sampler.spec.training = {**info, **report, "command": task["command"]}
     path = Path(task["out"]) / f"sampler_{name}_linear"
     sampler.save(path)
-    best = report["cv_error"][f"{report['penalty']:g}"]
     print(
-        f"{name}: linear sampler, penalty {report['penalty']:g}, pose weight "
-        f"{report['pose_weight']:g}, cross-validated Eq. 13 in the latent spaces {best:.4f} m "
-        f"(anchor {report['anchor_error']:.4f}); by pose weight {json.dumps(report['cv_pose'])}",
+        f"{name}: {describe_fit(report)}; by pose weight {json.dumps(report['cv_pose'])}",
         file=sys.stderr,
         flush=True,
     )

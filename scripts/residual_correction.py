@@ -53,6 +53,7 @@ from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
 from fpg_gym.holdout import split_takes  # noqa: E402
 from fpg_gym.io import load_clips  # noqa: E402
 from fpg_gym.reconstruct import Reconstructor  # noqa: E402
+from policies.ridge import fit_ridge, predict_ridge, ridge_sums  # noqa: E402
 
 DEFAULT_DATA = REPO.parent / "shared" / "data"
 PENALTIES = (1.0, 10.0, 100.0, 1000.0, 10000.0)
@@ -141,11 +142,10 @@ def merged(parts: list[dict[str, Any]]) -> dict[str, Any]:
 
 
 def ridge(train: dict[str, Any], penalty: float) -> Any:
-    """The ridge model of ``train`` (standardised features) as a function of features."""
-    mean, scale = train["x"].mean(axis=0), train["x"].std(axis=0) + 1e-6
-    z = (train["x"] - mean) / scale
-    weights = np.linalg.solve(z.T @ z + penalty * np.eye(z.shape[1]), z.T @ train["y"])
-    return lambda x: ((x - mean) / scale) @ weights
+    """The ridge model of ``train`` (standardised features, an unpenalised intercept;
+    :func:`policies.ridge.fit_ridge`) as a function of features."""
+    model = fit_ridge([ridge_sums(train["x"], train["y"])], penalty)
+    return lambda x: predict_ridge(model, x)
 
 
 def choose(

@@ -187,3 +187,26 @@ def test_bone_directions_are_unit_with_rest_fallback(clip_poses: np.ndarray) -> 
     assert np.allclose(directions * lengths, poses.bone_vectors(clip_poses[:5]), atol=1e-6)
     collapsed = np.zeros((skeleton.NUM_JOINTS, 3))
     assert np.array_equal(poses.bone_directions(collapsed), poses.REST_DIRECTIONS)
+
+
+def test_bone_fit_matches_least_squares_and_leaves_unused_axes_at_zero(
+    clip_poses: np.ndarray,
+) -> None:
+    # Axes as a local PCA's whitened ones: orthonormal directions of real pose offsets times
+    # spreads from 10 cm to 1 mm; the last two unused in the second system.
+    flat = clip_poses.reshape(len(clip_poses), -1).astype(np.float64)
+    basis = np.linalg.qr((flat[::7][:8] - flat.mean(axis=0)).T)[0].T
+    axes = np.stack([basis * np.logspace(-1, -3, 8)[:, None]] * 2)
+    axes[1, 6:] = 0.0
+    design = poses.latent_bone_design(axes)
+    assert design.shape == (2, 57, 8)
+    z = np.array([[0.3, -1.2, 2.0, 0.5, -0.7, 1.1, 4.0, -2.5]] * 2)
+    bones = np.einsum("nbl,nl->nb", design, z) + 0.01 * np.sin(np.arange(57))
+    fitted = poses.fit_bone_vectors(design, bones)
+    for n in range(2):
+        used = np.any(design[n] != 0.0, axis=0)
+        expected, *_ = np.linalg.lstsq(design[n][:, used], bones[n], rcond=None)
+        np.testing.assert_allclose(fitted[n, used], expected, rtol=1e-5, atol=1e-8)
+        assert np.all(fitted[n, ~used] == 0.0)
+    # The design is the bone vectors of a unit step along each axis.
+    np.testing.assert_allclose(design[0, :, 2], poses.flat_bone_vectors(axes[0, 2]))
