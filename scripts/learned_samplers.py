@@ -643,6 +643,95 @@ def uiprmd_table(results: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def _subject_errors(result: dict[str, Any]) -> dict[str, dict[str, np.ndarray]]:
+    """One fold's episode means by method (seeds pooled): ``{method: {"error", "jitter"}}``,
+    episodes in the same (sorted) order for every method."""
+    models = {result["subject"]: result["models"]}
+    by: dict[str, dict[str, list[float]]] = {}
+    for row in result["rows"]:
+        name, _ = _method_kind(row["method"], models)
+        slot = by.setdefault(name, {}).setdefault(row["episode"], [])
+        slot.append((row["error"], row["jitter"]))
+    out = {}
+    for name, episodes in by.items():
+        values = np.array([np.mean(episodes[e], axis=0) for e in sorted(episodes)])
+        out[name] = {"error": values[:, 0], "jitter": values[:, 1]}
+    return out
+
+
+SUBJECT_METHODS = ("closed-form", "local-search", "learned", "learned+search", "oracle-bones")
+
+
+def uiprmd_subject_table(results: list[dict[str, Any]]) -> str:
+    """Per held-out subject: each method's mean error (seeds pooled) and ``learned:``'s
+    change against closed-form with its paired 95 % CI over the subject's episodes; jitter."""
+    rng = np.random.default_rng(2016)
+    lines = [
+        "| held out | episodes | "
+        + " | ".join(f"{m} (m)" for m in SUBJECT_METHODS)
+        + " | learned vs closed-form [95 % CI] | jitter closed-form → learned (m/s²) |",
+        "| --- | --- | " + " | ".join("---" for _ in SUBJECT_METHODS) + " | --- | --- |",
+    ]
+    for result in sorted(results, key=lambda r: r["subject"]):
+        errors = _subject_errors(result)
+        base, learned = errors["closed-form"], errors.get("learned")
+        cells = [
+            f"{errors[m]['error'].mean():.4f}" if m in errors else "–" for m in SUBJECT_METHODS
+        ]
+        change = jitter = "–"
+        if learned is not None:
+            low, high = metrics.bootstrap_mean_ci(learned["error"], base=base["error"], rng=rng)
+            change = (
+                f"{100 * (learned['error'].mean() / base['error'].mean() - 1):+.1f} % "
+                f"[{100 * low:+.1f}, {100 * high:+.1f}]"
+            )
+            jitter = f"{base['jitter'].mean():.2f} → {learned['jitter'].mean():.2f}"
+        lines.append(
+            f"| {result['subject']} | {len(base['error'])} | {' | '.join(cells)} | {change} "
+            f"| {jitter} |"
+        )
+    return "\n".join(lines)
+
+
+def plot_subjects(results: list[dict[str, Any]], path: Path) -> Path:
+    """A PNG of each held-out subject's mean error by method (:data:`SUBJECT_METHODS`), with
+    95 % bootstrap intervals over the subject's episodes."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    rng = np.random.default_rng(2016)
+    ordered = sorted(results, key=lambda r: r["subject"])
+    figure = Figure(figsize=(max(6.0, 1.1 * len(ordered) + 2), 4.0))
+    axes = figure.add_subplot()
+    width = 0.8 / len(SUBJECT_METHODS)
+    for k, method in enumerate(SUBJECT_METHODS):
+        means, low, high = [], [], []
+        for result in ordered:
+            errors = _subject_errors(result).get(method)
+            if errors is None:
+                means.append(np.nan), low.append(0.0), high.append(0.0)
+                continue
+            lo, hi = metrics.bootstrap_mean_ci(errors["error"], rng=rng)
+            mean = errors["error"].mean()
+            means.append(mean), low.append(mean - lo), high.append(hi - mean)
+        x = np.arange(len(ordered)) + (k - (len(SUBJECT_METHODS) - 1) / 2) * width
+        axes.bar(x, 100 * np.array(means), width, label=method)
+        axes.errorbar(
+            x, 100 * np.array(means), yerr=100 * np.array([low, high]), fmt="none", ecolor="k",
+            elinewidth=0.8, capsize=2,
+        )  # fmt: skip
+    axes.set_xticks(np.arange(len(ordered)), [r["subject"] for r in ordered])
+    axes.set_xlabel("held-out subject")
+    axes.set_ylabel("mean error, FPG Eq. 13 (cm)")
+    axes.set_title("UI-PRMD, leave subjects out (95 % CI over episodes)")
+    axes.legend(fontsize=8, ncols=len(SUBJECT_METHODS), loc="upper center",
+                bbox_to_anchor=(0.5, -0.14))  # fmt: skip
+    figure.tight_layout()
+    FigureCanvasAgg(figure)
+    figure.savefig(path, dpi=110)
+    return path
+
+
 def uiprmd_protocol(args: argparse.Namespace) -> str:
     """The UI-PRMD leave-subjects-out protocol (see the module docstring)."""
     folder = args.out / "uiprmd"
@@ -700,12 +789,14 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
         f"### uiprmd (leave-subjects-out, held out {args.subjects}, {episodes} episodes, "
         f"seeds {args.seeds}, sensor blend {args.sensor_blend}, temporal defaults"
         f"{', trained without ' + args.exclude_training if args.exclude_training else ''})\n\n"
-        f"{uiprmd_table(results)}\n\nWall time {wall:.0f} s ({args.workers} workers); "
+        f"{uiprmd_table(results)}\n\nPer held-out subject:\n\n{uiprmd_subject_table(results)}"
+        f"\n\nWall time {wall:.0f} s ({args.workers} workers); "
         f"training CPU per sampler: "
         f"{np.mean([v for res in results for v in res['train_cpu_s'].values()]):.0f} s, data "
         f"CPU per fold {np.mean([res['data_cpu_s'] for res in results]):.0f} s.\n"
     )
     (folder / "table.md").write_text(report)
+    plot_subjects(results, folder / "per_subject.png")
     print(report, flush=True)
     return report
 
@@ -767,6 +858,9 @@ def main(argv: list[str] | None = None) -> int:
         results = [json.loads(path.read_text()) for path in folds]
         print(f"{len(results)} fold(s): {', '.join(r['subject'] for r in results)}\n")
         print(uiprmd_table(results))
+        print(f"\nPer held-out subject:\n\n{uiprmd_subject_table(results)}")
+        if results:
+            print(f"\n{plot_subjects(results, args.out / 'uiprmd' / 'per_subject.png')}")
         return 0
     if "sim" in wanted:
         reports.append(sim_protocol(args))

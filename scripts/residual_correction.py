@@ -29,7 +29,8 @@ The corrections are smoothed causally per episode (``c_t = alpha p_t + (1 - alph
 Usage::
 
     python scripts/residual_correction.py --protocol sim
-    python scripts/residual_correction.py --protocol uiprmd --work runs/real_kinect  # ~13 min
+    python scripts/residual_correction.py --protocol uiprmd --work runs/real_kinect  # ~25 min
+    python scripts/residual_correction.py --protocol uiprmd --sensor-blend 0.5  # samplers' pipeline
 """
 
 from __future__ import annotations
@@ -182,7 +183,7 @@ def report(name: str, base: np.ndarray, fixed: np.ndarray, jb: np.ndarray, jf: n
     )
 
 
-def sim_protocol(data_root: Path) -> str:
+def sim_protocol(data_root: Path, options: dict[str, Any]) -> str:
     """The simulated held-out Bandai protocol (module docstring)."""
     from policies.training import simulate_episodes
 
@@ -194,7 +195,7 @@ def sim_protocol(data_root: Path) -> str:
     other = [graph_clips[i] for i in sorted(order[len(order) // 2 :])]
     training = simulate_episodes(other, ["front-many", "left45-many"], [0], max_frames=150)
     cut = len(training) - max(1, len(training) // 10)
-    reconstructor = Reconstructor(FilteredPoseGraph.build(half, progress=False))
+    reconstructor = Reconstructor(FilteredPoseGraph.build(half, progress=False), **options)
     train, validation = (
         frame_data(reconstructor, training[:cut]),
         frame_data(reconstructor, training[cut:]),
@@ -208,7 +209,7 @@ def sim_protocol(data_root: Path) -> str:
         max_frames=150,
     )
     graph = FilteredPoseGraph.build(graph_clips, progress=False)
-    test = frame_data(Reconstructor(graph), evaluation)
+    test = frame_data(Reconstructor(graph, **options), evaluation)
     base, jb = scores(test["outputs"], test)
     fixed, jf = scores(corrected(test, predict(test["x"]), alpha), test)
     print(
@@ -218,7 +219,7 @@ def sim_protocol(data_root: Path) -> str:
     return report("simulated held-out Bandai", base, fixed, jb, jf)
 
 
-def uiprmd_protocol(work: Path, data_root: Path, train_reps: int) -> str:
+def uiprmd_protocol(work: Path, data_root: Path, train_reps: int, options: dict[str, Any]) -> str:
     """UI-PRMD leave one subject out (module docstring)."""
     import real_kinect
 
@@ -248,7 +249,7 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int) -> str:
         )
         parts = {
             s: frame_data(
-                Reconstructor(graph_without({held_out, s}), sensor_map=sensor_map),
+                Reconstructor(graph_without({held_out, s}), sensor_map=sensor_map, **options),
                 [load_recording(p) for p in real_kinect.repetitions(subjects[s], train_reps)],
             )
             for s in others
@@ -259,7 +260,7 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int) -> str:
         penalty, alpha, _ = choose(inner)
         predict = ridge(merged([parts[s] for s in others]), penalty)
         test = frame_data(
-            Reconstructor(graph_without({held_out}), sensor_map=sensor_map),
+            Reconstructor(graph_without({held_out}), sensor_map=sensor_map, **options),
             [load_recording(p) for p in real_kinect.repetitions(subjects[held_out], 1)],
         )
         base, jb = scores(test["outputs"], test)
@@ -281,13 +282,20 @@ def main() -> int:
         default=0,
         help="UI-PRMD: repetitions per exercise of each training subject (0: all, the default)",
     )
+    parser.add_argument(
+        "--sensor-blend",
+        type=float,
+        default=0.0,
+        help="the pipeline's sensor blend (0, the default: scripts/real_kinect.py's default)",
+    )
     args = parser.parse_args()
+    options = {"sensor_blend": args.sensor_blend}
     threadpool_limits(1, "blas")
     start = time.perf_counter()
     if args.protocol == "sim":
-        line = sim_protocol(args.data)
+        line = sim_protocol(args.data, options)
     else:
-        line = uiprmd_protocol(args.work, args.data, args.train_reps)
+        line = uiprmd_protocol(args.work, args.data, args.train_reps, options)
     print(f"{line}; wall {time.perf_counter() - start:.0f} s")
     return 0
 

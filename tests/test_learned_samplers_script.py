@@ -57,3 +57,26 @@ def test_table_pools_seeds_and_compares_with_the_anchor(script: Any) -> None:
     assert "-20.0 %" in lines["learned (seed 0)"] and "-10.0 %" in lines["learned (seed 1)"]
     assert "-15.0 %" in lines["learned"]  # the seeds pooled
     assert f"{np.mean(anchor) * 0.85:.4f}" in lines["learned"]
+
+
+def test_subject_table_and_plot_take_each_fold_alone(script: Any, tmp_path: Path) -> None:
+    models = {"0": "/m/sampler_a_seed0", "1": "/m/sampler_a_seed1"}
+    folds = []
+    for subject, factor in (("s02", 0.5), ("s01", 0.75)):
+        anchor = [0.10, 0.12, 0.08]
+        rows = _rows(
+            {
+                "fpg:closed-form": anchor,
+                "fpg:local-search": [0.2] * 3,
+                f"fpg:learned:{models['0']}": [factor * e for e in anchor],
+                f"fpg:learned:{models['1']}": [factor * e for e in anchor],
+            }
+        )
+        folds.append({"subject": subject, "models": models, "rows": rows})
+    table = script.uiprmd_subject_table(folds)
+    lines = table.splitlines()[2:]
+    assert [line.split(" | ")[0].lstrip("| ") for line in lines] == ["s01", "s02"]
+    assert "-25.0 %" in lines[0] and "-50.0 %" in lines[1]
+    assert " | – | " in lines[0]  # no oracle-bones row in these folds
+    path = script.plot_subjects(folds, tmp_path / "per_subject.png")
+    assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
