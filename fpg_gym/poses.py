@@ -258,8 +258,8 @@ def fit_bone_vectors(design: FloatArray, bones: FloatArray) -> np.ndarray:
 
     ``design`` is :func:`latent_bone_design` ``(..., 57, L)``. Solved by the normal equations
     with a ridge of 1e-10 of the system's mean diagonal: it keeps every system regular and
-    gives unused (all-zero) axes 0, and moves the others by about that much (the same as a
-    minimum-norm least-squares solve to about 1e-6).
+    gives unused (all-zero) axes 0; on UI-PRMD's frames the others equal ``lstsq``'s to
+    float32 rounding.
     """
     design = np.asarray(design, dtype=np.float64)
     gram = np.einsum("...bl,...bk->...lk", design, design)

@@ -38,10 +38,9 @@ def fit_ridge(sums: Sequence[dict[str, Any]], penalty: float) -> dict[str, np.nd
     Returns
     -------
     dict
-        ``regressor_mean``, ``regressor_scale`` ``(R,)`` (a constant regressor gets scale 1
-        and weight 0),
-        ``weights`` ``(R, K)`` and the unpenalised ``bias`` ``(K,)``: see
-        :func:`predict_ridge`.
+        ``regressor_mean``, ``regressor_scale`` ``(R,)``, ``weights`` ``(R, K)`` and the
+        unpenalised ``bias`` ``(K,)`` (:func:`predict_ridge`). A constant regressor gets
+        scale 1 and weight 0.
     """
     n = sum(s["n"] for s in sums)
     mean = sum(s["sx"] for s in sums) / n

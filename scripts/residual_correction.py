@@ -23,6 +23,11 @@ Protocols (``--protocol``):
   smoothing are chosen by leave-one-subject-out cross-validation over the seven, and the model is
   fitted on all seven; scored on one repetition per exercise of the held-out subject.
 
+With ``--sampler-models DIR`` (``scripts/learned_samplers.py``'s UI-PRMD folder) each fold
+corrects the output of its own linear sampler (``learned:DIR/sampler_{subject}_linear``, trained
+on the same seven subjects, so its outputs on them are in-sample) instead of the closed form's,
+and the corrected output is also compared with the closed form's.
+
 The corrections are smoothed causally per episode (``c_t = alpha p_t + (1 - alpha) c_{t-1}``,
 ``alpha`` in :data:`SMOOTHING`, 1 for none), since a per-frame correction adds jitter.
 
@@ -31,6 +36,8 @@ Usage::
     python scripts/residual_correction.py --protocol sim
     python scripts/residual_correction.py --protocol uiprmd --work runs/real_kinect  # ~25 min
     python scripts/residual_correction.py --protocol uiprmd --sensor-blend 0.5  # samplers' pipeline
+    python scripts/residual_correction.py --protocol uiprmd --sensor-blend 0.5 \
+        --sampler-models runs/learned/uiprmd  # the linear sampler's output, corrected
 """
 
 from __future__ import annotations
@@ -62,12 +69,14 @@ PENALTIES = (1.0, 10.0, 100.0, 1000.0, 10000.0)
 SMOOTHING = (1.0, 0.5, 0.25)
 
 
-def frame_data(reconstructor: Reconstructor, recordings: list[Any]) -> dict[str, Any]:
-    """The closed-form pipeline's outputs of ``recordings`` with each frame's features and
-    target (module docstring)."""
+def frame_data(
+    reconstructor: Reconstructor, recordings: list[Any], method: str = "closed-form"
+) -> dict[str, Any]:
+    """The pipeline's outputs of ``recordings`` with ``method`` (an optimiser name: the closed
+    form, or ``learned:MODEL``) with each frame's features and target (module docstring)."""
     features, targets, outputs, truths, fps = [], [], [], [], []
     for recording in recordings:
-        result = reconstructor.reconstruct(recording, "closed-form", rng=0)
+        result = reconstructor.reconstruct(recording, method, rng=0)
         output = np.asarray(result.poses, dtype=np.float64)
         reliability = result.arrays()["reliability"].reshape(len(output), -1)
         truth = np.asarray(recording.ground_truth, dtype=np.float64)
@@ -171,12 +180,20 @@ def choose(
     return best[1], best[2], found
 
 
-def report(name: str, base: np.ndarray, fixed: np.ndarray, jb: np.ndarray, jf: np.ndarray) -> str:
-    """One line: mean errors, the relative change with a paired 95 % bootstrap interval."""
+def report(
+    name: str,
+    base: np.ndarray,
+    fixed: np.ndarray,
+    jb: np.ndarray,
+    jf: np.ndarray,
+    label: str = "closed-form",
+) -> str:
+    """One line: mean errors, the relative change with a paired 95 % bootstrap interval
+    (``label``: what ``base`` scores)."""
     change = fixed - base
     low, high = metrics.bootstrap_mean_ci(fixed, base=base, rng=2016)
     return (
-        f"{name}: {len(base)} episodes, closed-form {base.mean():.4f} m -> corrected "
+        f"{name}: {len(base)} episodes, {label} {base.mean():.4f} m -> corrected "
         f"{fixed.mean():.4f} m ({100 * (fixed.mean() / base.mean() - 1):+.1f} %, 95 % CI "
         f"[{100 * low:+.1f}, {100 * high:+.1f}]), lower on {int(np.sum(change < 0))}; jitter "
         f"{jb.mean():.2f} -> {jf.mean():.2f} m/s^2"
@@ -219,8 +236,16 @@ def sim_protocol(data_root: Path, options: dict[str, Any]) -> str:
     return report("simulated held-out Bandai", base, fixed, jb, jf)
 
 
-def uiprmd_protocol(work: Path, data_root: Path, train_reps: int, options: dict[str, Any]) -> str:
-    """UI-PRMD leave one subject out (module docstring)."""
+def uiprmd_protocol(
+    work: Path,
+    data_root: Path,
+    train_reps: int,
+    options: dict[str, Any],
+    sampler_models: Path | None = None,
+) -> str:
+    """UI-PRMD leave one subject out (module docstring); with ``sampler_models`` (the folder of
+    ``scripts/learned_samplers.py``'s UI-PRMD run) each fold corrects the output of its linear
+    sampler, ``learned:`` with ``sampler_{subject}_linear``, instead of the closed form's."""
     import real_kinect
 
     from fpg_gym.definitions import fit_sensor_maps
@@ -238,7 +263,14 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int, options: dict[
         return graphs[key]
 
     totals: list[tuple[np.ndarray, ...]] = []
+    anchors: list[tuple[np.ndarray, np.ndarray]] = []
     for held_out in names:
+        method, label = "closed-form", "closed-form"
+        if sampler_models is not None:
+            model = sampler_models / f"sampler_{held_out}_linear"
+            if not model.with_suffix(".json").is_file():
+                raise SystemExit(f"--sampler-models: no {model}.json (fold {held_out}'s model)")
+            method, label = f"learned:{model}", "learned"
         others = [s for s in names if s != held_out]
         recordings = [load_recording(p) for s in others for p in subjects[s]]
         sensor_map, _ = fit_sensor_maps(
@@ -251,6 +283,7 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int, options: dict[
             s: frame_data(
                 Reconstructor(graph_without({held_out, s}), sensor_map=sensor_map, **options),
                 [load_recording(p) for p in real_kinect.repetitions(subjects[s], train_reps)],
+                method,
             )
             for s in others
         }
@@ -259,16 +292,23 @@ def uiprmd_protocol(work: Path, data_root: Path, train_reps: int, options: dict[
         ]  # every training subject validates once
         penalty, alpha, _ = choose(inner)
         predict = ridge(merged([parts[s] for s in others]), penalty)
-        test = frame_data(
-            Reconstructor(graph_without({held_out}), sensor_map=sensor_map, **options),
-            [load_recording(p) for p in real_kinect.repetitions(subjects[held_out], 1)],
-        )
+        reconstructor = Reconstructor(graph_without({held_out}), sensor_map=sensor_map, **options)
+        episodes = [load_recording(p) for p in real_kinect.repetitions(subjects[held_out], 1)]
+        test = frame_data(reconstructor, episodes, method)
         base, jb = scores(test["outputs"], test)
         fixed, jf = scores(corrected(test, predict(test["x"]), alpha), test)
         totals.append((base, fixed, jb, jf))
-        print(report(f"{held_out} (penalty/smoothing {penalty:g}/{alpha:g})", base, fixed, jb, jf))
-    pooled = (np.concatenate(column) for column in zip(*totals, strict=True))
-    return report("UI-PRMD, 8 held-out subjects", *pooled)
+        name = f"{held_out} (penalty/smoothing {penalty:g}/{alpha:g})"
+        print(report(name, base, fixed, jb, jf, label), flush=True)
+        if sampler_models is not None:  # the corrected sampler against the closed form
+            anchor = frame_data(reconstructor, episodes)
+            anchors.append(scores(anchor["outputs"], anchor))
+    pooled = [np.concatenate(column) for column in zip(*totals, strict=True)]
+    line = report("UI-PRMD, 8 held-out subjects", *pooled, label=label)
+    if anchors:
+        base, jb = (np.concatenate(column) for column in zip(*anchors, strict=True))
+        line += "\n" + report("the same against the anchor", base, pooled[1], jb, pooled[3])
+    return line
 
 
 def main() -> int:
@@ -288,14 +328,21 @@ def main() -> int:
         default=0.0,
         help="the pipeline's sensor blend (0, the default: scripts/real_kinect.py's default)",
     )
+    parser.add_argument(
+        "--sampler-models",
+        type=Path,
+        help="UI-PRMD: correct each fold's linear sampler (learned_samplers.py's uiprmd folder)",
+    )
     args = parser.parse_args()
+    if args.sampler_models is not None and args.protocol != "uiprmd":
+        parser.error("--sampler-models: only with --protocol uiprmd")
     options = {"sensor_blend": args.sensor_blend}
     threadpool_limits(1, "blas")
     start = time.perf_counter()
     if args.protocol == "sim":
         line = sim_protocol(args.data, options)
     else:
-        line = uiprmd_protocol(args.work, args.data, args.train_reps, options)
+        line = uiprmd_protocol(args.work, args.data, args.train_reps, options, args.sampler_models)
     print(f"{line}; wall {time.perf_counter() - start:.0f} s")
     return 0
 
