@@ -701,25 +701,22 @@ def plot_subjects(results: list[dict[str, Any]], path: Path) -> Path:
 
     rng = np.random.default_rng(2016)
     ordered = sorted(results, key=lambda r: r["subject"])
+    folds = [_subject_errors(result) for result in ordered]
     figure = Figure(figsize=(max(6.0, 1.1 * len(ordered) + 2), 4.0))
     axes = figure.add_subplot()
     width = 0.8 / len(SUBJECT_METHODS)
     for k, method in enumerate(SUBJECT_METHODS):
-        means, low, high = [], [], []
-        for result in ordered:
-            errors = _subject_errors(result).get(method)
-            if errors is None:
-                means.append(np.nan), low.append(0.0), high.append(0.0)
-                continue
-            lo, hi = metrics.bootstrap_mean_ci(errors["error"], rng=rng)
-            mean = errors["error"].mean()
-            means.append(mean), low.append(mean - lo), high.append(hi - mean)
-        x = np.arange(len(ordered)) + (k - (len(SUBJECT_METHODS) - 1) / 2) * width
-        axes.bar(x, 100 * np.array(means), width, label=method)
-        axes.errorbar(
-            x, 100 * np.array(means), yerr=100 * np.array([low, high]), fmt="none", ecolor="k",
-            elinewidth=0.8, capsize=2,
-        )  # fmt: skip
+        # Per subject: the mean and its interval's lower and upper reach (cm); NaN: no row.
+        bars = np.full((len(folds), 3), np.nan)
+        for i, errors in enumerate(folds):
+            if method in errors:
+                values = errors[method]["error"]
+                low, high = metrics.bootstrap_mean_ci(values, rng=rng)
+                bars[i] = 100 * np.array([values.mean(), values.mean() - low, high - values.mean()])
+        x = np.arange(len(folds)) + (k - (len(SUBJECT_METHODS) - 1) / 2) * width
+        axes.bar(x, bars[:, 0], width, label=method)
+        axes.errorbar(x, bars[:, 0], yerr=np.nan_to_num(bars[:, 1:].T), fmt="none", ecolor="k",
+                      elinewidth=0.8, capsize=2)  # fmt: skip
     axes.set_xticks(np.arange(len(ordered)), [r["subject"] for r in ordered])
     axes.set_xlabel("held-out subject")
     axes.set_ylabel("mean error, FPG Eq. 13 (cm)")

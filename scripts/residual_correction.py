@@ -262,15 +262,19 @@ def uiprmd_protocol(
             graphs[key] = real_kinect.uiprmd_graph(imported, set(key), 0.1)
         return graphs[key]
 
+    if sampler_models is not None:  # every fold's model, before hours of work
+        missing = [s for s in names if not (sampler_models / f"sampler_{s}_linear.json").is_file()]
+        if missing:
+            raise SystemExit(
+                f"--sampler-models: {sampler_models} has no sampler_<subject>_linear.json for "
+                f"{', '.join(missing)} (scripts/learned_samplers.py --protocols uiprmd writes them)"
+            )
     totals: list[tuple[np.ndarray, ...]] = []
     anchors: list[tuple[np.ndarray, np.ndarray]] = []
     for held_out in names:
         method, label = "closed-form", "closed-form"
         if sampler_models is not None:
-            model = sampler_models / f"sampler_{held_out}_linear"
-            if not model.with_suffix(".json").is_file():
-                raise SystemExit(f"--sampler-models: no {model}.json (fold {held_out}'s model)")
-            method, label = f"learned:{model}", "learned"
+            method, label = f"learned:{sampler_models / f'sampler_{held_out}_linear'}", "learned"
         others = [s for s in names if s != held_out]
         recordings = [load_recording(p) for s in others for p in subjects[s]]
         sensor_map, _ = fit_sensor_maps(
@@ -336,6 +340,8 @@ def main() -> int:
     args = parser.parse_args()
     if args.sampler_models is not None and args.protocol != "uiprmd":
         parser.error("--sampler-models: only with --protocol uiprmd")
+    if not 0.0 <= args.sensor_blend <= 1.0:
+        parser.error(f"--sensor-blend: expected a value in [0, 1], got {args.sensor_blend:g}")
     options = {"sensor_blend": args.sensor_blend}
     threadpool_limits(1, "blas")
     start = time.perf_counter()
