@@ -248,7 +248,6 @@ def uiprmd_protocol(
     sampler, ``learned:`` with ``sampler_{subject}_linear``, instead of the closed form's."""
     import real_kinect
 
-    from fpg_gym.definitions import fit_sensor_maps
     from fpg_gym.io.recording import load_recording
 
     imported = real_kinect.imported_uiprmd(work, data_root)
@@ -277,11 +276,8 @@ def uiprmd_protocol(
             method, label = f"learned:{sampler_models / f'sampler_{held_out}_linear'}", "learned"
         others = [s for s in names if s != held_out]
         recordings = [load_recording(p) for s in others for p in subjects[s]]
-        sensor_map, _ = fit_sensor_maps(
-            np.concatenate([r.positions for r in recordings]),
-            np.concatenate([r.ground_truth for r in recordings]),
-            sensor="kinect-v2",
-            truth="vicon",
+        sensor_map, _, _ = real_kinect.fold_maps(
+            "uiprmd", graph_without({held_out}), recordings, True, False
         )
         parts = {
             s: frame_data(
