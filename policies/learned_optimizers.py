@@ -78,6 +78,9 @@ class LearnedSampler(BaseOptimizer):
         lowest energy.
     anchor : bool, optional
         Whether the anchor is among the points (None: the model's choice, else yes).
+    correct_output : bool
+        Whether the reconstructor applies the model's learned output correction, when it has
+        one (:attr:`output_correction`; True).
     """
 
     name = "learned"
@@ -89,6 +92,7 @@ class LearnedSampler(BaseOptimizer):
         std_scale: float = 1.0,
         prior_weight: float | None = None,
         anchor: bool | None = None,
+        correct_output: bool = True,
     ) -> None:
         super().__init__()
         if samples < 1:
@@ -106,6 +110,16 @@ class LearnedSampler(BaseOptimizer):
             raise ValueError(f"prior_weight: expected >= 0 or None, got {weight}")
         self.prior_weight = None if weight is None else float(weight)
         self.with_anchor = bool(chosen.get("anchor", True) if anchor is None else anchor)
+        self.correct_output = bool(correct_output)
+
+    @property
+    def output_correction(self) -> Any:
+        """The model's learned correction of the reconstructor's output
+        (:mod:`fpg_gym.reconstruct.output_correction`), which the reconstructor applies after
+        a frame this optimiser searched; None without one or with ``correct_output=False``."""
+        if not self.correct_output:
+            return None
+        return getattr(self.sampler, "output_correction", None)
 
     def __deepcopy__(self, memo: dict[int, Any]) -> LearnedSampler:
         """A copy with its own search state that shares the model (read-only while searching):
@@ -128,6 +142,7 @@ class LearnedSampler(BaseOptimizer):
             "std_scale": self.std_scale,
             "prior_weight": self.prior_weight,
             "anchor": self.with_anchor,
+            "correct_output": self.correct_output,
         }
 
     def reset(self, problem: Any, rng: np.random.Generator) -> None:
@@ -190,7 +205,7 @@ class LearnedSearch(LearnedSampler):
         batch without improvement.
     std_scale : float
         Multiplies the model's standard deviation (1).
-    prior_weight, anchor
+    prior_weight, anchor, correct_output
         As :class:`LearnedSampler`; with a prior the search moves around the point of highest
         posterior, its steps in units of the learned spread.
     """
@@ -207,9 +222,15 @@ class LearnedSearch(LearnedSampler):
         std_scale: float = 1.0,
         prior_weight: float | None = None,
         anchor: bool | None = None,
+        correct_output: bool = True,
     ) -> None:
         super().__init__(
-            model, samples=samples, std_scale=std_scale, prior_weight=prior_weight, anchor=anchor
+            model,
+            samples=samples,
+            std_scale=std_scale,
+            prior_weight=prior_weight,
+            anchor=anchor,
+            correct_output=correct_output,
         )
         if iterations < 0 or search_samples < 1:
             raise ValueError(

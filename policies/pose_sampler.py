@@ -41,12 +41,21 @@ no seed changes the model.
 ``learned:`` and ``learned+search:`` pick among their points by posterior (:data:`SELECTION`),
 because a lower energy is not a more accurate pose on real data.
 
+A model may carry a learned correction of the reconstructor's output
+(:mod:`policies.output_correction`, :meth:`LinearPoseSampler.with_correction`), fitted on the
+sampler's own outputs of its training recordings: ``learned:`` and ``learned+search:`` then
+bring it to the reconstructor, which applies it after the output
+(:mod:`fpg_gym.reconstruct.output_correction`).
+
 Needs numpy only (no torch). Saved as ``MODEL.json`` (:class:`~policies.sampler.SamplerSpec`,
-kind ``"linear"``) and ``MODEL.npz`` (arrays only, read with ``allow_pickle=False``).
+kind ``"linear"``; the correction's settings in ``hyperparameters["output_correction"]``) and
+``MODEL.npz`` (arrays only, the correction's prefixed ``correction_``; read with
+``allow_pickle=False``).
 """
 
 from __future__ import annotations
 
+import copy
 import os
 from collections.abc import Sequence
 from pathlib import Path
@@ -59,6 +68,7 @@ from fpg_gym.env_observation import CONTEXT_NAMES
 from fpg_gym.errors import DataFormatError
 from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import quadratic_minimiser
+from policies.output_correction import CORRECTION_ARRAYS, RidgeOutputCorrection
 from policies.ridge import fit_ridge, predict_ridge, ridge_sums
 from policies.sampler import (
     DEFAULT_FEATURES,
@@ -76,6 +86,7 @@ __all__ = [
     "SELECTION",
     "LinearPoseSampler",
     "fit_linear",
+    "out_of_group_samplers",
 ]
 
 #: Observation fields the linear sampler reads (its :class:`~policies.sampler.FeatureMap`):
@@ -101,6 +112,8 @@ SELECTION: dict[str, Any] = {"prior_weight": 1.0, "anchor": False}
 POSE_WEIGHTS: tuple[float, ...] = (0.0, 0.1, 0.25, 0.5, 1.0, 2.0)
 #: Arrays of a model file and their shapes (``F`` regressors, ``L`` latent axes, pose size 60).
 _ARRAYS = ("regressor_mean", "regressor_scale", "weights", "bias", "std")
+#: Prefix of the output correction's arrays in a model file.
+_CORRECTION_PREFIX = "correction_"
 
 
 def _fields(feature_map: FeatureMap, features: np.ndarray) -> dict[str, np.ndarray]:
@@ -203,6 +216,39 @@ class LinearPoseSampler(GaussianSampler):
             )
         super().__init__(spec, seed)
         self.arrays = {name: np.asarray(arrays[name], dtype=np.float64) for name in _ARRAYS}
+        self.output_correction: RidgeOutputCorrection | None = None
+        settings = spec.hyperparameters.get("output_correction")
+        if settings is not None:
+            self.output_correction = RidgeOutputCorrection(
+                {name: arrays[_CORRECTION_PREFIX + name] for name in CORRECTION_ARRAYS},
+                float(settings["smoothing"]),
+                float(settings["penalty"]),
+            )
+
+    def with_correction(
+        self, correction: RidgeOutputCorrection | None, report: dict[str, Any] | None = None
+    ) -> LinearPoseSampler:
+        """This sampler with a learned output correction (None: without one); ``report``
+        (:func:`policies.output_correction.fit_output_correction`'s) is kept in the spec."""
+        settings = dict(self.spec.hyperparameters)
+        settings.pop("output_correction", None)
+        if correction is not None:
+            settings["output_correction"] = {
+                "penalty": correction.penalty,
+                "smoothing": correction.smoothing,
+                **({} if report is None else {"report": report}),
+            }
+        self.spec.hyperparameters = settings
+        self.output_correction = correction
+        return self
+
+    def _all_arrays(self) -> dict[str, np.ndarray]:
+        """The arrays a model file stores (the correction's prefixed, when it has one)."""
+        arrays = {name: self.arrays[name] for name in _ARRAYS}
+        if self.output_correction is not None:
+            for name in CORRECTION_ARRAYS:
+                arrays[_CORRECTION_PREFIX + name] = self.output_correction.arrays[name]
+        return arrays
 
     @property
     def pose_weight(self) -> float:
@@ -230,7 +276,7 @@ class LinearPoseSampler(GaussianSampler):
         json_path, stem = model_paths(path)
         weights = stem.with_name(stem.name + LINEAR_WEIGHTS_SUFFIX)
         with atomic_path(weights) as temporary, open(temporary, "wb") as handle:
-            arrays: dict[str, Any] = {name: self.arrays[name] for name in _ARRAYS}
+            arrays: dict[str, Any] = self._all_arrays()
             np.savez(handle, **arrays)
         self.spec.weights = weights.name
         return self.spec.save(json_path)
@@ -255,9 +301,26 @@ class LinearPoseSampler(GaussianSampler):
             "bias": (60,),
             "std": (spec.latent_dim,),
         }
+        settings = spec.hyperparameters.get("output_correction")
+        names = list(_ARRAYS)
+        if settings is not None:
+            shapes.update({_CORRECTION_PREFIX + k: v for k, v in CORRECTION_ARRAYS.items()})
+            names += [_CORRECTION_PREFIX + name for name in CORRECTION_ARRAYS]
+            try:
+                smoothing = float(settings["smoothing"])
+                float(settings["penalty"])
+            except (TypeError, KeyError, ValueError):
+                raise DataFormatError(
+                    weights,
+                    "hyperparameters.output_correction: expected 'penalty' and 'smoothing'",
+                ) from None
+            if not 0.0 < smoothing <= 1.0:
+                raise DataFormatError(
+                    weights, f"correction smoothing: expected (0, 1], got {smoothing}"
+                )
         try:
             with np.load(weights, allow_pickle=False) as data:
-                arrays = {name: np.array(data[name], dtype=np.float64) for name in _ARRAYS}
+                arrays = {name: np.array(data[name], dtype=np.float64) for name in names}
         except (OSError, ValueError, KeyError) as error:
             raise DataFormatError(weights, f"not a linear sampler's arrays ({error})") from None
         for name, shape in shapes.items():
@@ -267,8 +330,9 @@ class LinearPoseSampler(GaussianSampler):
                     f"expected finite values of shape {shape}, got {arrays[name].shape}",
                     field=name,
                 )
-        if np.any(arrays["regressor_scale"] <= 0):
-            raise DataFormatError(weights, "expected positive scales", field="regressor_scale")
+        for name in ("regressor_scale", _CORRECTION_PREFIX + "regressor_scale"):
+            if name in arrays and np.any(arrays[name] <= 0):
+                raise DataFormatError(weights, "expected positive scales", field=name)
         return cls(spec, arrays, seed)
 
 
@@ -291,6 +355,45 @@ def _shake(actions: np.ndarray, part: dict[str, Any], spec: SamplerSpec) -> np.n
     steady = (episodes[2:] == episodes[1:-1]) & (episodes[1:-1] == episodes[:-2])
     second = poses[2:] - 2.0 * poses[1:-1] + poses[:-2]
     return np.linalg.norm(second, axis=2).mean(axis=1)[steady]
+
+
+def _regression_data(
+    spec: SamplerSpec, feature_map: FeatureMap, observations: np.ndarray, actions: np.ndarray
+) -> tuple[dict[str, np.ndarray], np.ndarray, np.ndarray]:
+    """A group's fields (:func:`_fields`), regressors ``(n, R)`` and targets ``(n, 60)`` (the
+    truth actions' poses minus the anchor's)."""
+    fields = _fields(feature_map, feature_map.transform(observations)[0])
+    targets = _decode(fields, actions, spec.action_scale) - fields["anchor_pose"]
+    return fields, _regressors(fields), targets
+
+
+def out_of_group_samplers(
+    sampler: LinearPoseSampler, groups: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]
+) -> list[LinearPoseSampler]:
+    """For each of :func:`fit_linear`'s ``groups``, ``sampler`` fitted without it: the same
+    penalty, pose weight, spread and selection, the ridge fitted on the other groups.
+
+    Cross-fitting: a stage after the sampler (its output correction,
+    :mod:`policies.output_correction`) learns from the sampler's outputs of each group as a
+    sampler that never saw the group gives them, as on a held-out subject; the sampler's own
+    outputs of its training data are closer to the truth than that.
+    """
+    spec = sampler.spec
+    feature_map = spec.feature_map()
+    penalty = float(spec.hyperparameters["penalty"])
+    sums = []
+    for observations, actions, _ in groups:
+        _, regressors, targets = _regression_data(spec, feature_map, observations, actions)
+        sums.append(ridge_sums(regressors, targets))
+    bare = copy.deepcopy(spec)
+    bare.hyperparameters.pop("output_correction", None)
+    return [
+        LinearPoseSampler(
+            copy.deepcopy(bare),
+            {**fit_ridge(sums[:g] + sums[g + 1 :], penalty), "std": sampler.arrays["std"]},
+        )
+        for g in range(len(groups))
+    ]
 
 
 def fit_linear(
@@ -344,13 +447,12 @@ def fit_linear(
     if not pose_weights or not all(np.isfinite(w) and w >= 0 for w in pose_weights):
         raise ValueError(f"pose_weights: expected finite values >= 0, got {list(pose_weights)}")
     feature_map = spec.feature_map()
-    parts = []
+    parts: list[dict[str, Any]] = []
     for observations, actions, episodes in groups:
-        fields = _fields(feature_map, feature_map.transform(observations)[0])
-        targets = _decode(fields, actions, spec.action_scale) - fields["anchor_pose"]
+        fields, regressors, targets = _regression_data(spec, feature_map, observations, actions)
         parts.append(
             {
-                "regressors": _regressors(fields),
+                "regressors": regressors,
                 "targets": targets,
                 "target_bones": pose_utils.flat_bone_vectors(targets),
                 "design": pose_utils.latent_bone_design(fields["axes"]),

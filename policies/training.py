@@ -49,8 +49,15 @@ from policies.imitation import (
     truth_latent,
 )
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
+from policies.output_correction import CorrectionSource, learn_correction
 from policies.paired_recordings import PairedRecordings, group_pattern, paired_recordings
-from policies.pose_sampler import LINEAR_FEATURES, describe_fit, fit_linear
+from policies.pose_sampler import (
+    LINEAR_FEATURES,
+    LinearPoseSampler,
+    describe_fit,
+    fit_linear,
+    out_of_group_samplers,
+)
 from policies.rl import train_rl
 from policies.sampler import (
     DEFAULT_FEATURES,
@@ -373,6 +380,10 @@ class TrainConfig:
         evaluation, as ``fpg-gym reconstruct --sensor-map`` uses it.
     sensor_blend : float
         The reconstructor's ``sensor_blend`` for the data and the evaluation (0).
+    correction : bool
+        Kind ``"linear"``: learn a correction of the reconstructor's output from the fitted
+        sampler's own outputs of the training recordings or streams, its settings
+        cross-validated over the same groups (:mod:`policies.output_correction`; True).
     """
 
     kind: str
@@ -414,6 +425,7 @@ class TrainConfig:
     group_pattern: str | None = None
     sensor_map: str | None = None
     sensor_blend: float = 0.0
+    correction: bool = True
 
     def __post_init__(self) -> None:
         if self.kind not in ("supervised", "rl", "linear"):
@@ -717,6 +729,11 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             "mean action (1)": LearnedSampler(sampler, samples=1),
             "learned (200)": LearnedSampler(sampler),
             "learned+search (200)": LearnedSearch(sampler),
+            **(
+                {"learned, uncorrected (200)": LearnedSampler(sampler, correct_output=False)}
+                if getattr(sampler, "output_correction", None) is not None
+                else {}
+            ),
         },
     )
     seconds["evaluate"] = time.perf_counter() - t0
@@ -764,10 +781,11 @@ def _imitation_pairs(
     run: RunCheckpoints,
     seconds: dict[str, float],
     say: Callable[[str], None],
-) -> tuple[ImitationData, np.ndarray]:
+) -> tuple[ImitationData, np.ndarray, list[Any]]:
     """The supervised and linear samplers' training pairs: simulated streams of the training
     clips, collected (or read back from a stopped run's checkpoints) as ``config`` says with
-    the reconstructor ``options``; and the index in ``train_clips`` of each episode's clip."""
+    the reconstructor ``options``; the index in ``train_clips`` of each episode's clip; and
+    the streams (in episode order)."""
 
     t0 = time.perf_counter()
     frames_per_pass = sum(
@@ -792,7 +810,7 @@ def _imitation_pairs(
         seconds=seconds,
         say=say,
     )
-    return data, clip_of_episode
+    return data, clip_of_episode, recordings
 
 
 def _collect_pairs(
@@ -850,14 +868,17 @@ def _train_linear(
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
     """The linear pose-space sampler (:mod:`policies.pose_sampler`) on the training
     recordings of paired ``source``, its settings chosen by cross-validation over their
-    groups, or on simulated streams of the clips ``source``, over groups of whole clips."""
+    groups, or on simulated streams of the clips ``source``, over groups of whole clips; with
+    ``config.correction``, its output correction learnt from its own outputs of the same
+    recordings, cross-validated over the same groups."""
 
     spec = _imitation_spec(config, "linear", "ridge", LINEAR_FEATURES)
     if isinstance(source, PairedRecordings):
+        recordings = [recording for _, recording in source.train]
         data = _collect_pairs(
             config,
             graph,
-            [recording for _, recording in source.train],
+            recordings,
             spec,
             run,
             options,
@@ -868,14 +889,41 @@ def _train_linear(
         )
         unit = np.array([group for group, _ in source.train])[data.episodes]
     else:
-        data, clip_of_episode = _imitation_pairs(
+        data, clip_of_episode, recordings = _imitation_pairs(
             config, graph, source, scenarios, options, spec, run, seconds, say
         )
         # Whole clips per group (a clip and its mirror image together), so that
         # cross-validation scores each setting on motions its fit did not see.
         group_of_clip = np.array([c.name.removesuffix("~mirror") for c in source])
         unit = group_of_clip[clip_of_episode[data.episodes]]
-    return _fit_linear_groups(spec, data, unit, seconds, say)
+    sampler, history, groups = _fit_linear_groups(spec, data, unit, seconds, say)
+    if config.correction:
+        # The correction's groups are the sampler's, each reconstructed by the sampler fitted
+        # without it (cross-fitting).
+        t0 = time.perf_counter()
+        first = np.unique(data.episodes, return_index=True)
+        episode_group = dict(zip(first[0].tolist(), groups[first[1]].tolist(), strict=True))
+        samplers = out_of_group_samplers(
+            sampler,
+            [
+                (data.observations[take], data.actions[take], data.episodes[take])
+                for take in (groups == g for g in np.unique(groups))
+            ],
+        )
+        sources = [
+            CorrectionSource(
+                graph,
+                options,
+                [recordings[e] for e, g in episode_group.items() if g == chosen],
+                LearnedSampler(samplers[number], samples=1),
+            )
+            for number, chosen in enumerate(np.unique(groups).tolist())
+        ]
+        correction, report = learn_correction(sources, progress=config.progress, log=say)
+        sampler.with_correction(correction, report)
+        seconds["correction"] = time.perf_counter() - t0
+        history[0]["correction"] = report
+    return sampler, history
 
 
 def _fit_linear_groups(
@@ -884,9 +932,10 @@ def _fit_linear_groups(
     unit: np.ndarray,
     seconds: dict[str, float],
     say: Callable[[str], None],
-) -> tuple[GaussianSampler, list[dict[str, Any]]]:
+) -> tuple[LinearPoseSampler, list[dict[str, Any]], np.ndarray]:
     """:func:`fit_linear` on ``data``, cross-validated over ``LINEAR_GROUPS`` groups of whole
-    units (``unit``: each frame's clip or recording group, a label), dealt in sorted order."""
+    units (``unit``: each frame's clip or recording group, a label), dealt in sorted order;
+    also each frame's group."""
     units, index = np.unique(unit, return_inverse=True)
     if len(units) < 2:
         raise ValueError(
@@ -901,7 +950,7 @@ def _fit_linear_groups(
     sampler, report = fit_linear(spec, groups)
     seconds["train"] = time.perf_counter() - t0
     say(f"{describe_fit(report)} ({seconds['train']:.1f} s)")
-    return sampler, [{"linear": report}]
+    return sampler, [{"linear": report}], group
 
 
 def _train_supervised(
@@ -919,7 +968,7 @@ def _train_supervised(
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
 
     spec = _imitation_spec(config, "supervised", "mlp", config.features, epochs=config.epochs)
-    data, _ = _imitation_pairs(
+    data, _, _ = _imitation_pairs(
         config, graph, train_clips, scenarios, options, spec, run, seconds, say
     )
     # Validation pairs: a tenth of the episodes, by whole episodes.

@@ -68,7 +68,13 @@ from fpg_gym.io.recording import load_recording
 from fpg_gym.methods import MethodRunner
 from fpg_gym.reconstruct import Reconstructor
 from policies.learned_optimizers import LearnedSampler
-from policies.pose_sampler import LINEAR_FEATURES, describe_fit, fit_linear
+from policies.output_correction import CorrectionSource, describe_correction, learn_correction
+from policies.pose_sampler import (
+    LINEAR_FEATURES,
+    describe_fit,
+    fit_linear,
+    out_of_group_samplers,
+)
 from policies.sampler import FEATURE_SETS, SamplerSpec
 from policies.supervised import SupervisedSampler, fit_supervised
 from policies.training import collect_imitation_data, simulate_episodes, truth_latent
@@ -251,23 +257,26 @@ def _uiprmd_data(
     reps: int,
     thres1: float,
     excluded: frozenset[str] = frozenset(),
-) -> Any:
+) -> tuple[Any, tuple[Any, dict[str, Any], list[Any]]]:
     """Ground-truth imitation data of one training ``subject``, collected with a database and
-    sensor map that lack it, the held-out subject and the ``excluded`` ones."""
+    sensor map that lack it, the held-out subject and the ``excluded`` ones; and that
+    ``(graph, reconstructor options, recordings)`` (what its output correction learns from)."""
 
     left_out = {held_out, subject, *excluded}
     graph = real_kinect.uiprmd_graph(imported, left_out, thres1)
     others = [load_recording(p) for s, ps in subjects.items() if s not in left_out for p in ps]
     sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, others, True, False)
     recordings = [load_recording(p) for p in real_kinect.repetitions(subjects[subject], reps)]
-    return collect_imitation_data(
+    fold_options = {**options, "sensor_map": sensor_map}
+    data = collect_imitation_data(
         graph,
         recordings,
         spec,
         target=spec.hyperparameters.get("target", "truth"),
         follow="anchor",
-        reconstructor_options={**options, "sensor_map": sensor_map},
+        reconstructor_options=fold_options,
     )
+    return data, (graph, fold_options, recordings)
 
 
 def _oracle(
@@ -313,14 +322,23 @@ def _spec(task: dict[str, Any]) -> Any:
 
 
 def _train_seeds(
-    spec: Any, train: list[Any], val: Any, task: dict[str, Any], name: str, info: dict[str, Any]
+    spec: Any,
+    train: list[Any],
+    val: Any,
+    task: dict[str, Any],
+    name: str,
+    info: dict[str, Any],
+    sources: list[tuple[Any, dict[str, Any], list[Any], int]] | None = None,
 ) -> dict[str, Any]:
     """One sampler per seed of ``task["seeds"]`` on the ``train`` imitation data, early
     stopping, shrinking and spread calibration on ``val``; saved as ``{out}/sampler_{name}_seedS``.
+    A linear sampler learns its output correction from ``sources`` (``(graph, options,
+    recordings, group)``: the group's index in ``[*train, val]``; none: no correction, or with
+    ``task["correct"]`` false).
     """
 
     if spec.kind == "linear":
-        return _train_linear(spec, [*train, val], task, name, info)
+        return _train_linear(spec, [*train, val], task, name, info, sources)
     obs = np.concatenate([d.observations for d in train])
     act = np.concatenate([d.actions for d in train])
     mask = np.concatenate([d.masks for d in train])
@@ -365,16 +383,40 @@ def _train_seeds(
 
 
 def _train_linear(
-    spec: Any, groups: list[Any], task: dict[str, Any], name: str, info: dict[str, Any]
+    spec: Any,
+    groups: list[Any],
+    task: dict[str, Any],
+    name: str,
+    info: dict[str, Any],
+    sources: list[tuple[Any, dict[str, Any], list[Any], int]] | None = None,
 ) -> dict[str, Any]:
     """The linear pose-space sampler, its settings chosen by leave-one-group-out
     cross-validation over ``groups`` (imitation data of the training subjects, or of the
-    simulated protocol's folds); deterministic (one model whatever the seeds); saved as
+    simulated protocol's folds); deterministic (one model whatever the seeds); with
+    ``sources`` and ``task["correct"]``, its output correction learnt from its outputs,
+    cross-fitted (:func:`policies.output_correction.learn_correction`); saved as
     ``{out}/sampler_{name}_linear``."""
 
     t0 = time.process_time()
     sampler, report = fit_linear(spec, [(d.observations, d.actions, d.episodes) for d in groups])
     cpu = time.process_time() - t0
+    correction_report: dict[str, Any] = {}
+    if sources and task.get("correct", True):
+        t1 = time.process_time()
+        # Cross-fitted: each source's outputs come from the sampler fitted without its group.
+        samplers = out_of_group_samplers(
+            sampler, [(d.observations, d.actions, d.episodes) for d in groups]
+        )
+        correction, correction_report = learn_correction(
+            [
+                CorrectionSource(graph, options, recordings, LearnedSampler(samplers[g], samples=1))
+                for graph, options, recordings, g in sources
+            ]
+        )
+        sampler.with_correction(correction, correction_report)
+        correction_report = {**correction_report, "cpu_s": time.process_time() - t1}
+        cpu += correction_report["cpu_s"]  # the model's training: the sampler and its correction
+        print(f"{name}: {describe_correction(correction_report)}", file=sys.stderr, flush=True)
     sampler.spec.training = {**info, **report, "command": task["command"]}
     path = Path(task["out"]) / f"sampler_{name}_linear"
     sampler.save(path)
@@ -389,6 +431,7 @@ def _train_linear(
         "mean_scale": {},
         "frames": sum(len(d) for d in groups),
         "linear": report,
+        "correction": correction_report,
     }
 
 
@@ -401,10 +444,16 @@ def _score(
     def mean_only(path: str, **_: Any) -> Any:
         return LearnedSampler(path, samples=1)
 
+    def uncorrected(path: str, **_: Any) -> Any:
+        return LearnedSampler(path, correct_output=False)
+
     optimizers.register_prefix("mean-only", mean_only, overwrite=True)
+    optimizers.register_prefix("uncorrected", uncorrected, overwrite=True)
     methods = ["raw", "fpg:closed-form", "fpg:local-search"]
     for path in models.values():
         methods += [f"fpg:mean-only:{path}", f"fpg:learned:{path}", f"fpg:learned+search:{path}"]
+        if LearnedSampler(path).output_correction is not None:
+            methods.append(f"fpg:uncorrected:{path}")
     rows = []
     with MethodRunner(graph, budget=2000, reconstructor_options=options) as runner:
         for name, recording in episodes:
@@ -446,12 +495,13 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
     options: dict[str, Any] = {"sensor_blend": task["blend"]}
     spec = _spec(task)
     t0 = time.process_time()
-    data = {
+    collected = {
         s: _uiprmd_data(
             imported, subjects, held_out, s, spec, options, task["train_reps"], thres1, excluded
         )
         for s in train_subjects
     }
+    data = {s: part[0] for s, part in collected.items()}
     data_cpu = time.process_time() - t0
     info = {
         "protocol": "uiprmd leave-subjects-out",
@@ -467,7 +517,13 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
         task,
         held_out,
         info,
+        # The correction's groups in the sampler's order (training subjects, then validation).
+        [
+            (*collected[s][1], g)
+            for g, s in enumerate([s for s in train_subjects if s != val_subject] + [val_subject])
+        ],
     )
+    collected.clear()  # the nested graphs
     graph = real_kinect.uiprmd_graph(imported, {held_out, *excluded}, thres1)
     train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
     sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, train_recs, True, False)
@@ -490,16 +546,19 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
 
 def _sim_data(
     graph_clips: list[Any], clips: list[Any], spec: Any, task: dict[str, Any], seed: int
-) -> Any:
+) -> tuple[Any, tuple[Any, dict[str, Any], list[Any]]]:
     """Ground-truth imitation data of simulated streams of ``clips`` (``task["sim_scenarios"]``,
-    first ``task["train_frames"]`` frames), collected with a graph of ``graph_clips``."""
+    first ``task["train_frames"]`` frames), collected with a graph of ``graph_clips``; and
+    that ``(graph, reconstructor options, recordings)`` (what its output correction learns
+    from)."""
 
     graph = FilteredPoseGraph.build(graph_clips, progress=False)
     recordings = simulate_episodes(
         clips, task["sim_scenarios"], [seed], max_frames=task["train_frames"]
     )
     target = spec.hyperparameters.get("target", "truth")
-    return collect_imitation_data(graph, recordings, spec, target=target, follow="anchor")
+    data = collect_imitation_data(graph, recordings, spec, target=target, follow="anchor")
+    return data, (graph, {}, recordings)
 
 
 def sim_protocol(args: argparse.Namespace) -> str:
@@ -522,6 +581,7 @@ def sim_protocol(args: argparse.Namespace) -> str:
         "hidden": [int(w) for w in args.hidden.split(",")],
         "features": args.features,
         "model": args.model,
+        "correct": args.correction,
         "sim_scenarios": args.sim_train_scenarios.split(","),
         "train_frames": args.sim_train_frames,
         "command": "python scripts/learned_samplers.py "
@@ -538,15 +598,20 @@ def sim_protocol(args: argparse.Namespace) -> str:
     val_ids = set(order[:: max(2, round(1 / args.sim_val_share))].tolist())
     start = time.perf_counter()
     t0 = time.process_time()
-    train_parts, val_parts = [], []
+    train_parts: list[Any] = []
+    val_parts: list[Any] = []
+    train_sources: list[tuple[Any, dict[str, Any], list[Any]]] = []
+    val_sources: list[tuple[Any, dict[str, Any], list[Any]]] = []
     for f, fold in enumerate(folds):
         other = [graph_clips[i] for g, ids in enumerate(folds) if g != f for i in ids]
-        for ids, parts in (
-            ([i for i in fold if i not in val_ids], train_parts),
-            ([i for i in fold if i in val_ids], val_parts),
+        for ids, parts, sources in (
+            ([i for i in fold if i not in val_ids], train_parts, train_sources),
+            ([i for i in fold if i in val_ids], val_parts, val_sources),
         ):
             if ids:
-                parts.append(_sim_data(other, [graph_clips[i] for i in ids], spec, task, 1000 + f))
+                part, source = _sim_data(other, [graph_clips[i] for i in ids], spec, task, 1000 + f)
+                parts.append(part)
+                sources.append(source)
     data_cpu = time.process_time() - t0
     val = dataclasses.replace(
         val_parts[0],
@@ -562,7 +627,11 @@ def sim_protocol(args: argparse.Namespace) -> str:
         "validation_takes": sorted(graph_clips[i].name for i in val_ids),
         "scenarios": task["sim_scenarios"],
     }
-    trained = _train_seeds(spec, train_parts, val, task, "bandai", info)
+    # The correction's groups: each fold's training and validation parts, each reconstructed
+    # with the graph of the other folds, by the sampler fitted without the part's group.
+    sources = [(*source, g) for g, source in enumerate(train_sources)]
+    sources += [(*source, len(train_parts)) for source in val_sources]
+    trained = _train_seeds(spec, train_parts, val, task, "bandai", info, sources)
     graph = FilteredPoseGraph.build(graph_clips, progress=False)
     scenarios = SCENARIOS.split(",")
     recordings = simulate_episodes(eval_clips, scenarios, [0], max_frames=args.max_frames)
@@ -760,6 +829,7 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
             "hidden": [int(w) for w in args.hidden.split(",")],
             "features": args.features,
             "model": args.model,
+            "correct": args.correction,
             "command": command,
         }
         for subject in args.subjects.split(",")
@@ -830,6 +900,13 @@ def main(argv: list[str] | None = None) -> int:
         default="linear",
         choices=("linear", "mlp"),
         help="linear pose-space sampler (default) or the supervised MLP",
+    )
+    group.add_argument(
+        "--correction",
+        action=argparse.BooleanOptionalAction,
+        default=True,
+        help="the linear sampler learns an output correction from its own outputs of the "
+        "training groups (default: yes; scored also without it, as 'uncorrected')",
     )
     group.add_argument("--uiprmd-thres1", type=float, default=0.1)
     group.add_argument("--sensor-blend", type=float, default=0.5)

@@ -4,8 +4,10 @@ A linear (ridge) model maps what a frame's output and input say, in the output's
 frame (its root at the origin, facing +Z), to the truth's root-relative joints minus the
 output's: the output pose (60), the sensor pose (60, joints not tracked zeroed), the reliability
 (20) and the tracking states (one-hot, 60). The corrected output is the output plus the
-prediction. It is not a sampler: it measures whether the observation carries what a sampler
-would need to beat its anchor, on data the model never saw.
+prediction. The features, targets and smoothing are the product's
+(:mod:`fpg_gym.reconstruct.output_correction`), which a linear sampler's ``learned:`` now
+applies after its output (:mod:`policies.output_correction`); this script applies it to the
+closed form's output too, or to a sampler model's without its own correction.
 
 Protocols (``--protocol``):
 
@@ -56,11 +58,16 @@ sys.path.insert(0, str(REPO))  # this checkout's fpg_gym
 sys.path.insert(0, str(REPO / "scripts"))  # real_kinect's UI-PRMD folds
 
 from fpg_gym import metrics  # noqa: E402
-from fpg_gym import poses as pose_utils  # noqa: E402
 from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
 from fpg_gym.holdout import split_takes  # noqa: E402
 from fpg_gym.io import load_clips  # noqa: E402
 from fpg_gym.reconstruct import Reconstructor  # noqa: E402
+from fpg_gym.reconstruct.output_correction import (  # noqa: E402
+    apply_correction,
+    correction_features,
+    correction_targets,
+    smooth_corrections,
+)
 from policies.ridge import fit_ridge, predict_ridge, ridge_sums  # noqa: E402
 
 DEFAULT_DATA = REPO.parent / "shared" / "data"
@@ -73,39 +80,32 @@ def frame_data(
     reconstructor: Reconstructor, recordings: list[Any], method: str = "closed-form"
 ) -> dict[str, Any]:
     """The pipeline's outputs of ``recordings`` with ``method`` (an optimiser name: the closed
-    form, or ``learned:MODEL``) with each frame's features and target (module docstring)."""
-    features, targets, outputs, truths, fps = [], [], [], [], []
+    form, or ``learned:MODEL``) with each frame's features and target
+    (:func:`~fpg_gym.reconstruct.output_correction.correction_features`,
+    :func:`~fpg_gym.reconstruct.output_correction.correction_targets`)."""
+    features, targets, outputs, truths, fps, frames = [], [], [], [], [], []
     for recording in recordings:
         result = reconstructor.reconstruct(recording, method, rng=0)
         output = np.asarray(result.poses, dtype=np.float64)
-        reliability = result.arrays()["reliability"].reshape(len(output), -1)
-        truth = np.asarray(recording.ground_truth, dtype=np.float64)
-        sensor = np.asarray(recording.positions, dtype=np.float64)
-        states = np.asarray(recording.states)
-        for t in range(len(output)):
-            local, placement = pose_utils.normalise(output[t])
-            local = local.astype(np.float64)
-            seen = pose_utils.into_placement(sensor[t], placement)
-            seen = np.where((states[t] > 0)[:, None], seen, 0.0)
-            target = pose_utils.into_placement(truth[t], placement)
-            features.append(
-                np.concatenate(
-                    [
-                        local.reshape(-1),
-                        seen.reshape(-1),
-                        reliability[t],
-                        np.eye(3)[states[t]].reshape(-1),
-                    ]
-                )
-            )
-            targets.append(((target - target[0]) - local).reshape(-1))
+        count = len(output)
+        truth = np.asarray(recording.ground_truth, dtype=np.float64)[:count]
+        rows, local, placement = correction_features(
+            output,
+            np.asarray(recording.positions, dtype=np.float64)[:count],
+            np.asarray(recording.states)[:count],
+            result.arrays()["reliability"].reshape(count, -1),
+        )
+        features.append(rows)
+        targets.append(correction_targets(local, placement, truth))
         outputs.append(output)
+        frames.append((local, placement))
         truths.append(truth)
         fps.append(float(getattr(recording, "fps", 30.0) or 30.0))
     return {
-        "x": np.array(features),
-        "y": np.array(targets),
+        "x": np.concatenate(features),
+        "y": np.concatenate(targets),
         "outputs": outputs,
+        "frames": frames,
         "truths": truths,
         "fps": fps,
     }
@@ -115,17 +115,11 @@ def corrected(data: dict[str, Any], prediction: np.ndarray, alpha: float) -> lis
     """The outputs plus the predicted corrections, back in camera space; each episode's
     corrections smoothed causally first (``c_t = alpha p_t + (1 - alpha) c_{t-1}``)."""
     out, row = [], 0
-    for output in data["outputs"]:
-        fixed = np.empty_like(output)
-        step = prediction[row]
-        for t in range(len(output)):
-            local, placement = pose_utils.normalise(output[t])
-            step = alpha * prediction[row + t] + (1.0 - alpha) * step
-            fixed[t] = pose_utils.denormalise(
-                local.astype(np.float64) + step.reshape(20, 3), placement
-            )
-        row += len(output)
-        out.append(fixed)
+    for local, placement in data["frames"]:
+        count = len(local)
+        step = smooth_corrections(prediction[row : row + count], np.zeros(count), alpha)
+        out.append(apply_correction(local, placement, step))
+        row += count
     return out
 
 
@@ -146,6 +140,7 @@ def merged(parts: list[dict[str, Any]]) -> dict[str, Any]:
         "x": np.concatenate([p["x"] for p in parts]),
         "y": np.concatenate([p["y"] for p in parts]),
         "outputs": [o for p in parts for o in p["outputs"]],
+        "frames": [f for p in parts for f in p["frames"]],
         "truths": [t for p in parts for t in p["truths"]],
         "fps": [f for p in parts for f in p["fps"]],
     }

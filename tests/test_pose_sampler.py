@@ -15,9 +15,20 @@ from fpg_gym.errors import DataFormatError
 from fpg_gym.io import load_default_clips
 from fpg_gym.io.recording import Recording
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
+from fpg_gym.reconstruct.output_correction import (
+    apply_correction,
+    correction_features,
+    smooth_corrections,
+)
 from policies.learned_optimizers import LearnedSampler
 from policies.loading import load_sampler
-from policies.pose_sampler import LINEAR_FEATURES, LinearPoseSampler, fit_linear
+from policies.output_correction import CorrectionSource, learn_correction
+from policies.pose_sampler import (
+    LINEAR_FEATURES,
+    LinearPoseSampler,
+    fit_linear,
+    out_of_group_samplers,
+)
 from policies.sampler import SamplerSpec
 from policies.training import collect_imitation_data
 
@@ -44,20 +55,24 @@ def _recording(name: str, frames: int = 90) -> Recording:
     return Recording(sensor, states, np.arange(len(truth)) / 30.0, ground_truth=truth)
 
 
-def _fit(graph: Any) -> LinearPoseSampler:
-    spec = _spec()
-    options = {"temporal": TemporalConfig.off()}
+def _groups(graph: Any) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """Imitation data of three clips, one cross-validation group each."""
     groups = []
-    for name in ("run", "jump", "dance_a"):  # one cross-validation group per clip
+    for name in ("run", "jump", "dance_a"):
         data = collect_imitation_data(
             graph,
             [_recording(name)],
-            spec,
+            _spec(),
             target="bones",
             follow="anchor",
-            reconstructor_options=options,
+            reconstructor_options={"temporal": TemporalConfig.off()},
         )
         groups.append((data.observations, data.actions, data.episodes))
+    return groups
+
+
+def _fit(groups: list[tuple[np.ndarray, np.ndarray, np.ndarray]]) -> LinearPoseSampler:
+    spec = _spec()
     sampler, report = fit_linear(spec, groups)
     assert report["frames"] == sum(len(g[0]) for g in groups) and report["groups"] == 3
     chosen = report["cv_error"][f"{report['penalty']:g}"]
@@ -74,8 +89,36 @@ def _fit(graph: Any) -> LinearPoseSampler:
 
 
 @pytest.fixture(scope="module")
-def sampler(graph: Any) -> LinearPoseSampler:
-    return _fit(graph)
+def groups(graph: Any) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    return _groups(graph)
+
+
+@pytest.fixture(scope="module")
+def sampler(groups: Any) -> LinearPoseSampler:
+    return _fit(groups)
+
+
+def test_out_of_group_samplers_are_the_fit_without_each_group(
+    groups: Any, sampler: LinearPoseSampler
+) -> None:
+    """Cross-fitting: sampler g is what fit_linear gives, at the chosen settings, on the
+    other groups (its ridge), with the full model's spread and selection."""
+    settings = sampler.spec.hyperparameters
+    samplers = out_of_group_samplers(sampler, groups)
+    assert len(samplers) == len(groups)
+    for g, alone in enumerate(samplers):
+        others = groups[:g] + groups[g + 1 :]
+        refit, _ = fit_linear(
+            _spec(), others, penalties=[settings["penalty"]], pose_weights=[settings["pose_weight"]]
+        )
+        for name in ("regressor_mean", "regressor_scale", "weights", "bias"):
+            np.testing.assert_allclose(
+                alone.arrays[name], refit.arrays[name], rtol=1e-9, atol=1e-12
+            )
+        np.testing.assert_array_equal(alone.arrays["std"], sampler.arrays["std"])
+        assert alone.pose_weight == sampler.pose_weight
+        assert alone.spec.hyperparameters["selection"] == settings["selection"]
+        assert not np.allclose(alone.arrays["weights"], sampler.arrays["weights"])
 
 
 def _error(graph: Any, optimizer: Any, recording: Recording) -> float:
@@ -139,6 +182,55 @@ def test_files_round_trip_and_bad_arrays_are_refused(sampler: Any, tmp_path: Pat
         load_sampler(tmp_path / "linear")
 
 
+def test_a_correction_travels_with_the_model_and_learned_applies_it(
+    graph: Any, sampler: Any, tmp_path: Path
+) -> None:
+    """The output correction is learnt from the sampler's own outputs, saved in its files
+    (arrays and JSON), and ``learned:`` brings it to the reconstructor; ``correct_output=False``
+    leaves it out."""
+    options = {"temporal": TemporalConfig.off()}
+    names = ("run", "jump", "dance_a")
+    recordings = [_recording(name, 45) for name in names]
+    sources = [
+        CorrectionSource(graph, options, [recording], LearnedSampler(sampler, samples=1))
+        for recording in recordings
+    ]
+    correction, report = learn_correction(sources)
+    frames = sum(len(recording.positions) for recording in recordings)
+    assert report["groups"] == 3 and report["frames"] == frames
+    assert f"{report['penalty']:g}/{report['smoothing']:g}" in report["cv_error"]
+    copy = load_sampler(sampler.save(tmp_path / "plain"))
+    assert copy.output_correction is None and LearnedSampler(copy).output_correction is None
+    path = copy.with_correction(correction, report).save(tmp_path / "corrected")
+    loaded = load_sampler(path)
+    assert isinstance(loaded, LinearPoseSampler) and loaded.output_correction is not None
+    assert loaded.output_correction.smoothing == correction.smoothing
+    for name, value in correction.arrays.items():
+        np.testing.assert_array_equal(loaded.output_correction.arrays[name], value)
+    assert LearnedSampler(loaded).output_correction is loaded.output_correction
+    assert LearnedSampler(loaded, correct_output=False).output_correction is None
+    # learned: = its uncorrected output, corrected by the smoothed predictions.
+    stream = _recording("walk", 30)
+    with Reconstructor(graph, ragdoll=False, **options) as reconstructor:
+        fixed = reconstructor.reconstruct(stream, LearnedSampler(loaded, samples=1), rng=0)
+        plain = reconstructor.reconstruct(
+            stream, LearnedSampler(loaded, samples=1, correct_output=False), rng=0
+        )
+    rows, local, placement = correction_features(
+        plain.poses, stream.positions, stream.states, plain.arrays()["reliability"]
+    )
+    offsets = smooth_corrections(
+        loaded.output_correction.predict(rows), np.zeros(len(rows)), correction.smoothing
+    )
+    np.testing.assert_allclose(fixed.poses, apply_correction(local, placement, offsets), atol=2e-5)
+    # A file whose JSON names a correction its arrays lack is refused.
+    arrays = dict(np.load(tmp_path / "corrected.npz", allow_pickle=False))
+    arrays.pop("correction_weights")
+    np.savez(tmp_path / "corrected.npz", **arrays)
+    with pytest.raises(DataFormatError, match="correction_weights"):
+        load_sampler(tmp_path / "corrected")
+
+
 def test_a_linear_sampler_needs_absolute_anchored_actions() -> None:
     spec = SamplerSpec.for_layout("linear", "ridge", action_mode="delta")
     with pytest.raises(ValueError, match="absolute"):
@@ -161,6 +253,9 @@ def test_train_sampler_cli_trains_a_linear_sampler(tmp_path: Path) -> None:
     assert isinstance(sampler, LinearPoseSampler) and (tmp_path / "linear.npz").is_file()
     assert sampler.spec.hyperparameters["target"] == "bones"
     assert "linear" in sampler.spec.training["history"][0]
+    assert sampler.output_correction is not None  # learnt by default
+    assert "correction" in sampler.spec.training["history"][0]
+    assert "learned, uncorrected (200)" in sampler.spec.training["evaluation"]
     with pytest.raises(ValueError, match="kind 'linear'"):
         from policies.training import TrainConfig
 

@@ -37,7 +37,8 @@ examples:
   fpg-gym train-sampler --kind supervised --target truth --follow anchor --graph default \\
       --out runs/sampler_truth       # learns the simulated ground truth, no search
   fpg-gym train-sampler --kind linear --target bones --follow anchor --graph default \\
-      --out runs/sampler_linear      # the pose-space ridge sampler, numpy only
+      --out runs/sampler_linear      # the pose-space ridge sampler, numpy only, with its
+                                     # learned output correction (--no-correction: without)
   fpg-gym train-sampler --kind linear --target bones --follow anchor --graph runs/vicon.npz \\
       --recordings runs/ui_prmd/recordings --group-pattern '_(s[0-9]+)_' \\
       --sensor-map runs/kinect.json --sensor-blend 0.5 --out runs/sampler_real
@@ -126,6 +127,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="F",
         help="the reconstructor's sensor blend for the training data and the evaluation (0): "
         "give the one reconstruct --sensor-blend will use",
+    )
+    parser.add_argument(
+        "--no-correction",
+        action="store_true",
+        help="--kind linear: no learned output correction (by default the sampler also learns "
+        "a correction of the reconstructor's output from its own outputs of the training data, "
+        "which learned: and learned+search: then apply)",
     )
     parser.add_argument(
         "--scenarios",
@@ -311,6 +319,7 @@ def run(args: argparse.Namespace) -> int:
         group_pattern=args.group_pattern,
         sensor_map=args.sensor_map,
         sensor_blend=args.sensor_blend,
+        correction=not args.no_correction,
     )
     result = train_sampler(config)
     if args.json:

@@ -30,6 +30,7 @@ from tqdm import tqdm
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
 from fpg_gym.reconstruct.energy import EnergyModel, StackedEnergy
+from fpg_gym.reconstruct.output_correction import output_correction_of
 from fpg_gym.reconstruct.problem import SearchProblem
 from fpg_gym.reconstruct.reconstructor import (
     FrameRecord,
@@ -310,7 +311,9 @@ def run_streams(
             ]
             searched = search_together(problems, runs)
             for i, run, own in zip(active, runs, searched, strict=True):
-                outputs[i][t], record = reconstructors[i].finish(run.result().x)
+                outputs[i][t], record = reconstructors[i].finish(
+                    run.result().x, correction=output_correction_of(optimizers[i])
+                )
                 records[i].append(_own_search_time(record, 1e3 * own))
             bar.update(len(active))
     except BaseException:

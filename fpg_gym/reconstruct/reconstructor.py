@@ -56,6 +56,15 @@ of the targets so far (camera space has no floor); it is rebuilt when the user's
 lengths move by more than ``ragdoll_rebuild_m``. It runs after denormalisation, not in the
 normalised frame: physics needs one consistent world frame, and the normalised frame jumps with
 the sensor's root and heading every frame.
+
+Learned output correction (issue 19)
+------------------------------------
+When the optimiser that searched a frame brings a correction model (its ``output_correction``:
+``learned:`` with a linear sampler trained with one), the output is corrected last, after every
+stage above, by the model's smoothed offsets (:mod:`fpg_gym.reconstruct.output_correction`);
+the stream's history keeps the uncorrected pose, so the correction never feeds back.
+:meth:`Reconstructor.finish` also takes one directly (``correction=``); the env's agent brings
+none.
 """
 
 from __future__ import annotations
@@ -84,6 +93,11 @@ from fpg_gym.reconstruct.energy import (
 )
 from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.output_correction import (
+    CorrectionState,
+    OutputCorrection,
+    output_correction_of,
+)
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
 from fpg_gym.reconstruct.reliability import (
     ReliabilityConfig,
@@ -500,6 +514,8 @@ class _Pending:
     sensor: np.ndarray | None = None  # the raw input frame, before the sensor map
     tracked: np.ndarray | None = None  # its tracked joints
     found: np.ndarray | None = None  # the best point of search(), if one ran
+    sensor_states: np.ndarray | None = None  # the raw input's tracking states
+    correction: OutputCorrection | None = None  # the searching optimiser's, if it has one
 
 
 def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -593,6 +609,7 @@ class Reconstructor:
         )
         self._output_smoother = OutputSmoother(config.temporal) if config.temporal.output else None
         self.bones = BoneSettler(config.bones)
+        self._correction = CorrectionState()
         self._calibration = OnlineDefinitionFit() if config.calibrate_output else None
         mapped_output = config.output_map is not None or config.calibrate_output
         self._output_bones = (  # settles at once on the mean gathered before it is used
@@ -670,6 +687,7 @@ class Reconstructor:
             self._placement_smoother.reset()
         if self._output_smoother is not None:
             self._output_smoother.reset()
+        self._correction.reset()
         self._previous_latent: LatentSpace | None = None
 
     def close(self) -> None:
@@ -724,7 +742,7 @@ class Reconstructor:
         if states.shape != (skeleton.NUM_JOINTS,):
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
         cfg = self.config
-        sensor = positions
+        sensor, raw_states = positions, states
         if cfg.sensor_map is not None:  # the sensor's body points -> the database's
             positions = cfg.sensor_map.apply(positions).astype(np.float32)
         if timestamp is None:
@@ -869,12 +887,15 @@ class Reconstructor:
             np.asarray(lengths, dtype=np.float64),
             sensor,
             (states == skeleton.TRACKED) & (not no_body),
+            sensor_states=raw_states,
         )
         return problem
 
     # ------------------------------------------------------------------ finish
 
-    def finish(self, z: np.ndarray | None = None) -> tuple[np.ndarray, FrameRecord]:
+    def finish(
+        self, z: np.ndarray | None = None, *, correction: OutputCorrection | None = None
+    ) -> tuple[np.ndarray, FrameRecord]:
         """Reconstruct the prepared frame from latent point ``z``.
 
         Parameters
@@ -882,6 +903,11 @@ class Reconstructor:
         z : array_like, shape (d,), optional
             The chosen latent point; when omitted, the best point of :meth:`search` on this
             frame, else ``problem.x0``.
+        correction : OutputCorrection, optional
+            A learned correction of the output
+            (:mod:`fpg_gym.reconstruct.output_correction`), applied last, smoothed over the
+            stream; when omitted, that of the optimiser :meth:`search` ran on this frame, if it
+            has one (``learned:`` with a linear sampler trained with a correction).
 
         Returns
         -------
@@ -973,6 +999,19 @@ class Reconstructor:
             pose = self._calibration.update(pose, target, pending.tracked)
         if self._output_bones is not None and not pending.no_body:
             pose = self._settle_output_bones(pose, pending.timestamp)
+        correction = pending.correction if correction is None else correction
+        if correction is not None and pending.sensor is not None:
+            t4 = time.perf_counter()
+            pose = self._correction.correct(
+                correction,
+                np.asarray(pose, dtype=np.float64),
+                np.asarray(pending.sensor, dtype=np.float64),
+                np.asarray(pending.sensor_states),
+                terms.reliability,
+            )
+            spent = 1e3 * (time.perf_counter() - t4)
+            record.ms["finish"] += spent
+            record.ms["total"] += spent
         return pose.astype(np.float32), record
 
     def _settle_output_bones(self, pose: np.ndarray, timestamp: float) -> np.ndarray:
@@ -1096,14 +1135,16 @@ class Reconstructor:
             If no frame was prepared.
         """
         pending = self._prepared("search")
+        opt = make(optimizer)
         found = run_search(
             pending.problem,
-            make(optimizer),
+            opt,
             rng,
             max_evaluations=self.config.max_evaluations,
             time_budget_s=self.config.time_budget_s,
         )
         pending.found = found.x
+        pending.correction = output_correction_of(opt)
         return found
 
     def iter_frames(

@@ -1,0 +1,186 @@
+"""A learned correction of the output pose (beyond the papers; issue 19).
+
+The papers' output is a point of the frame's local PCA space (Shum et al. 2013 Eq. 9) given the
+frame's bone lengths; on real sensors it keeps a systematic miss, because the database's joints
+are not the sensor's. A correction model maps what a frame's output and input say, in the
+output's own normalised frame (root at the origin, facing +Z, :func:`fpg_gym.poses.normalise`),
+to an offset of the output's root-relative joints (:func:`correction_features`):
+
+* the output pose (60 values);
+* the raw sensor frame seen from that frame, its joints not tracked zeroed (60);
+* the reliability of each joint (20, Shum Eq. 4);
+* the sensor's tracking state of each joint, one-hot (60).
+
+The predicted offsets are smoothed causally per stream (:class:`CorrectionState`,
+``c_t = alpha p_t + (1 - alpha) c_{t-1}``, starting at ``c_0 = p_0``), because an offset
+predicted frame by frame adds jitter, then added to the output in its normalised frame; the root
+does not move (the targets are root-relative), so FPG Eq. 13, which scores bone vectors, sees
+the whole correction.
+
+This module defines the features, the targets a model learns (:func:`correction_targets`) and
+how a correction is applied; the model (:class:`OutputCorrection`, e.g. the ridge model of
+:mod:`policies.output_correction`) comes with the optimiser: the reconstructor applies one when
+the optimiser that searched the frame has an ``output_correction`` (``learned:`` with a linear
+sampler trained with one).
+"""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import numpy as np
+
+from fpg_gym import poses as pose_utils
+from fpg_gym import skeleton
+
+__all__ = [
+    "CORRECTION_FEATURES",
+    "CorrectionState",
+    "OutputCorrection",
+    "apply_correction",
+    "correction_features",
+    "correction_targets",
+    "output_correction_of",
+    "smooth_corrections",
+]
+
+#: Length of a frame's feature row: output pose, sensor pose, reliability, one-hot states.
+CORRECTION_FEATURES = 3 * skeleton.NUM_JOINTS * 2 + skeleton.NUM_JOINTS + 3 * skeleton.NUM_JOINTS
+
+
+@runtime_checkable
+class OutputCorrection(Protocol):
+    """What the reconstructor needs of a correction model.
+
+    Attributes
+    ----------
+    smoothing : float
+        ``alpha`` in (0, 1] of the causal smoothing (1: none).
+    """
+
+    smoothing: float
+
+    def predict(self, features: np.ndarray) -> np.ndarray:
+        """Offsets ``(n, 60)`` of the output's root-relative joints (metres, in its normalised
+        frame) for feature rows ``(n, CORRECTION_FEATURES)``."""
+        ...
+
+
+def output_correction_of(optimizer: object) -> OutputCorrection | None:
+    """The correction an optimiser brings (its ``output_correction`` attribute), or None."""
+    correction = getattr(optimizer, "output_correction", None)
+    return correction if isinstance(correction, OutputCorrection) else None
+
+
+def correction_features(
+    outputs: np.ndarray, sensor: np.ndarray, states: np.ndarray, reliability: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, pose_utils.Placement]:
+    """Feature rows of frames (module docstring), with the outputs' normalised poses.
+
+    Parameters
+    ----------
+    outputs : array_like, shape (n, 20, 3)
+        The reconstructor's output poses, camera space.
+    sensor : array_like, shape (n, 20, 3)
+        The raw sensor frames (before any sensor map), camera space.
+    states : array_like, shape (n, 20)
+        Tracking states: 0 not tracked, 1 inferred, 2 tracked.
+    reliability : array_like, shape (n, 20)
+        Each joint's reliability.
+
+    Returns
+    -------
+    features : ndarray, shape (n, CORRECTION_FEATURES), float64
+    local : ndarray, shape (n, 20, 3), float64
+        The outputs normalised (root at the origin, facing +Z).
+    placement : Placement
+        Each output's root and heading (:func:`fpg_gym.poses.normalise`).
+    """
+    local32, placement = pose_utils.normalise(np.asarray(outputs, dtype=np.float64))
+    local = local32.astype(np.float64)
+    states = np.clip(np.asarray(states).astype(np.int64), 0, 2)
+    seen = pose_utils.into_placement(sensor, placement)
+    seen = np.where((states > 0)[..., None], seen, 0.0)
+    n = len(local)
+    features = np.concatenate(
+        [
+            local.reshape(n, -1),
+            seen.reshape(n, -1),
+            np.asarray(reliability, dtype=np.float64).reshape(n, -1),
+            np.eye(3)[states].reshape(n, -1),
+        ],
+        axis=1,
+    )
+    return features, local, placement
+
+
+def correction_targets(
+    local: np.ndarray, placement: pose_utils.Placement, truth: np.ndarray
+) -> np.ndarray:
+    """What a model learns ``(n, 60)``: the truth's root-relative joints seen from each output's
+    frame minus the output's normalised pose ``local`` (:func:`correction_features`)."""
+    seen = pose_utils.into_placement(truth, placement)
+    target = seen - seen[:, skeleton.ROOT : skeleton.ROOT + 1]
+    return (target - local).reshape(len(local), -1)
+
+
+def smooth_corrections(
+    predictions: np.ndarray, episodes: np.ndarray, smoothing: float
+) -> np.ndarray:
+    """Causal smoothing of per-frame offsets ``(n, K)`` within each run of equal ``episodes``
+    labels (consecutive frames of a stream), as :class:`CorrectionState` applies it."""
+    from scipy.signal import lfilter
+
+    predictions = np.asarray(predictions, dtype=np.float64)
+    if smoothing >= 1.0:
+        return predictions
+    out = np.empty_like(predictions)
+    labels = np.asarray(episodes)
+    starts = np.flatnonzero(np.r_[True, labels[1:] != labels[:-1]])
+    for start, stop in zip(starts, np.r_[starts[1:], len(labels)], strict=True):
+        part = predictions[start:stop]
+        # c_t = a p_t + (1 - a) c_{t-1}, c_0 = p_0: the filter's state starts at (1 - a) p_0.
+        out[start:stop], _ = lfilter(
+            [smoothing], [1.0, smoothing - 1.0], part, axis=0, zi=(1.0 - smoothing) * part[:1]
+        )
+    return out
+
+
+def apply_correction(
+    local: np.ndarray, placement: pose_utils.Placement, offsets: np.ndarray
+) -> np.ndarray:
+    """The outputs corrected ``(n, 20, 3)``, float32: normalised poses ``local`` plus
+    ``offsets`` ``(n, 60)``, put back with ``placement``."""
+    moved = np.asarray(local, dtype=np.float64) + np.asarray(offsets).reshape(np.shape(local))
+    return pose_utils.denormalise(moved, placement)
+
+
+class CorrectionState:
+    """One stream's causal smoothing of a correction's offsets (module docstring)."""
+
+    def __init__(self) -> None:
+        self.offset: np.ndarray | None = None
+
+    def reset(self) -> None:
+        """A new stream: the next offset starts the smoothing afresh."""
+        self.offset = None
+
+    def correct(
+        self,
+        model: OutputCorrection,
+        output: np.ndarray,
+        sensor: np.ndarray,
+        states: np.ndarray,
+        reliability: np.ndarray,
+    ) -> np.ndarray:
+        """One frame's output ``(20, 3)`` corrected by ``model`` (camera space, float32)."""
+        features, local, placement = correction_features(
+            output[None], sensor[None], states[None], reliability[None]
+        )
+        predicted = np.asarray(model.predict(features), dtype=np.float64)[0]
+        if self.offset is None:
+            self.offset = predicted
+        else:
+            alpha = float(model.smoothing)
+            self.offset = alpha * predicted + (1.0 - alpha) * self.offset
+        return apply_correction(local, placement, self.offset[None])[0]

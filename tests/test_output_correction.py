@@ -1,0 +1,191 @@
+"""The learned output correction (:mod:`fpg_gym.reconstruct.output_correction`,
+:mod:`policies.output_correction`): its targets undo the output's miss, its smoothing is the
+causal recursion, its fit finds a linear miss, and every reconstruction path applies it when the
+searching optimiser brings one."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fpg_gym import metrics, skeleton
+from fpg_gym import poses as pose_utils
+from fpg_gym.io import load_default_clips
+from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.reconstruct.batched import run_streams
+from fpg_gym.reconstruct.output_correction import (
+    CORRECTION_FEATURES,
+    CorrectionState,
+    apply_correction,
+    correction_features,
+    correction_targets,
+    smooth_corrections,
+)
+from optimizers.none import NoSearch
+from policies.output_correction import (
+    CorrectionData,
+    RidgeOutputCorrection,
+    fit_output_correction,
+)
+
+
+def _frames(rng: np.random.Generator, count: int = 40) -> dict[str, np.ndarray]:
+    """Truth from a clip, an 'output' and a 'sensor' near it, states and reliabilities."""
+    truth = load_default_clips(["walk"])[0].positions[:count].astype(np.float64)
+    count = len(truth)
+    return {
+        "truth": truth,
+        "output": truth + rng.normal(0.0, 0.02, truth.shape),
+        "sensor": truth + rng.normal(0.0, 0.03, truth.shape),
+        "states": rng.integers(0, 3, (count, skeleton.NUM_JOINTS)),
+        "reliability": rng.uniform(0.0, 1.0, (count, skeleton.NUM_JOINTS)),
+    }
+
+
+def test_the_targets_are_what_undoes_the_outputs_miss(rng: np.random.Generator) -> None:
+    frames = _frames(rng)
+    features, local, placement = correction_features(
+        frames["output"], frames["sensor"], frames["states"], frames["reliability"]
+    )
+    assert features.shape == (len(local), CORRECTION_FEATURES)
+    targets = correction_targets(local, placement, frames["truth"])
+    before = metrics.frame_error(frames["truth"], frames["output"]).mean()
+    fixed = apply_correction(local, placement, targets)
+    assert before > 0.01
+    assert metrics.frame_error(frames["truth"], fixed).max() < 1e-5  # float32 output
+    # The root stays where the output put it: the targets are root-relative.
+    assert np.abs(targets.reshape(-1, 20, 3)[:, skeleton.ROOT]).max() < 1e-6
+    np.testing.assert_allclose(
+        fixed[:, skeleton.ROOT], frames["output"][:, skeleton.ROOT], atol=1e-5
+    )
+    # Joints not tracked are zeroed in the sensor part; the states are one-hot.
+    seen = features[:, 60:120].reshape(-1, 20, 3)
+    assert np.all(seen[frames["states"] == 0] == 0.0)
+    one_hot = features[:, 140:].reshape(-1, 20, 3)
+    np.testing.assert_array_equal(one_hot.argmax(axis=2), frames["states"])
+
+
+def test_smoothing_is_the_causal_recursion_restarted_per_episode(
+    rng: np.random.Generator,
+) -> None:
+    predictions = rng.normal(size=(12, 4))
+    episodes = np.array([0] * 5 + [1] * 7)
+    smoothed = smooth_corrections(predictions, episodes, 0.25)
+    expected = np.empty_like(predictions)
+    for t in range(12):
+        start = t == 0 or episodes[t] != episodes[t - 1]
+        previous = predictions[t] if start else expected[t - 1]
+        expected[t] = 0.25 * predictions[t] + 0.75 * previous
+    np.testing.assert_allclose(smoothed, expected, atol=1e-12)
+    np.testing.assert_array_equal(smooth_corrections(predictions, episodes, 1.0), predictions)
+
+
+class _Fixed:
+    """A correction predicting one offset per call, taken in turn from ``offsets``."""
+
+    def __init__(self, offsets: np.ndarray, smoothing: float = 1.0) -> None:
+        self.offsets, self.smoothing, self.calls = offsets, smoothing, 0
+
+    def predict(self, features: np.ndarray) -> np.ndarray:
+        out = self.offsets[self.calls % len(self.offsets)][None]
+        self.calls += 1
+        return np.repeat(out, len(features), axis=0)
+
+
+def test_a_stream_state_smooths_as_the_training_does(rng: np.random.Generator) -> None:
+    frames = _frames(rng, 6)
+    offsets = rng.normal(0.0, 0.05, (6, 60))
+    model = _Fixed(offsets, smoothing=0.5)
+    state = CorrectionState()
+    out = np.stack(
+        [
+            state.correct(
+                model,
+                frames["output"][t],
+                frames["sensor"][t],
+                frames["states"][t],
+                frames["reliability"][t],
+            )
+            for t in range(6)
+        ]
+    )
+    _, local, placement = correction_features(
+        frames["output"], frames["sensor"], frames["states"], frames["reliability"]
+    )
+    smoothed = smooth_corrections(offsets, np.zeros(6), 0.5)
+    np.testing.assert_allclose(out, apply_correction(local, placement, smoothed), atol=1e-5)
+    state.reset()
+    assert state.offset is None
+
+
+def _linear_groups(rng: np.random.Generator) -> tuple[list[CorrectionData], np.ndarray]:
+    weights = rng.normal(0.0, 0.002, (CORRECTION_FEATURES, 60))
+    groups = []
+    for g in range(3):
+        features = rng.normal(size=(300, CORRECTION_FEATURES))
+        targets = features @ weights + 0.01 + rng.normal(0.0, 0.001, (300, 60))
+        groups.append(CorrectionData(features, targets, np.repeat(np.arange(10) + 10 * g, 30)))
+    return groups, weights
+
+
+def test_the_fit_finds_a_linear_miss_and_checks_its_arguments(rng: np.random.Generator) -> None:
+    groups, weights = _linear_groups(rng)
+    correction, report = fit_output_correction(groups, smoothing=(1.0, 0.5))
+    chosen = report["cv_error"][f"{report['penalty']:g}/{report['smoothing']:g}"]
+    assert chosen == min(report["cv_error"].values())
+    assert chosen < 0.3 * report["uncorrected_error"]
+    assert report["smoothing"] == 1.0  # independent frames: smoothing only blurs
+    assert report["frames"] == 900 and report["groups"] == 3
+    test = rng.normal(size=(50, CORRECTION_FEATURES))
+    miss = correction.predict(test) - (test @ weights + 0.01)
+    assert np.abs(miss).mean() < 0.2 * np.abs(test @ weights + 0.01).mean()
+    with pytest.raises(ValueError, match="at least 2"):
+        fit_output_correction(groups[:1])
+    with pytest.raises(ValueError, match="smoothing"):
+        fit_output_correction(groups, smoothing=(0.0,))
+    with pytest.raises(ValueError, match="smoothing"):
+        RidgeOutputCorrection(dict(correction.arrays), 1.5, 1.0)
+    with pytest.raises(ValueError, match="weights"):
+        RidgeOutputCorrection({**correction.arrays, "weights": np.zeros((3, 60))}, 1.0, 1.0)
+
+
+class _Correcting(NoSearch):
+    """The closed form's x0 (no search) bringing a correction."""
+
+    def __init__(self, correction: Any) -> None:
+        super().__init__()
+        self.output_correction = correction
+
+
+def test_every_path_applies_the_searching_optimisers_correction(
+    graph: Any, short_streams: list[Any], rng: np.random.Generator
+) -> None:
+    offsets = rng.normal(0.0, 0.03, (1, 60))
+    offsets.reshape(20, 3)[skeleton.ROOT] = 0.0
+    plain = Reconstructor(graph, ragdoll=False).reconstruct(short_streams[0], "none")
+    corrected = Reconstructor(graph, ragdoll=False).reconstruct(
+        short_streams[0], _Correcting(_Fixed(offsets))
+    )
+    local, placement = pose_utils.normalise(plain.poses)
+    expected = apply_correction(local, placement, np.repeat(offsets, len(local), axis=0))
+    np.testing.assert_allclose(corrected.poses, expected, atol=1e-5)
+    assert not np.allclose(corrected.poses, plain.poses, atol=1e-3)
+    # The many-stream path: the same outputs as one stream at a time.
+    batched = run_streams(
+        [Reconstructor(graph, ragdoll=False) for _ in short_streams[:2]],
+        short_streams[:2],
+        _Correcting(_Fixed(offsets)),
+        [0, 0],
+    )
+    np.testing.assert_allclose(batched[0].poses, corrected.poses, atol=1e-6)
+    # A frame finished with a correction given explicitly; without one, nothing changes.
+    reconstructor = Reconstructor(graph, ragdoll=False)
+    stream = short_streams[0]
+    reconstructor.prepare(stream.positions[0], stream.states[0], 0.0)
+    pose, _ = reconstructor.finish(correction=_Fixed(offsets))
+    np.testing.assert_allclose(pose, expected[0], atol=1e-5)
+    reconstructor.reset()
+    reconstructor.prepare(stream.positions[0], stream.states[0], 0.0)
+    np.testing.assert_allclose(reconstructor.finish()[0], plain.poses[0], atol=1e-6)
