@@ -179,8 +179,9 @@ def learn_correction(
     *,
     progress: bool = False,
     log: Callable[[str], None] | None = None,
-) -> tuple[RidgeOutputCorrection, dict[str, Any]]:
-    """:func:`correction_data` of each group, then :func:`fit_output_correction` over them.
+) -> tuple[RidgeOutputCorrection | None, dict[str, Any]]:
+    """:func:`correction_data` of each group, then :func:`fit_output_correction` over them
+    (None: no correction chosen).
 
     Parameters
     ----------
@@ -221,12 +222,14 @@ def fit_output_correction(
     penalties: Sequence[float] = CORRECTION_PENALTIES,
     smoothing: Sequence[float] = CORRECTION_SMOOTHING,
     log: Callable[[str], None] | None = None,
-) -> tuple[RidgeOutputCorrection, dict[str, Any]]:
+) -> tuple[RidgeOutputCorrection | None, dict[str, Any]]:
     """Fit a correction; penalty and smoothing by leave-one-group-out cross-validation.
 
     Each setting is scored by the mean over every group's episodes of FPG Eq. 13 of the
     outputs corrected by a model fitted on the other groups; the chosen setting is then fitted
-    on every group.
+    on every group. No correction is a candidate too: when no setting scores below the
+    uncorrected outputs, there is none (what a group's data teach does not carry over to the
+    others).
 
     Parameters
     ----------
@@ -239,10 +242,12 @@ def fit_output_correction(
 
     Returns
     -------
-    correction : RidgeOutputCorrection
+    correction : RidgeOutputCorrection or None
+        None when no correction is chosen.
     report : dict
-        ``penalty``, ``smoothing``, ``cv_error`` (m, by ``"penalty/smoothing"``),
-        ``uncorrected_error`` (the outputs' own), ``frames``, ``groups``.
+        ``penalty``, ``smoothing`` (None with no correction), ``cv_error`` (m, by
+        ``"penalty/smoothing"``), ``uncorrected_error`` (the outputs' own), ``frames``,
+        ``groups``.
     """
     if len(groups) < 2:
         raise ValueError(f"groups: expected at least 2 for cross-validation, got {len(groups)}")
@@ -257,7 +262,7 @@ def fit_output_correction(
         np.concatenate([_episode_errors(np.zeros_like(g.targets), g) for g in groups]).mean()
     )
     errors: dict[str, float] = {}
-    best: tuple[float, float, float] | None = None
+    best: tuple[float, float | None, float | None] = (uncorrected, None, None)
     for penalty in penalties:
         predicted = [
             predict_ridge(fit_ridge(sums[:g] + sums[g + 1 :], penalty), group.features)
@@ -273,14 +278,17 @@ def fit_output_correction(
                 ).mean()
             )
             errors[f"{penalty:g}/{alpha:g}"] = error
-            if best is None or error < best[0]:
+            if error < best[0]:
                 best = (error, penalty, alpha)
-    assert best is not None
-    _, penalty, alpha = best
-    correction = RidgeOutputCorrection(fit_ridge(sums, penalty), alpha, penalty)
+    _, chosen_penalty, chosen_alpha = best
+    correction = (
+        None
+        if chosen_penalty is None or chosen_alpha is None
+        else RidgeOutputCorrection(fit_ridge(sums, chosen_penalty), chosen_alpha, chosen_penalty)
+    )
     report = {
-        "penalty": penalty,
-        "smoothing": alpha,
+        "penalty": chosen_penalty,
+        "smoothing": chosen_alpha,
         "cv_error": errors,
         "uncorrected_error": uncorrected,
         "frames": int(sum(len(g) for g in groups)),
@@ -293,6 +301,13 @@ def fit_output_correction(
 
 def describe_correction(report: dict[str, Any]) -> str:
     """One line on :func:`fit_output_correction`'s ``report``."""
+    if report["penalty"] is None:
+        best = min(report["cv_error"].values())
+        return (
+            f"output correction: none (the best cross-validated Eq. 13, {best:.4f} m, is not "
+            f"below the uncorrected output's {report['uncorrected_error']:.4f} m; "
+            f"{report['groups']} groups, {report['frames']} frames)"
+        )
     chosen = report["cv_error"][f"{report['penalty']:g}/{report['smoothing']:g}"]
     return (
         f"output correction: penalty {report['penalty']:g}, smoothing {report['smoothing']:g}; "

@@ -27,6 +27,7 @@ from optimizers.none import NoSearch
 from policies.output_correction import (
     CorrectionData,
     RidgeOutputCorrection,
+    describe_correction,
     fit_output_correction,
 )
 
@@ -139,8 +140,21 @@ def test_the_fit_finds_a_linear_miss_and_checks_its_arguments(rng: np.random.Gen
     assert report["smoothing"] == 1.0  # independent frames: smoothing only blurs
     assert report["frames"] == 900 and report["groups"] == 3
     test = rng.normal(size=(50, CORRECTION_FEATURES))
+    assert correction is not None
     miss = correction.predict(test) - (test @ weights + 0.01)
     assert np.abs(miss).mean() < 0.2 * np.abs(test @ weights + 0.01).mean()
+    assert correction is not None
+    # A constant miss per group that differs between groups carries nothing over: no correction.
+    noise = [
+        CorrectionData(
+            g.features, rng.normal(0.0, 0.001, (300, 60)) + rng.normal(0, 0.05, 60), g.episodes
+        )
+        for g in groups
+    ]
+    none, report = fit_output_correction(noise, smoothing=(1.0,))
+    assert none is None and report["penalty"] is None and report["smoothing"] is None
+    assert min(report["cv_error"].values()) >= report["uncorrected_error"]
+    assert "none" in describe_correction(report)
     with pytest.raises(ValueError, match="at least 2"):
         fit_output_correction(groups[:1])
     with pytest.raises(ValueError, match="smoothing"):

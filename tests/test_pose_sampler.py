@@ -22,13 +22,19 @@ from fpg_gym.reconstruct.output_correction import (
 )
 from policies.learned_optimizers import LearnedSampler
 from policies.loading import load_sampler
-from policies.output_correction import CorrectionSource, learn_correction
+from policies.output_correction import (
+    CorrectionSource,
+    RidgeOutputCorrection,
+    correction_data,
+    learn_correction,
+)
 from policies.pose_sampler import (
     LINEAR_FEATURES,
     LinearPoseSampler,
     fit_linear,
     out_of_group_samplers,
 )
+from policies.ridge import fit_ridge, ridge_sums
 from policies.sampler import SamplerSpec
 from policies.training import collect_imitation_data
 
@@ -183,22 +189,31 @@ def test_files_round_trip_and_bad_arrays_are_refused(sampler: Any, tmp_path: Pat
 
 
 def test_a_correction_travels_with_the_model_and_learned_applies_it(
-    graph: Any, sampler: Any, tmp_path: Path
+    graph: Any, groups: Any, sampler: Any, tmp_path: Path
 ) -> None:
-    """The output correction is learnt from the sampler's own outputs, saved in its files
-    (arrays and JSON), and ``learned:`` brings it to the reconstructor; ``correct_output=False``
-    leaves it out."""
+    """The output correction is learnt from the sampler's outputs (cross-fitted), saved in its
+    files (arrays and JSON), and ``learned:`` brings it to the reconstructor;
+    ``correct_output=False`` leaves it out."""
     options = {"temporal": TemporalConfig.off()}
-    names = ("run", "jump", "dance_a")
-    recordings = [_recording(name, 45) for name in names]
+    recordings = [_recording(name, 45) for name in ("run", "jump", "dance_a")]
+    samplers = out_of_group_samplers(sampler, groups)
     sources = [
-        CorrectionSource(graph, options, [recording], LearnedSampler(sampler, samples=1))
-        for recording in recordings
+        CorrectionSource(graph, options, [recording], LearnedSampler(alone, samples=1))
+        for recording, alone in zip(recordings, samplers, strict=True)
     ]
-    correction, report = learn_correction(sources)
+    chosen, report = learn_correction(sources)
     frames = sum(len(recording.positions) for recording in recordings)
     assert report["groups"] == 3 and report["frames"] == frames
-    assert f"{report['penalty']:g}/{report['smoothing']:g}" in report["cv_error"]
+    if chosen is None:  # no setting beat the uncorrected outputs out of group
+        assert min(report["cv_error"].values()) >= report["uncorrected_error"]
+    else:
+        assert f"{report['penalty']:g}/{report['smoothing']:g}" in report["cv_error"]
+    # A correction of these outputs (one setting, no cross-validation) for the file round trip.
+    with Reconstructor(graph, ragdoll=False, **options) as reconstructor:
+        data = correction_data(reconstructor, recordings, LearnedSampler(sampler, samples=1))
+    correction = RidgeOutputCorrection(
+        fit_ridge([ridge_sums(data.features, data.targets)], 100.0), 0.5, 100.0
+    )
     copy = load_sampler(sampler.save(tmp_path / "plain"))
     assert copy.output_correction is None and LearnedSampler(copy).output_correction is None
     path = copy.with_correction(correction, report).save(tmp_path / "corrected")
@@ -253,9 +268,12 @@ def test_train_sampler_cli_trains_a_linear_sampler(tmp_path: Path) -> None:
     assert isinstance(sampler, LinearPoseSampler) and (tmp_path / "linear.npz").is_file()
     assert sampler.spec.hyperparameters["target"] == "bones"
     assert "linear" in sampler.spec.training["history"][0]
-    assert sampler.output_correction is not None  # learnt by default
-    assert "correction" in sampler.spec.training["history"][0]
-    assert "learned, uncorrected (200)" in sampler.spec.training["evaluation"]
+    # The correction is learnt by default: a model, or none when cross-validation found none
+    # better than the uncorrected outputs (then the evaluation has no uncorrected row).
+    chosen = sampler.spec.training["history"][0]["correction"]
+    assert (sampler.output_correction is None) == (chosen["penalty"] is None)
+    evaluation = sampler.spec.training["evaluation"]
+    assert ("learned, uncorrected (200)" in evaluation) == (chosen["penalty"] is not None)
     with pytest.raises(ValueError, match="kind 'linear'"):
         from policies.training import TrainConfig
 
