@@ -4,9 +4,9 @@ The reconstructor applies a correction model after its output
 (:mod:`fpg_gym.reconstruct.output_correction`: the features, the targets and the causal
 smoothing are defined there). This module fits one: a ridge regression (:mod:`policies.ridge`)
 of the truth's root-relative joints minus the output's, from the outputs of the sampler it will
-correct on recordings with ground truth (:func:`correction_data`; cross-fitted: each group's
-outputs come from the sampler fitted without that group, :class:`CorrectionSource`, so that
-they miss the truth as a held-out subject's do), its penalty and smoothing
+correct on recordings with ground truth (:func:`correction_data`; by default the sampler's
+outputs of its own training recordings; cross-fitted, each group's outputs come from the sampler
+fitted without that group, :class:`CorrectionSource`), its penalty and smoothing
 chosen by leave-one-group-out cross-validation over groups of whole recordings (subjects, or
 sets of clips) on FPG Eq. 13 (:func:`fit_output_correction`). A linear sampler stores its
 correction in its own files (:meth:`policies.pose_sampler.LinearPoseSampler.with_correction`).
@@ -45,7 +45,7 @@ __all__ = [
 ]
 
 #: Ridge penalties tried by cross-validation (standardised features).
-CORRECTION_PENALTIES: tuple[float, ...] = (10.0, 100.0, 1e3, 1e4, 1e5, 1e6, 1e7)
+CORRECTION_PENALTIES: tuple[float, ...] = (10.0, 100.0, 1e3, 1e4, 1e5)
 #: Smoothing factors ``alpha`` tried by cross-validation (1: none).
 CORRECTION_SMOOTHING: tuple[float, ...] = (1.0, 0.5, 0.25, 0.125)
 #: The model's arrays as a sampler file stores them (prefixed ``correction_``) and their shapes.
@@ -164,7 +164,8 @@ class CorrectionSource(NamedTuple):
     recordings : sequence of Recording
         Its recordings, with ground truth.
     optimizer : Optimizer
-        The sampler whose output is corrected, without a correction; cross-fitted: one that
+        The sampler whose output is corrected, without a correction (e.g.
+        ``LearnedSampler(sampler, samples=1, correct_output=False)``); cross-fitted, one that
         did not learn from this group (:func:`policies.pose_sampler.out_of_group_samplers`).
     """
 

@@ -56,7 +56,6 @@ from policies.pose_sampler import (
     LinearPoseSampler,
     describe_fit,
     fit_linear,
-    out_of_group_samplers,
 )
 from policies.rl import train_rl
 from policies.sampler import (
@@ -898,26 +897,19 @@ def _train_linear(
         unit = group_of_clip[clip_of_episode[data.episodes]]
     sampler, history, groups = _fit_linear_groups(spec, data, unit, seconds, say)
     if config.correction:
-        # The correction's groups are the sampler's, each reconstructed by the sampler fitted
-        # without it (cross-fitting).
+        # The correction's groups are the sampler's, reconstructed by the sampler.
         t0 = time.perf_counter()
         first = np.unique(data.episodes, return_index=True)
         episode_group = dict(zip(first[0].tolist(), groups[first[1]].tolist(), strict=True))
-        samplers = out_of_group_samplers(
-            sampler,
-            [
-                (data.observations[take], data.actions[take], data.episodes[take])
-                for take in (groups == g for g in np.unique(groups))
-            ],
-        )
+        optimizer = LearnedSampler(sampler, samples=1, correct_output=False)
         sources = [
             CorrectionSource(
                 graph,
                 options,
                 [recordings[e] for e, g in episode_group.items() if g == chosen],
-                LearnedSampler(samplers[number], samples=1),
+                optimizer,
             )
-            for number, chosen in enumerate(np.unique(groups).tolist())
+            for chosen in np.unique(groups).tolist()
         ]
         correction, report = learn_correction(sources, progress=config.progress, log=say)
         sampler.with_correction(correction, report)

@@ -393,8 +393,9 @@ def _train_linear(
     """The linear pose-space sampler, its settings chosen by leave-one-group-out
     cross-validation over ``groups`` (imitation data of the training subjects, or of the
     simulated protocol's folds); deterministic (one model whatever the seeds); with
-    ``sources`` and ``task["correct"]``, its output correction learnt from its outputs,
-    cross-fitted (:func:`policies.output_correction.learn_correction`); saved as
+    ``sources`` and ``task["correct"]``, its output correction learnt from its outputs of the
+    training groups (:func:`policies.output_correction.learn_correction`; with
+    ``task["cross_fit"]`` each group's outputs come from the sampler fitted without it); saved as
     ``{out}/sampler_{name}_linear``."""
 
     t0 = time.process_time()
@@ -403,13 +404,20 @@ def _train_linear(
     correction_report: dict[str, Any] = {}
     if sources and task.get("correct", True):
         t1 = time.process_time()
-        # Cross-fitted: each source's outputs come from the sampler fitted without its group.
-        samplers = out_of_group_samplers(
-            sampler, [(d.observations, d.actions, d.episodes) for d in groups]
+        bare = LearnedSampler(sampler, samples=1, correct_output=False)
+        samplers = (  # cross-fitted: each group's outputs by the sampler fitted without it
+            [
+                LearnedSampler(alone, samples=1)
+                for alone in out_of_group_samplers(
+                    sampler, [(d.observations, d.actions, d.episodes) for d in groups]
+                )
+            ]
+            if task.get("cross_fit")
+            else [bare] * len(groups)
         )
         correction, correction_report = learn_correction(
             [
-                CorrectionSource(graph, options, recordings, LearnedSampler(samplers[g], samples=1))
+                CorrectionSource(graph, options, recordings, samplers[g])
                 for graph, options, recordings, g in sources
             ]
         )
@@ -582,6 +590,7 @@ def sim_protocol(args: argparse.Namespace) -> str:
         "features": args.features,
         "model": args.model,
         "correct": args.correction,
+        "cross_fit": args.cross_fit,
         "sim_scenarios": args.sim_train_scenarios.split(","),
         "train_frames": args.sim_train_frames,
         "command": "python scripts/learned_samplers.py "
@@ -830,6 +839,7 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
             "features": args.features,
             "model": args.model,
             "correct": args.correction,
+            "cross_fit": args.cross_fit,
             "command": command,
         }
         for subject in args.subjects.split(",")
@@ -907,6 +917,13 @@ def main(argv: list[str] | None = None) -> int:
         default=True,
         help="the linear sampler learns an output correction from its own outputs of the "
         "training groups (default: yes; scored also without it, as 'uncorrected')",
+    )
+    group.add_argument(
+        "--cross-fit",
+        action="store_true",
+        help="the correction learns from each training group's outputs by the sampler fitted "
+        "without that group (policies.pose_sampler.out_of_group_samplers) instead of the "
+        "sampler's own outputs of its training data",
     )
     group.add_argument("--uiprmd-thres1", type=float, default=0.1)
     group.add_argument("--sensor-blend", type=float, default=0.5)
