@@ -460,7 +460,7 @@ def _score(
     methods = ["raw", "fpg:closed-form", "fpg:local-search"]
     for path in models.values():
         methods += [f"fpg:mean-only:{path}", f"fpg:learned:{path}", f"fpg:learned+search:{path}"]
-        if LearnedSampler(path).output_correction is not None:
+        if LearnedSampler(path).sampler.spec.kind == "linear":  # with or without a correction
             methods.append(f"fpg:uncorrected:{path}")
     rows = []
     with MethodRunner(graph, budget=2000, reconstructor_options=options) as runner:
