@@ -475,6 +475,10 @@ class TrainConfig:
         group_pattern(self.group_pattern)  # a regular expression with a group
         if not (np.isfinite(self.sensor_blend) and 0.0 <= self.sensor_blend <= 1.0):
             raise ValueError(f"sensor_blend: expected a value in [0, 1], got {self.sensor_blend}")
+        if not self.correction and self.kind != "linear":
+            raise ValueError(
+                f"correction: only kind 'linear' learns an output correction (got {self.kind!r})"
+            )
         if self.kind == "rl" and (self.backend != "local" or self.workers != 1):
             raise ValueError(
                 "backend and workers: they split the supervised data collection; "

@@ -278,6 +278,8 @@ def test_train_sampler_cli_trains_a_linear_sampler(tmp_path: Path) -> None:
         from policies.training import TrainConfig
 
         TrainConfig(kind="linear", out=str(out), target="best")
+    with pytest.raises(ValueError, match="correction"):
+        TrainConfig(kind="supervised", out=str(out), correction=False)
 
 
 def test_the_closed_form_fitted_to_the_learned_pose_is_steadier(graph: Any, sampler: Any) -> None:
