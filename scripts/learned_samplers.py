@@ -28,7 +28,10 @@ diagnostic rows run through the Python API: the sampler's anchor alone and its m
   whatever ``--seeds``). ``--model mlp``: the supervised MLP (target ``truth``), one per
   training seed, one training subject per fold being the validation split (early stopping,
   spread calibration). Each model is scored on the held-out subject with ``learned:`` and
-  ``learned+search:`` (200 evaluations) and its mean alone (1), beside ``closed-form`` (the
+  ``learned+search:`` (200 evaluations) and its mean alone (1; a linear sampler's three with
+  the output correction it learns from its own outputs of the training subjects,
+  :mod:`policies.output_correction`, and ``uncorrected``: ``learned:`` without it;
+  ``--no-correction``, ``--cross-fit``), beside ``closed-form`` (the
   anchor, 1), ``local-search`` (2,000), the raw sensor and two oracles that see the truth (its
   latent point by joints and by bones); 95 % confidence intervals by a bootstrap over episodes.
 * ``sim``: the simulated held-out Bandai protocol (:func:`sim_protocol`), the same models and
@@ -637,7 +640,8 @@ def sim_protocol(args: argparse.Namespace) -> str:
         "scenarios": task["sim_scenarios"],
     }
     # The correction's groups: each fold's training and validation parts, each reconstructed
-    # with the graph of the other folds, by the sampler fitted without the part's group.
+    # with the graph of the other folds (with --cross-fit, by the sampler fitted without the
+    # part's group).
     sources = [(*source, g) for g, source in enumerate(train_sources)]
     sources += [(*source, len(train_parts)) for source in val_sources]
     trained = _train_seeds(spec, train_parts, val, task, "bandai", info, sources)
