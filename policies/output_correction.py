@@ -25,8 +25,7 @@ from fpg_gym import poses as pose_utils
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct.output_correction import (
     CORRECTION_FEATURES,
-    correction_features,
-    correction_targets,
+    correction_frames,
     smooth_corrections,
 )
 from policies.ridge import fit_ridge, predict_ridge, ridge_sums
@@ -132,18 +131,12 @@ def correction_data(
             name = getattr(recording, "path", None) or f"recording {number}"
             raise ValueError(f"{name}: a correction learns from ground truth; this has none")
         result = reconstructor.reconstruct(recording, optimizer, rng=0)
-        count = result.num_frames
-        rows, local, placement = correction_features(
-            result.poses,
-            np.asarray(recording.positions, dtype=np.float64)[:count],
-            np.asarray(recording.states)[:count],
-            result.arrays()["reliability"].reshape(count, -1),
+        rows, target, _, _ = correction_frames(
+            result.poses, recording, result.arrays()["reliability"]
         )
         features.append(rows)
-        targets.append(
-            correction_targets(local, placement, np.asarray(truth, dtype=np.float64)[:count])
-        )
-        episodes.append(np.full(count, first_episode + number))
+        targets.append(target)
+        episodes.append(np.full(len(rows), first_episode + number))
     return CorrectionData(
         np.concatenate(features) if features else np.zeros((0, CORRECTION_FEATURES)),
         np.concatenate(targets) if targets else np.zeros((0, 60)),

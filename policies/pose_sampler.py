@@ -301,23 +301,9 @@ class LinearPoseSampler(GaussianSampler):
             "bias": (60,),
             "std": (spec.latent_dim,),
         }
-        settings = spec.hyperparameters.get("output_correction")
-        names = list(_ARRAYS)
-        if settings is not None:
+        if spec.hyperparameters.get("output_correction") is not None:
             shapes.update({_CORRECTION_PREFIX + k: v for k, v in CORRECTION_ARRAYS.items()})
-            names += [_CORRECTION_PREFIX + name for name in CORRECTION_ARRAYS]
-            try:
-                smoothing = float(settings["smoothing"])
-                float(settings["penalty"])
-            except (TypeError, KeyError, ValueError):
-                raise DataFormatError(
-                    weights,
-                    "hyperparameters.output_correction: expected 'penalty' and 'smoothing'",
-                ) from None
-            if not 0.0 < smoothing <= 1.0:
-                raise DataFormatError(
-                    weights, f"correction smoothing: expected (0, 1], got {smoothing}"
-                )
+        names = list(shapes)
         try:
             with np.load(weights, allow_pickle=False) as data:
                 arrays = {name: np.array(data[name], dtype=np.float64) for name in names}
@@ -330,10 +316,12 @@ class LinearPoseSampler(GaussianSampler):
                     f"expected finite values of shape {shape}, got {arrays[name].shape}",
                     field=name,
                 )
-        for name in ("regressor_scale", _CORRECTION_PREFIX + "regressor_scale"):
-            if name in arrays and np.any(arrays[name] <= 0):
-                raise DataFormatError(weights, "expected positive scales", field=name)
-        return cls(spec, arrays, seed)
+        if np.any(arrays["regressor_scale"] <= 0):
+            raise DataFormatError(weights, "expected positive scales", field="regressor_scale")
+        try:  # the correction's settings and scales: RidgeOutputCorrection checks them
+            return cls(spec, arrays, seed)
+        except (TypeError, KeyError, ValueError) as error:
+            raise DataFormatError(weights, f"output correction: {error}") from None
 
 
 def _bone_errors(actions: np.ndarray, part: dict[str, Any], spec: SamplerSpec) -> np.ndarray:

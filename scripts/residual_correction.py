@@ -64,8 +64,7 @@ from fpg_gym.io import load_clips  # noqa: E402
 from fpg_gym.reconstruct import Reconstructor  # noqa: E402
 from fpg_gym.reconstruct.output_correction import (  # noqa: E402
     apply_correction,
-    correction_features,
-    correction_targets,
+    correction_frames,
     smooth_corrections,
 )
 from policies.ridge import fit_ridge, predict_ridge, ridge_sums  # noqa: E402
@@ -81,22 +80,17 @@ def frame_data(
 ) -> dict[str, Any]:
     """The pipeline's outputs of ``recordings`` with ``method`` (an optimiser name: the closed
     form, or ``learned:MODEL``) with each frame's features and target
-    (:func:`~fpg_gym.reconstruct.output_correction.correction_features`,
-    :func:`~fpg_gym.reconstruct.output_correction.correction_targets`)."""
+    (:func:`~fpg_gym.reconstruct.output_correction.correction_frames`)."""
     features, targets, outputs, truths, fps, frames = [], [], [], [], [], []
     for recording in recordings:
         result = reconstructor.reconstruct(recording, method, rng=0)
         output = np.asarray(result.poses, dtype=np.float64)
-        count = len(output)
-        truth = np.asarray(recording.ground_truth, dtype=np.float64)[:count]
-        rows, local, placement = correction_features(
-            output,
-            np.asarray(recording.positions, dtype=np.float64)[:count],
-            np.asarray(recording.states)[:count],
-            result.arrays()["reliability"].reshape(count, -1),
+        rows, target, local, placement = correction_frames(
+            output, recording, result.arrays()["reliability"]
         )
+        truth = np.asarray(recording.ground_truth, dtype=np.float64)[: len(output)]
         features.append(rows)
-        targets.append(correction_targets(local, placement, truth))
+        targets.append(target)
         outputs.append(output)
         frames.append((local, placement))
         truths.append(truth)
@@ -114,13 +108,13 @@ def frame_data(
 def corrected(data: dict[str, Any], prediction: np.ndarray, alpha: float) -> list[np.ndarray]:
     """The outputs plus the predicted corrections, back in camera space; each episode's
     corrections smoothed causally first (``c_t = alpha p_t + (1 - alpha) c_{t-1}``)."""
-    out, row = [], 0
-    for local, placement in data["frames"]:
-        count = len(local)
-        step = smooth_corrections(prediction[row : row + count], np.zeros(count), alpha)
-        out.append(apply_correction(local, placement, step))
-        row += count
-    return out
+    counts = [len(local) for local, _ in data["frames"]]
+    steps = smooth_corrections(prediction, np.repeat(np.arange(len(counts)), counts), alpha)
+    parts = np.split(steps, np.cumsum(counts)[:-1])
+    return [
+        apply_correction(local, placement, step)
+        for (local, placement), step in zip(data["frames"], parts, strict=True)
+    ]
 
 
 def scores(poses: list[np.ndarray], data: dict[str, Any]) -> tuple[np.ndarray, np.ndarray]:

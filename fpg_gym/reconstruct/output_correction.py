@@ -26,7 +26,7 @@ sampler trained with one).
 
 from __future__ import annotations
 
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
@@ -39,6 +39,7 @@ __all__ = [
     "OutputCorrection",
     "apply_correction",
     "correction_features",
+    "correction_frames",
     "correction_targets",
     "output_correction_of",
     "smooth_corrections",
@@ -122,6 +123,26 @@ def correction_targets(
     seen = pose_utils.into_placement(truth, placement)
     target = seen - seen[:, skeleton.ROOT : skeleton.ROOT + 1]
     return (target - local).reshape(len(local), -1)
+
+
+def correction_frames(
+    outputs: np.ndarray,
+    recording: Any,
+    reliability: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, pose_utils.Placement]:
+    """A reconstructed recording's frames for a correction: features, targets, and the
+    outputs' normalised poses and placements (:func:`correction_features`,
+    :func:`correction_targets`), for the first ``len(outputs)`` frames of ``recording`` (its
+    ``positions``, ``states`` and ``ground_truth``) and the reliabilities ``(n, 20)``."""
+    count = len(outputs)
+    features, local, placement = correction_features(
+        np.asarray(outputs, dtype=np.float64),
+        np.asarray(recording.positions, dtype=np.float64)[:count],
+        np.asarray(recording.states)[:count],
+        np.asarray(reliability).reshape(count, -1),
+    )
+    truth = np.asarray(recording.ground_truth, dtype=np.float64)[:count]
+    return features, correction_targets(local, placement, truth), local, placement
 
 
 def smooth_corrections(
