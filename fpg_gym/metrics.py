@@ -25,6 +25,12 @@ metres (any space, as long as reference and estimate share it).
   over frames.
 * :func:`root_relative_error` — each joint's distance to the reference once both skeletons have
   their root (HipCenter) at the origin, averaged over frames.
+* :func:`joint_distances` / :func:`mpjpe` — the field's mean per-joint position error: absolute
+  (``align="none"``, in the space both share), root-relative (``"root"``) or after the
+  similarity Procrustes alignment of each frame (``"procrustes"``, PA-MPJPE); an optional
+  ``(T, 20)`` mask scores a subset of joints (occluded or visible ones).
+* :func:`bone_length_error` — each bone's mean absolute length error against the reference
+  (a constant wrong bone has no spread but this error).
 * :func:`time_summary` — median, p95, mean and max of per-frame computation times.
 * :func:`bootstrap_mean_ci` — a 95 % bootstrap interval of a mean over episodes (or of its
   change against a baseline on the same episodes).
@@ -50,6 +56,7 @@ __all__ = [
     "ERR_THRESHOLD_M",
     "acceleration",
     "band_shares",
+    "bone_length_error",
     "bone_length_variation",
     "bones_tracked",
     "bootstrap_mean_ci",
@@ -58,8 +65,10 @@ __all__ = [
     "frame_error",
     "frames_above",
     "jitter",
+    "joint_distances",
     "lag",
     "mean_error",
+    "mpjpe",
     "per_joint_error",
     "root_relative_error",
     "settled_bone_spread",
@@ -428,13 +437,97 @@ def root_relative_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np
     joint is relative to the hips, so errors along the chain add up (a wrong spine moves the
     head and both arms). The root's entry is 0.
     """
+    return np.asarray(joint_distances(reference, estimate, "root").mean(axis=0))
+
+
+ALIGNMENTS: tuple[str, ...] = ("none", "root", "procrustes")
+"""Alignments of :func:`joint_distances`: none (absolute), root-relative, Procrustes."""
+
+
+def _procrustes_aligned(reference: np.ndarray, estimate: np.ndarray) -> np.ndarray:
+    """Each frame of ``estimate`` moved onto ``reference`` by the similarity transform (scale,
+    rotation, translation) that minimises the squared joint distances (Umeyama 1991), as
+    PA-MPJPE does; vectorised over frames."""
+    ref_mean = reference.mean(axis=1, keepdims=True)
+    est_mean = estimate.mean(axis=1, keepdims=True)
+    ref_c, est_c = reference - ref_mean, estimate - est_mean
+    covariance = np.einsum("tji,tjk->tik", est_c, ref_c)  # (T, 3, 3): sum_j x_j r_j^T
+    u, sigma, vt = np.linalg.svd(covariance)
+    sign = np.sign(np.linalg.det(np.einsum("tij,tjk->tik", u, vt)))
+    sign[sign == 0] = 1.0
+    fix = np.ones_like(sigma)
+    fix[:, 2] = sign
+    rotation = np.einsum("tij,tj,tjk->tik", u, fix, vt)  # x -> x @ rotation
+    variance = np.einsum("tjc,tjc->t", est_c, est_c)
+    scale = (sigma * fix).sum(axis=1) / np.maximum(variance, 1e-12)
+    aligned: np.ndarray = scale[:, None, None] * np.einsum("tjc,tck->tjk", est_c, rotation)
+    return aligned + ref_mean
+
+
+def joint_distances(
+    reference: npt.ArrayLike, estimate: npt.ArrayLike, align: str = "none"
+) -> np.ndarray:
+    """Each joint's distance to the reference in each frame, metres, ``(T, 20)``.
+
+    Parameters
+    ----------
+    reference, estimate : array_like, shape (T, 20, 3) or (20, 3)
+    align : {"none", "root", "procrustes"}
+        ``"none"``: absolute positions in the space both share (MPJPE); ``"root"``: both
+        skeletons with their root (HipCenter) at the origin (root-relative MPJPE);
+        ``"procrustes"``: the estimate moved onto the reference per frame by the best
+        similarity transform (PA-MPJPE).
+    """
+    if align not in ALIGNMENTS:
+        raise ValueError(f"align: expected one of {', '.join(ALIGNMENTS)}, got {align!r}")
     ref = _clip_array(reference, "reference")
     est = _clip_array(estimate, "estimate")
     if ref.shape != est.shape:
-        raise ValueError(f"reference and estimate differ in shape: {ref.shape} vs {est.shape}")
-    ref_local = ref - ref[:, skeleton.ROOT : skeleton.ROOT + 1]
-    est_local = est - est[:, skeleton.ROOT : skeleton.ROOT + 1]
-    return np.asarray(np.linalg.norm(ref_local - est_local, axis=-1).mean(axis=0))
+        raise ValueError(f"reference {ref.shape} and estimate {est.shape} differ in shape")
+    if align == "root":
+        ref = ref - ref[:, skeleton.ROOT : skeleton.ROOT + 1]
+        est = est - est[:, skeleton.ROOT : skeleton.ROOT + 1]
+    elif align == "procrustes":
+        est = _procrustes_aligned(ref, est)
+    return np.asarray(np.linalg.norm(ref - est, axis=-1))
+
+
+def mpjpe(
+    reference: npt.ArrayLike,
+    estimate: npt.ArrayLike,
+    align: str = "none",
+    mask: npt.ArrayLike | None = None,
+) -> float:
+    """Mean per-joint position error, metres (:func:`joint_distances` averaged).
+
+    Parameters
+    ----------
+    reference, estimate : array_like, shape (T, 20, 3)
+    align : {"none", "root", "procrustes"}
+        See :func:`joint_distances` (MPJPE, root-relative MPJPE, PA-MPJPE).
+    mask : array_like of bool, shape (T, 20), optional
+        The joint-frames to score (e.g. the occluded ones); NaN when it selects none.
+    """
+    distances = joint_distances(reference, estimate, align)
+    if mask is None:
+        return float(distances.mean())
+    selected = np.asarray(mask, dtype=bool)
+    if selected.shape != distances.shape:
+        raise ValueError(f"mask: expected shape {distances.shape}, got {selected.shape}")
+    return float(distances[selected].mean()) if selected.any() else float("nan")
+
+
+def bone_length_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarray:
+    """Mean over frames of ``| |x bone| - |r bone| |`` for each of the 19 bones, metres.
+
+    Where :func:`bone_length_variation` and :func:`settled_bone_spread` measure whether a bone
+    keeps its length, this measures whether it has the right one.
+    """
+    ref = _clip_array(reference, "reference")
+    est = _clip_array(estimate, "estimate")
+    if ref.shape != est.shape:
+        raise ValueError(f"reference {ref.shape} and estimate {est.shape} differ in shape")
+    return np.asarray(np.abs(poses.bone_lengths(est) - poses.bone_lengths(ref)).mean(axis=0))
 
 
 def time_summary(milliseconds: npt.ArrayLike) -> dict[str, float]:

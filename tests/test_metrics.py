@@ -239,3 +239,75 @@ def test_bootstrap_mean_ci_covers_the_pooled_mean_and_the_paired_change() -> Non
         metrics.bootstrap_mean_ci(values, weights=frames[:2])
     with pytest.raises(ValueError, match="at least one"):
         metrics.bootstrap_mean_ci([])
+
+
+def test_mpjpe_alignments_by_hand() -> None:
+    rng = np.random.default_rng(3)
+    reference = rng.normal(size=(4, 20, 3))
+    shifted = reference + np.array([0.1, -0.2, 0.3])
+    assert metrics.mpjpe(reference, shifted) == pytest.approx(np.sqrt(0.14))
+    assert metrics.mpjpe(reference, shifted, "root") == pytest.approx(0.0, abs=1e-12)
+    assert metrics.mpjpe(reference, shifted, "procrustes") == pytest.approx(0.0, abs=1e-9)
+    np.testing.assert_allclose(
+        metrics.root_relative_error(reference, shifted), np.zeros(20), atol=1e-12
+    )
+    mask = np.zeros((4, 20), dtype=bool)
+    mask[:, 5] = True
+    moved = reference.copy()
+    moved[:, 5] += (0.0, 0.5, 0.0)
+    assert metrics.mpjpe(reference, moved, mask=mask) == pytest.approx(0.5)
+    assert metrics.mpjpe(reference, moved, mask=~mask) == pytest.approx(0.0)
+    assert np.isnan(metrics.mpjpe(reference, moved, mask=np.zeros((4, 20), dtype=bool)))
+    with pytest.raises(ValueError, match="align"):
+        metrics.mpjpe(reference, moved, "bones")
+    with pytest.raises(ValueError, match="mask"):
+        metrics.mpjpe(reference, moved, mask=mask[:2])
+
+
+def test_procrustes_alignment_matches_an_independent_fit() -> None:
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(4)
+    reference = rng.normal(size=(3, 20, 3))
+    rotations = Rotation.random(3, random_state=5)
+    similar = np.stack(
+        [1.7 * rotations[t].apply(reference[t]) + rng.normal(size=3) for t in range(3)]
+    )
+    assert metrics.mpjpe(reference, similar, "procrustes") == pytest.approx(0.0, abs=1e-9)
+    noisy = similar + 0.05 * rng.normal(size=similar.shape)
+    expected = []
+    for t in range(3):  # the best rotation, then the best scale, of centred points
+        ref_c = reference[t] - reference[t].mean(axis=0)
+        est_c = noisy[t] - noisy[t].mean(axis=0)
+        rotation, _ = Rotation.align_vectors(ref_c, est_c)
+        turned = rotation.apply(est_c)
+        scale = (ref_c * turned).sum() / (est_c**2).sum()
+        expected.append(np.linalg.norm(ref_c - scale * turned, axis=1))
+    np.testing.assert_allclose(
+        metrics.joint_distances(reference, noisy, "procrustes"), np.stack(expected), atol=1e-9
+    )
+    mirrored = reference * np.array([-1.0, 1.0, 1.0])  # no reflection allowed
+    assert metrics.mpjpe(reference, mirrored, "procrustes") > 0.1
+
+
+def test_bone_length_error_sees_a_constant_wrong_bone(clip: np.ndarray) -> None:
+    longer = clip.copy()
+    child = int(skeleton.BONES[5, 1])
+    subtree = [j for j in range(20) if child in _ancestors_and_self(j)]
+    direction = longer[:, child] - longer[:, int(skeleton.BONES[5, 0])]
+    direction /= np.linalg.norm(direction, axis=-1, keepdims=True)
+    longer[:, subtree] += 0.05 * direction[:, None]
+    error = metrics.bone_length_error(clip, longer)
+    assert error[5] == pytest.approx(0.05, abs=1e-6)
+    assert np.delete(error, 5).max() < 1e-6
+    np.testing.assert_allclose(
+        metrics.bone_length_variation(longer), metrics.bone_length_variation(clip), atol=1e-6
+    )
+
+
+def _ancestors_and_self(joint: int) -> set[int]:
+    chain = {joint}
+    while skeleton.PARENTS[joint] >= 0:
+        joint = int(skeleton.PARENTS[joint])
+        chain.add(joint)
+    return chain
