@@ -31,7 +31,8 @@ def test_round_trip_keeps_everything(tmp_path: Path, rng: np.random.Generator, t
     recording = make_recording(rng, truth=truth)
     path = write_recording(tmp_path / "rec.npz", recording)
     with np.load(path, allow_pickle=False) as archive:
-        expected = set(RECORDING_KEYS) if truth else set(RECORDING_KEYS) - {"ground_truth"}
+        expected = set(RECORDING_KEYS) - {"occluded"}
+        expected = expected if truth else expected - {"ground_truth"}
         assert set(archive.files) == expected
         assert archive["positions"].dtype == np.float32
         assert archive["positions"].shape == (12, 20, 3)
@@ -154,3 +155,24 @@ def test_head_keeps_the_first_frames() -> None:
     assert recording.head(None) is recording and recording.head(10_000) is recording
     with pytest.raises(ValueError, match="count"):
         recording.head(0)
+
+
+def test_occluded_mask_round_trips_and_is_checked(tmp_path: Path, rng: np.random.Generator) -> None:
+    recording = make_recording(rng, truth=True)
+    occluded = np.zeros((12, 20), dtype=bool)
+    occluded[3:7, 13:16] = True
+    marked = Recording(
+        positions=recording.positions,
+        states=recording.states,
+        timestamps=recording.timestamps,
+        ground_truth=recording.ground_truth,
+        metadata=recording.metadata,
+        occluded=occluded,
+    )
+    loaded = load_recording(write_recording(tmp_path / "occluded.npz", marked))
+    assert loaded.occluded is not None and np.array_equal(loaded.occluded, occluded)
+    assert loaded.head(5).occluded is not None and loaded.head(5).occluded.shape == (5, 20)
+    with pytest.raises(ValueError, match="occluded: expected shape"):
+        Recording(
+            recording.positions, recording.states, recording.timestamps, occluded=occluded[:3]
+        )

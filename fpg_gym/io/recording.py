@@ -14,6 +14,7 @@ positions      f4 (T,20,3)  reported joint positions, metres, camera space; neve
 states         i1 (T,20)    2 tracked, 1 inferred, 0 not tracked
 timestamps     f8 (T,)      seconds, non-decreasing (0 at the first frame for readers)
 ground_truth   f4 (T,20,3)  optional: the true positions in the same space (simulator)
+occluded       b1 (T,20)    optional: joints the sensor could not see (simulator, benchmarks)
 metadata       str (JSON)   source, format, joint_set, untracked_positions, ...
 ============== ============ =========================================================
 
@@ -53,7 +54,14 @@ __all__ = [
 ]
 
 #: Keys of a recording ``.npz`` file (``ground_truth`` optional).
-RECORDING_KEYS: tuple[str, ...] = ("positions", "states", "timestamps", "ground_truth", "metadata")
+RECORDING_KEYS: tuple[str, ...] = (
+    "positions",
+    "states",
+    "timestamps",
+    "ground_truth",
+    "occluded",
+    "metadata",
+)
 #: Values of ``metadata["untracked_positions"]``.
 UNTRACKED_CONVENTIONS: tuple[str, ...] = ("sensor", "last_known", "simulated")
 _REQUIRED = ("positions", "states", "timestamps", "metadata")
@@ -99,6 +107,9 @@ class Recording:
         Seconds, non-decreasing.
     ground_truth : ndarray, shape (T, 20, 3), float32, or None
         True positions in the same space, when known (simulated streams).
+    occluded : ndarray, shape (T, 20), bool, or None
+        Which joints the sensor could not see, when known (the simulator and the occlusion
+        benchmark mark them): scores split occluded and visible joints with it.
     metadata : dict
         JSON-serialisable: ``source``, ``format``, ``joint_set``, ``untracked_positions`` and,
         for readers, ``skipped_lines``/``no_body_frames``; for the simulator ``scenario``,
@@ -116,6 +127,7 @@ class Recording:
     timestamps: np.ndarray
     ground_truth: np.ndarray | None = None
     metadata: dict[str, Any] = field(default_factory=dict, compare=False)
+    occluded: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         positions = _validate_positions(self.positions, "positions", None)
@@ -148,6 +160,14 @@ class Recording:
         truth = self.ground_truth
         if truth is not None:
             truth = _validate_positions(truth, "ground_truth", count)
+        occluded = self.occluded
+        if occluded is not None:
+            occluded = np.asarray(occluded)
+            if occluded.shape != (count, skeleton.NUM_JOINTS):
+                raise ValueError(f"occluded: expected shape ({count}, 20), got {occluded.shape}")
+            if occluded.dtype != np.bool_ and not np.isin(occluded, (0, 1)).all():
+                raise ValueError("occluded: expected booleans (0 or 1)")
+            occluded = occluded.astype(bool)
         metadata = dict(self.metadata)
         try:
             json.dumps(metadata)
@@ -157,6 +177,7 @@ class Recording:
         object.__setattr__(self, "states", states.astype(np.int8))
         object.__setattr__(self, "timestamps", timestamps)
         object.__setattr__(self, "ground_truth", truth)
+        object.__setattr__(self, "occluded", occluded)
         object.__setattr__(self, "metadata", metadata)
 
     @property
@@ -194,13 +215,14 @@ class Recording:
             return self
         if count < 1:
             raise ValueError(f"count: expected at least 1 frame, got {count}")
-        truth = self.ground_truth
+        truth, occluded = self.ground_truth, self.occluded
         return Recording(
             positions=self.positions[:count],
             states=self.states[:count],
             timestamps=self.timestamps[:count],
             ground_truth=None if truth is None else truth[:count],
             metadata={**self.metadata, "cut_to_frames": int(count)},
+            occluded=None if occluded is None else occluded[:count],
         )
 
     def __repr__(self) -> str:
@@ -229,6 +251,8 @@ def write_recording(path: str | Path, recording: Recording) -> Path:
     }
     if recording.ground_truth is not None:
         arrays["ground_truth"] = recording.ground_truth.astype(np.float32)
+    if recording.occluded is not None:
+        arrays["occluded"] = recording.occluded.astype(bool)
     return save_npz(path, arrays)
 
 
@@ -295,6 +319,7 @@ def load_recording(path: str | Path) -> Recording:
             timestamps=arrays["timestamps"],
             ground_truth=arrays.get("ground_truth"),
             metadata=metadata,
+            occluded=arrays.get("occluded"),
         )
     except ValueError as error:
         field_name = str(error).split(":", 1)[0]

@@ -45,19 +45,28 @@ from fpg_gym.simulate.scenarios import Scenario, get_scenario
 from fpg_gym.simulate.scene import RayCaster, TraceResult
 from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
 
-__all__ = ["KinectSimulator", "Placement", "place", "simulate"]
+__all__ = [
+    "ARM_JOINTS",
+    "LEG_JOINTS",
+    "KinectSimulator",
+    "Placement",
+    "occlusion_effects",
+    "place",
+    "simulate",
+]
 
 FOOT_HEIGHT_M = 0.04
 _FREEZE, _SWING, _COLLAPSE, _SNAP = 0, 1, 2, 3
 _LIMB = np.array([group != "core" for group in JOINT_GROUP])
-_ARMS = np.array(
+#: The joints of both arms and of both legs (a side-on body may get either set swapped).
+ARM_JOINTS = np.array(
     [
         skeleton.joint_index(n)
         for n in skeleton.JOINT_NAMES
         if n.startswith(("Shoulder", "Elbow", "Wrist", "Hand")) and n != "ShoulderCenter"
     ]
 )
-_LEGS = np.array(
+LEG_JOINTS = np.array(
     [
         skeleton.joint_index(n)
         for n in skeleton.JOINT_NAMES
@@ -251,11 +260,18 @@ class KinectSimulator:
         reported = sensed + noise
         states = np.full((count, skeleton.NUM_JOINTS), TRACKED, dtype=np.int8)
         stats: dict[str, Any] = {"out_of_view_share": float(1.0 - in_view.mean())}
+        hidden = np.zeros((count, skeleton.NUM_JOINTS), dtype=bool)
         if scenario.occlusion_effects or not in_view.all():
             hidden = (visible < scenario.occlusion.hidden_below) | ~in_view
             hits = camera.world_to_camera(trace.hit_point)
-            reported, states, occlusion_stats = _occlusion_effects(
-                scenario, rng, truth, reported, hidden, np.where(in_view, trace.blocker, -1), hits
+            reported, states, occlusion_stats = occlusion_effects(
+                scenario.occlusion,
+                rng,
+                truth,
+                reported,
+                hidden,
+                np.where(in_view, trace.blocker, -1),
+                hits,
             )
             stats.update(occlusion_stats)
         if scenario.left_right_confusion:
@@ -288,6 +304,7 @@ class KinectSimulator:
             timestamps=np.arange(count) / rate,
             ground_truth=truth.astype(np.float32),
             metadata=metadata,
+            occluded=hidden,
         )
 
 
@@ -327,8 +344,8 @@ _LEVELS = _depth_levels()
 _LEVEL_PARENTS = [skeleton.PARENTS[level] for level in _LEVELS]
 
 
-def _occlusion_effects(
-    scenario: Scenario,
+def occlusion_effects(
+    model: OcclusionModel,
     rng: np.random.Generator,
     truth: np.ndarray,
     reported: np.ndarray,
@@ -342,8 +359,22 @@ def _occlusion_effects(
     hidden episode (frozen, swung or collapsed bone) with drift and glitches; its error is its
     parent's error plus its own bone error, so hidden chains move together while seen joints
     stay where the sensor sees them.
+
+    Parameters
+    ----------
+    model : OcclusionModel
+    rng : numpy.random.Generator
+    truth : ndarray, shape (T, 20, 3)
+        The body whose bones the hidden joints' reports start from (the true pose in the
+        simulator; the sensor's own stream when occlusions are put into a real one).
+    reported : ndarray, shape (T, 20, 3)
+        What the sensor reports of seen joints.
+    hidden : ndarray of bool, shape (T, 20)
+    blocker : ndarray of int, shape (T, 20)
+        The scene object hiding each joint (-1: none, -2: the body itself).
+    hits : ndarray, shape (T, 20, 3)
+        Where a snapping joint lands (the occluder's surface).
     """
-    model = scenario.occlusion
     count, joints = hidden.shape
     # Random draws up front (same seed, same stream; no per-frame generator calls).
     u_mode = rng.random((count, joints))
@@ -522,7 +553,7 @@ def _left_right(
             permutation[t] = skeleton.MIRROR_PERMUTATION
             remaining = 0
         elif remaining > 0:
-            joints = _LEGS if legs else _ARMS
+            joints = LEG_JOINTS if legs else ARM_JOINTS
             permutation[t, joints] = skeleton.MIRROR_PERMUTATION[joints]
             remaining -= 1
             swap_frames += 1
