@@ -60,6 +60,7 @@ __all__ = [
     "FORMAT",
     "KINECT_V2_TO_VICON",
     "TRUNK_JOINTS",
+    "ComposedMap",
     "DefinitionMap",
     "OnlineDefinitionFit",
     "PoseMap",
@@ -67,6 +68,8 @@ __all__ = [
     "fit_to_database",
     "joint_frames",
     "packaged_map",
+    "packaged_map_names",
+    "sensor_to_output_map",
 ]
 
 #: ``format`` entry of a definition-map JSON file.
@@ -527,6 +530,62 @@ def fit_to_database(
     current = DefinitionMap.fit(p, paired, source=source, target=target, joints=fitted)
     current.info["database_poses"] = len(db)
     return current
+
+
+@dataclass(frozen=True)
+class ComposedMap:
+    """Maps applied one after the other (a :class:`PoseMap`): ``maps[-1](...maps[0](p))``."""
+
+    maps: tuple[PoseMap, ...]
+
+    def __post_init__(self) -> None:
+        if not self.maps:
+            raise ValueError("ComposedMap: expected at least one map")
+
+    @property
+    def source(self) -> str:
+        """The first map's source definitions."""
+        return self.maps[0].source
+
+    @property
+    def target(self) -> str:
+        """The last map's target definitions."""
+        return self.maps[-1].target
+
+    def apply(self, poses: npt.ArrayLike) -> np.ndarray:
+        """Apply every map in turn."""
+        result = np.asarray(poses, dtype=np.float64)
+        for mapping in self.maps:
+            result = mapping.apply(result)
+        return result
+
+
+def sensor_to_output_map(options: Any) -> PoseMap | None:
+    """The map that puts the *sensor's* joints in the definitions a reconstruction outputs.
+
+    ``options`` holds the reconstructor's maps (a mapping or an object with the
+    :class:`~fpg_gym.reconstruct.ReconstructorConfig` fields ``sensor_map``, ``output_map``,
+    ``calibrate_output`` and ``calibration_map``): the calibration map when the output is
+    calibrated online; else the sensor map followed by the output map, when given. None when
+    the output is in the sensor's own definitions (no map at all, or a calibration without a
+    calibration map). The mapped sensor is the baseline a reconstruction must beat on the same
+    definitions (``raw+map``, ``holt+map``).
+    """
+
+    def get(name: str) -> Any:
+        return options.get(name) if isinstance(options, dict) else getattr(options, name, None)
+
+    if get("calibrate_output"):
+        return get("calibration_map")
+    maps = tuple(m for m in (get("sensor_map"), get("output_map")) if m is not None)
+    if not maps:
+        return None
+    return maps[0] if len(maps) == 1 else ComposedMap(maps)
+
+
+def packaged_map_names() -> tuple[str, ...]:
+    """Names of the maps shipped in ``fpg_gym/data`` (``kinect-v2-to-vicon``, ...)."""
+    return tuple(sorted(p.stem for p in _DATA.glob("*.json")))
 
 
 def packaged_map(name: str) -> DefinitionMap:

@@ -5,7 +5,7 @@ One name picks everything a run of a Kinect stream needs; ``fpg-gym compare --me
 
 Grammar::
 
-    METHOD  = BASE [":" OPTION] ["+prior"] ["+ragdoll"]
+    METHOD  = BASE [":" OPTION] ["+map"] ["+prior"] ["+ragdoll"]
 
 =========  ===================  =============================================================
 base       option               method
@@ -16,6 +16,8 @@ base       option               method
                                 ``none`` (see :data:`fpg_gym.filters.HOLT_PRESETS`)
 ``kalman`` Kalman preset        constant-velocity Kalman filter per joint
                                 (:class:`fpg_gym.filters.KalmanFilter`): ``default``, ``fast``
+``one-euro`` One Euro preset    speed-adaptive low-pass filter per joint
+                                (:class:`fpg_gym.filters.OneEuroFilter`, Casiez et al. 2012)
 ``shum``   optimiser name       Shum 2013: brute-force selection (Eq. 9) + an optimiser
 ``fpg``    optimiser name       FPG 2016: graph selection + an optimiser
 =========  ===================  =============================================================
@@ -25,7 +27,12 @@ The option of ``shum``/``fpg`` is a registered optimiser (``optimizers.available
 or a parametrised name such as ``learned:PATH`` / ``learned+search:PATH``, so
 ``fpg:learned+search:runs/sampler+ragdoll`` is valid: only trailing ``+prior``/``+ragdoll`` are
 suffixes); the option of a filter is its preset (the SDK's documented default when omitted).
-``+prior`` (``shum``/``fpg`` only, beyond the papers) adds the latent prior term ``Ep`` with
+``+map`` (filters only) first moves the sensor's joints into the definitions the
+reconstructions are output in (the runner's sensor map, composed with its output map, or the
+calibration map: :func:`fpg_gym.definitions.sensor_to_output_map`): ``raw+map`` is the sensor
+through a fitted definition map and ``holt+map`` the same with the SDK's filter, the cheap
+baselines a Kinect user with paired data already has. ``+prior`` (``shum``/``fpg`` only, beyond
+the papers) adds the latent prior term ``Ep`` with
 the weight chosen on a validation split (:meth:`EnergyWeights.with_prior
 <fpg_gym.reconstruct.EnergyWeights.with_prior>`). ``+ragdoll``
 sends the method's output through the pybullet PD ragdoll
@@ -52,12 +59,13 @@ from __future__ import annotations
 
 import time
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
 
 from fpg_gym import skeleton
+from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.filters import PRESETS, make_filter
 from fpg_gym.metrics import bones_tracked
 from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
@@ -81,7 +89,7 @@ __all__ = [
     "parse_methods",
 ]
 
-FILTER_BASES: tuple[str, ...] = ("raw", "holt", "kalman")
+FILTER_BASES: tuple[str, ...] = ("raw", "holt", "kalman", "one-euro")
 RECONSTRUCTION_BASES: tuple[str, ...] = ("shum", "fpg")
 METHOD_BASES: tuple[str, ...] = FILTER_BASES + RECONSTRUCTION_BASES
 #: Candidate selector of each reconstruction base (``fpg-gym compare --selectors`` uses these).
@@ -90,6 +98,7 @@ BASE_OF_SELECTOR: dict[str, str] = {v: k for k, v in SELECTOR_OF_BASE.items()}
 DEFAULT_OPTIMIZER = "local-search"
 RAGDOLL_SUFFIX = "+ragdoll"
 PRIOR_SUFFIX = "+prior"
+MAP_SUFFIX = "+map"
 
 
 @dataclass(frozen=True)
@@ -106,12 +115,15 @@ class Method:
         Whether the output goes through the ragdoll.
     prior : bool
         Whether the energy has the latent prior term (``shum``/``fpg`` only).
+    mapped : bool
+        Whether a filter's input first goes through the sensor -> output definition map.
     """
 
     base: str
     option: str = ""
     ragdoll: bool = False
     prior: bool = False
+    mapped: bool = False
 
     def __post_init__(self) -> None:
         if self.base not in METHOD_BASES:
@@ -120,10 +132,15 @@ class Method:
             )
         if self.prior and self.base in FILTER_BASES:
             raise ValueError(f"method {self.base}: '+prior' applies to shum and fpg only")
+        if self.mapped and self.base not in FILTER_BASES:
+            raise ValueError(
+                f"method {self.base}: '+map' applies to the filters only (a reconstruction maps "
+                "with --sensor-map)"
+            )
 
     @property
     def is_filter(self) -> bool:
-        """True for ``raw``, ``holt`` and ``kalman``."""
+        """True for the reference filters (:data:`FILTER_BASES`)."""
         return self.base in FILTER_BASES
 
     @property
@@ -149,19 +166,20 @@ class Method:
     def name(self) -> str:
         """Canonical name (optimiser spelled out, default filter preset omitted)."""
         core = self.filter_name if self.is_filter else f"{self.base}:{self.optimizer}"
+        mapped = MAP_SUFFIX if self.mapped else ""
         prior = PRIOR_SUFFIX if self.prior else ""
-        return f"{core}{prior}{RAGDOLL_SUFFIX if self.ragdoll else ''}"
+        return f"{core}{mapped}{prior}{RAGDOLL_SUFFIX if self.ragdoll else ''}"
 
     def with_ragdoll(self, ragdoll: bool) -> Method:
         """The same method with or without the ragdoll."""
-        return Method(self.base, self.option, ragdoll, self.prior)
+        return replace(self, ragdoll=ragdoll)
 
     def __str__(self) -> str:
         return self.name
 
 
 def parse_method(text: str) -> Method:
-    """Parse ``BASE[:OPTION][+ragdoll]`` (see the module docstring).
+    """Parse ``BASE[:OPTION][+map][+prior][+ragdoll]`` (see the module docstring).
 
     Filter presets are checked here; optimiser names are checked when the optimiser is made
     (third-party optimisers may register later).
@@ -170,35 +188,37 @@ def parse_method(text: str) -> Method:
     ------
     ValueError
         Empty text, an unknown base, an unknown filter preset or a ``+`` suffix other than
-        ``+ragdoll``.
+        ``+map``, ``+prior`` and ``+ragdoll``.
     """
 
     raw = str(text).strip()
     if not raw:
         raise ValueError("method: empty name")
-    # An optimiser option may hold '+' and ':' (learned+search:PATH): only trailing '+prior'
-    # and '+ragdoll' are suffixes, and a '+' before the option is an error.
-    body, plus, prior = raw, False, False
+    # An optimiser option may hold '+' and ':' (learned+search:PATH): only trailing '+map',
+    # '+prior' and '+ragdoll' are suffixes, and a '+' before the option is an error.
+    body, plus, prior, mapped = raw, False, False, False
     while True:
         lowered = body.lower()
         if lowered.endswith(RAGDOLL_SUFFIX) and not plus:
             body, plus = body[: -len(RAGDOLL_SUFFIX)], True
         elif lowered.endswith(PRIOR_SUFFIX) and not prior:
             body, prior = body[: -len(PRIOR_SUFFIX)], True
+        elif lowered.endswith(MAP_SUFFIX) and not mapped:
+            body, mapped = body[: -len(MAP_SUFFIX)], True
         else:
             break
     head, _, rest = body.partition(":")
     if "+" in head or (head.strip().lower() in FILTER_BASES and "+" in rest):
         suffix = body[body.index("+") + 1 :]
         raise ValueError(
-            f"method {raw!r}: the suffixes are '+prior' and '+ragdoll', got '+{suffix}'"
+            f"method {raw!r}: the suffixes are '+map', '+prior' and '+ragdoll', got '+{suffix}'"
         )
     base, _, option = body.partition(":")
     base, option = base.strip().lower(), option.strip()
     if base not in METHOD_BASES:
         raise ValueError(
             f"method {raw!r}: unknown base {base!r}; expected one of {', '.join(METHOD_BASES)} "
-            "(e.g. raw, holt:smoothed, kalman, shum:local-search, fpg:cma-es+ragdoll)"
+            "(e.g. raw, holt:smoothed, holt+map, one-euro, shum:local-search, fpg:cma-es+ragdoll)"
         )
     if base in FILTER_BASES:
         option = option.lower()
@@ -209,7 +229,7 @@ def parse_method(text: str) -> Method:
             raise ValueError(f"method {raw!r}: unknown {base} preset {option!r}; presets: {known}")
     elif option == DEFAULT_OPTIMIZER:
         option = ""
-    return Method(base, option, plus, prior)  # Method rejects '+prior' on a filter
+    return Method(base, option, plus, prior, mapped)  # Method rejects misplaced suffixes
 
 
 def parse_methods(texts: Iterable[str]) -> list[Method]:
@@ -476,6 +496,14 @@ class MethodRunner:
         assert spec.filter_name is not None
         flt = make_filter(spec.filter_name)
         positions = np.asarray(recording.positions)
+        if spec.mapped:
+            mapping = sensor_to_output_map(self.options)
+            if mapping is None:
+                raise ValueError(
+                    f"method {spec.name}: no definition map to apply; give a sensor map "
+                    "(--sensor-map) or a calibration map (--calibration-map)"
+                )
+            positions = mapping.apply(positions).astype(np.float32)
         states = np.asarray(recording.states)
         stamps = getattr(recording, "timestamps", None)
         times = np.arange(len(positions)) / 30.0 if stamps is None else np.asarray(stamps)

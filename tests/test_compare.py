@@ -45,6 +45,9 @@ from fpg_gym.methods import (
         ("holt:default", "holt", True, None, None, False),
         ("HOLT:very-smoothed+ragdoll", "holt:very-smoothed+ragdoll", True, None, None, True),
         ("kalman:fast", "kalman:fast", True, None, None, False),
+        ("one-euro", "one-euro", True, None, None, False),
+        ("holt+map", "holt+map", True, None, None, False),
+        ("raw+ragdoll+map", "raw+map+ragdoll", True, None, None, True),
         ("fpg", "fpg:local-search", False, "graph", "local-search", False),
         ("shum:cma-es+ragdoll", "shum:cma-es+ragdoll", False, "brute-force", "cma-es", True),
         ("fpg:none", "fpg:none", False, "graph", "none", False),
@@ -75,6 +78,7 @@ def test_parse_method(
         ("holt:extra-smooth", "preset"),
         ("raw:fast", "preset"),
         ("fpg+physics", "suffix"),
+        ("fpg+map", "filters only"),
     ],
 )
 def test_parse_method_errors(text: str, message: str) -> None:
@@ -137,6 +141,34 @@ def test_filter_methods_match_the_filters(recording: Any) -> None:
     assert np.all(np.isfinite(holt.ms)) and np.all(holt.ms >= 0)
     assert 0 < holt.ms.sum() <= elapsed_ms
     assert holt.evaluations is None and list(holt.stage_ms) == ["filter"]
+
+
+def test_mapped_filters_apply_the_sensor_to_output_map(recording: Any) -> None:
+    from fpg_gym.definitions import DefinitionMap
+    from fpg_gym.filters import make_filter
+
+    offsets = np.zeros((20, 3))
+    offsets[3] = (0.0, 0.05, 0.0)  # the head 5 cm up
+    sensor_map = DefinitionMap(offsets, source="sensor", target="database")
+    output_map = DefinitionMap(-offsets, source="database", target="vicon")
+    with MethodRunner(reconstructor_options={"sensor_map": sensor_map}) as runner:
+        mapped = runner.run("raw+map", recording)
+        holt = runner.run("holt+map", recording)
+    expected = sensor_map.apply(recording.positions)
+    assert np.allclose(mapped.poses, expected, atol=1e-6)
+    filtered = make_filter("holt").filter_sequence(
+        expected.astype(np.float32), recording.states, recording.timestamps
+    )
+    assert np.allclose(holt.poses, filtered, atol=1e-5)
+    both = {"sensor_map": sensor_map, "output_map": output_map}
+    with MethodRunner(reconstructor_options=both) as runner:  # composed: back where it was
+        assert np.allclose(runner.run("raw+map", recording).poses, recording.positions, atol=1e-5)
+    calibrated = {"sensor_map": sensor_map, "calibrate_output": True, "calibration_map": output_map}
+    with MethodRunner(reconstructor_options=calibrated) as runner:
+        expected = output_map.apply(recording.positions)
+        assert np.allclose(runner.run("raw+map", recording).poses, expected, atol=1e-6)
+    with MethodRunner() as runner, pytest.raises(ValueError, match="no definition map"):
+        runner.run("one-euro+map", recording)
 
 
 def test_filter_with_ragdoll_has_fixed_bone_lengths(recording: Any) -> None:
@@ -494,7 +526,7 @@ def test_compare_with_a_calibrated_output_runs_and_is_its_own_setting(tmp_path: 
     calibrated = _config(
         tmp_path / "calibrated", methods=["fpg:none"], clips=["default:walk"], calibrate_output=True
     )
-    assert calibrated.reconstructor_options()["calibrate_output"] is True
+    assert calibrated.tuning_options()["calibrate_output"] is True
     assert plain.resume_key() != calibrated.resume_key()  # rows of one never resume the other
     errors = {}
     for name, config in (("plain", plain), ("calibrated", calibrated)):
