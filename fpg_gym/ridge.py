@@ -5,8 +5,8 @@ A data set ``(x, y)`` is reduced to its sums (:func:`ridge_sums`); a fit (:func:
 pools any list of them, so leaving one group out of a cross-validation costs one small solve,
 not a pass over the data. The regressors are standardised by the pooled mean and spread, the
 intercept is not penalised. Used by the linear pose-space sampler
-(:mod:`policies.pose_sampler`) and the residual-correction exploration
-(``scripts/residual_correction.py``).
+(:mod:`policies.pose_sampler`), its output correction and the sensor's bone model
+(:mod:`fpg_gym.reconstruct.bone_model`).
 """
 
 from __future__ import annotations

@@ -80,7 +80,7 @@ from tqdm import tqdm
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
 from fpg_gym.compiled import compiled_module
-from fpg_gym.definitions import OnlineDefinitionFit, PoseMap
+from fpg_gym.definitions import OnlineDefinitionFit, PoseMap, sensor_to_output_map
 from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
 from fpg_gym.poses import RecordingLike
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
@@ -91,6 +91,7 @@ from fpg_gym.reconstruct.energy import (
     EnergyWeights,
     motion_target,
 )
+from fpg_gym.reconstruct.fusion import BoneModel, FusionConfig, SensorFusion, SensorTrust
 from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.output_correction import (
@@ -300,6 +301,14 @@ class ReconstructorConfig:
     calibration_map : PoseMap, optional
         With ``calibrate_output``: maps the raw sensor onto the definitions wanted in the
         output (e.g. Kinect v2 -> Vicon joint centres); None: the sensor's own.
+    fusion : FusionConfig
+        Beyond the papers (off by default): the output keeps the mapped, filtered sensor's
+        joints where the sensor is trusted and the reconstruction where it is not
+        (:mod:`fpg_gym.reconstruct.fusion`); the trust also scales ``R`` (selection, energy,
+        sensor blend) and picks the joints the output calibration learns from.
+    bone_model : BoneModel, optional
+        With ``fusion``: the sensor's bone vectors in the output's definitions (e.g. a learned
+        correction of the sensor's bias), in place of the mapped sensor's own.
     """
 
     k: int = 30
@@ -329,6 +338,8 @@ class ReconstructorConfig:
     sensor_blend: float = 0.0
     calibrate_output: bool = False
     calibration_map: PoseMap | None = None
+    fusion: FusionConfig = field(default_factory=FusionConfig)
+    bone_model: BoneModel | None = None
 
     def __post_init__(self) -> None:
         check_integer(self.k, "k", low=1)
@@ -346,6 +357,8 @@ class ReconstructorConfig:
             )
         if self.calibration_map is not None and not self.calibrate_output:
             raise ValueError("calibration_map: only used with calibrate_output=True")
+        if self.bone_model is not None and not self.fusion.enabled:
+            raise ValueError("bone_model: only used with fusion enabled")
         if self.reference_lengths is not None and len(self.reference_lengths) != skeleton.NUM_BONES:
             raise ValueError(
                 f"reference_lengths: expected 19 lengths, got {len(self.reference_lengths)}"
@@ -516,6 +529,8 @@ class _Pending:
     found: np.ndarray | None = None  # the best point of search(), if one ran
     sensor_states: np.ndarray | None = None  # the raw input's tracking states
     correction: OutputCorrection | None = None  # the searching optimiser's, if it has one
+    trust: np.ndarray | None = None  # the fusion's trust in each (relabelled) sensor joint
+    permutation: np.ndarray | None = None  # the labelling's joint permutation
 
 
 def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
@@ -614,9 +629,14 @@ class Reconstructor:
         mapped_output = config.output_map is not None or config.calibrate_output
         self._output_bones = (  # settles at once on the mean gathered before it is used
             BoneSettler(replace(config.bones, settle_s=0.0))
-            if mapped_output and config.bones.enabled
+            if mapped_output and config.bones.enabled and not config.fusion.enabled
             else None
         )
+        self._trust = SensorTrust(config.fusion) if config.fusion.enabled else None
+        self._fusion = (
+            SensorFusion(config.fusion, config.bone_model) if config.fusion.enabled else None
+        )
+        self._sensor_output_map = sensor_to_output_map(config)
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -672,6 +692,8 @@ class Reconstructor:
         self.database.clear_cache()
         self._ragdoll_lengths = None
         self.bones.reset()
+        if self._trust is not None:
+            self._trust.reset()
         if self._calibration is not None:
             self._calibration.reset()
         if self._output_bones is not None:
@@ -687,6 +709,8 @@ class Reconstructor:
             self._placement_smoother.reset()
         if self._output_smoother is not None:
             self._output_smoother.reset()
+        if self._fusion is not None:
+            self._fusion.reset()
         self._correction.reset()
         self._previous_latent: LatentSpace | None = None
 
@@ -804,6 +828,10 @@ class Reconstructor:
         t1 = time.perf_counter()
 
         terms = self.reliability.update(positions, states)
+        trust = None
+        if self._trust is not None:  # the fusion's trust scales R (not in the papers)
+            trust = self._trust.update(positions, states, timestamp)
+            terms = replace(terms, reliability=terms.reliability * trust)
         was_settled = self.bones.settled
         lengths = self.bones.update(terms.reference_lengths, timestamp)
         if self.bones.settled and not was_settled:
@@ -886,8 +914,10 @@ class Reconstructor:
             LABELLINGS[labelling],
             np.asarray(lengths, dtype=np.float64),
             sensor,
-            (states == skeleton.TRACKED) & (not no_body),
+            ((states == skeleton.TRACKED) if trust is None else (trust > 0.9)) & (not no_body),
             sensor_states=raw_states,
+            trust=trust,
+            permutation=_LABEL_PERMUTATIONS[labelling],
         )
         return problem
 
@@ -988,17 +1018,27 @@ class Reconstructor:
         self._index += 1
         if self.config.output_map is not None:
             pose = self.config.output_map.apply(pose)
-        if (
-            self._calibration is not None
-            and pending.sensor is not None
-            and pending.tracked is not None
-        ):
-            target = pending.sensor
+        sensor = pending.sensor
+        if sensor is not None and pending.permutation is not None:
+            sensor = sensor[pending.permutation]  # the labels the frame was reconstructed with
+        if self._calibration is not None and sensor is not None and pending.tracked is not None:
+            target = sensor
             if self.config.calibration_map is not None:
                 target = self.config.calibration_map.apply(target)
             pose = self._calibration.update(pose, target, pending.tracked)
         if self._output_bones is not None and not pending.no_body:
             pose = self._settle_output_bones(pose, pending.timestamp)
+        if self._fusion is not None and sensor is not None and pending.trust is not None:
+            # Fusion (not in the papers): the sensor where it is trusted, the reconstruction
+            # where it is not.
+            t5 = time.perf_counter()
+            mapped = sensor if self._sensor_output_map is None else (
+                self._sensor_output_map.apply(sensor)
+            )
+            pose = self._fusion.update(pose, mapped, pending.trust, pending.timestamp)
+            spent = 1e3 * (time.perf_counter() - t5)
+            record.ms["finish"] += spent
+            record.ms["total"] += spent
         correction = pending.correction if correction is None else correction
         if correction is not None and pending.sensor is not None:
             t4 = time.perf_counter()

@@ -1,0 +1,5 @@
+"""The ridge fit of :mod:`fpg_gym.ridge` (one definition; kept here for the policies' imports)."""
+
+from fpg_gym.ridge import fit_ridge, predict_ridge, ridge_sums
+
+__all__ = ["fit_ridge", "predict_ridge", "ridge_sums"]
