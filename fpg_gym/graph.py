@@ -62,10 +62,13 @@ __all__ = [
     "DEFAULT_EMBEDDED_THRES1",
     "DEFAULT_THRES1",
     "FORMAT_VERSION",
+    "GRAPH_NAMES",
+    "PACKAGED_GRAPHS",
     "FilteredPoseGraph",
     "cache_directory",
     "default_graph",
     "load_graph",
+    "packaged_graph",
 ]
 
 #: Version of the ``.npz`` layout written by :meth:`FilteredPoseGraph.save`.
@@ -545,14 +548,35 @@ def _default_cache_key(
     return hashlib.sha256(key.encode()).hexdigest()[:16]
 
 
+#: Pose databases shipped with the package, by name (``--graph NAME``): ``uiprmd`` is a graph of
+#: UI-PRMD's Vicon joint centres of its eight shared subjects (Vakanski et al. 2018, ODC-PDDL; see
+#: ``fpg_gym/data/README.md``), in marker-based joint-centre definitions.
+PACKAGED_GRAPHS: tuple[str, ...] = ("uiprmd",)
+#: Names ``--graph`` accepts beside a path: the embedded DeepMimic graph and the packaged ones.
+GRAPH_NAMES: tuple[str, ...] = ("default", "embedded", *PACKAGED_GRAPHS)
+_DATA = Path(__file__).resolve().parent / "data"
+
+
+@functools.lru_cache(maxsize=4)
+def packaged_graph(name: str) -> FilteredPoseGraph:
+    """A pose graph shipped with the package (:data:`PACKAGED_GRAPHS`), by name."""
+    if name not in PACKAGED_GRAPHS:
+        raise ValueError(
+            f"graph: unknown packaged graph {name!r}; expected one of {', '.join(PACKAGED_GRAPHS)}"
+        )
+    return FilteredPoseGraph.load(_DATA / f"{name}-graph.npz")
+
+
 def load_graph(
     graph: FilteredPoseGraph | str | os.PathLike[str] | None,
     *,
     exclude: Sequence[str] = (),
     cache_dir: str | os.PathLike[str] | None = None,
 ) -> FilteredPoseGraph:
-    """A pose graph from what a user names: None or ``"default"`` is :func:`default_graph`
-    without ``exclude``; a path is :meth:`FilteredPoseGraph.load`; a graph is itself.
+    """A pose graph from what a user names: None, ``"default"`` or ``"embedded"`` is
+    :func:`default_graph` without ``exclude``; a name of :data:`PACKAGED_GRAPHS` is
+    :func:`packaged_graph`; a path is :meth:`FilteredPoseGraph.load`; a graph is itself.
+    (Commands resolve ``"default"`` by the input's sensor first: :func:`default_graph_name`.)
 
     Raises
     ------
@@ -561,8 +585,10 @@ def load_graph(
     TypeError
         If ``graph`` is none of these.
     """
-    if graph is None or (isinstance(graph, str) and graph == "default"):
+    if graph is None or (isinstance(graph, str) and graph in ("default", "embedded")):
         return default_graph(exclude=exclude, cache_dir=cache_dir)
+    if isinstance(graph, str) and graph in PACKAGED_GRAPHS:
+        return packaged_graph(graph)
     if isinstance(graph, str | os.PathLike):
         return FilteredPoseGraph.load(graph)
     if not hasattr(graph, "poses"):

@@ -1,37 +1,32 @@
-"""The real-data protocol: UI-PRMD Kinect v2 streams scored against Vicon, leave subjects out.
+"""The real-data benchmark: UI-PRMD Kinect v2 streams against Vicon, with and without occlusion.
 
 For every held-out subject (a fold), everything fitted or built from data sees only the *other*
-subjects: the UI-PRMD database (their Vicon joint centres), the sensor's definition map
-(Kinect v2 -> Vicon joint centres, fitted on their paired repetitions) and the database maps.
-The held-out subject's repetitions (``--reps`` per exercise) are then reconstructed by every
-method with every database and scored with FPG Eq. 13 against Vicon (:mod:`fpg_gym.io.ui_prmd`
-gives the joint-centre rule).
+subjects: the UI-PRMD database (their Vicon joint centres), the Kinect v2 -> Vicon map, the
+Kinect v2 bone model and the reference poses that fit a foreign database's definitions. The
+held-out subject's repetitions (``--reps`` per exercise, the middle ones) are reconstructed as
+they are (``none``) and with each occlusion case of :mod:`fpg_gym.simulate.occlude` put into
+them (``--occlusions``), and scored against Vicon (:mod:`fpg_gym.io.ui_prmd` gives the
+joint-centre rule).
 
-Databases (``--databases``):
+Databases (``--databases``): ``uiprmd`` (a Filtered Pose Graph of the training subjects' Vicon
+joint centres, thres1 ``--uiprmd-thres1``), ``embedded`` (the DeepMimic clips), ``bandai``
+(Bandai Namco ``dataset-1``, thres1 0.2 m, mirrored; built once into ``--work``).
 
-``uiprmd``
-    A Filtered Pose Graph of the training subjects' Vicon joint centres (``--uiprmd-thres1``).
-    Sensor map: Kinect v2 -> Vicon, fitted on the training pairs; no output map.
-``embedded``
-    The embedded DeepMimic graph (:func:`fpg_gym.graph.default_graph`).
-``bandai``
-    A graph of Bandai Namco ``dataset-1`` (thres1 0.2 m, mirrored), built once into ``--work``.
+Methods: the baselines a Kinect user already has (``raw``, ``holt``, ``one-euro`` and the same
+through the fold's Kinect v2 -> Vicon map: ``raw+map``, ``holt+map``, ``one-euro+map``), the
+reconstruction with the ``auto`` preset fed with the fold's resources
+(:func:`fpg_gym.reconstruct.presets.pipeline`: what ``fpg-gym reconstruct`` does with no tuning
+flag on a Kinect v2 recording), and ``papers:`` rows with the papers' pipeline.
 
-For ``embedded`` and ``bandai`` the database's own joint definitions are found by
-:func:`fpg_gym.definitions.fit_to_database` (Vicon joint centres of the training subjects ->
-the database's definitions, by alternating nearest-pose matching and least squares); the sensor
-map is Kinect v2 -> that, fitted on the training pairs, and the output map is its inverse back
-to Vicon joint centres. ``--no-maps`` runs without any map (the papers' pipeline as it was).
-
-Rows: ``raw`` (the sensor), ``raw+map`` (the sensor through the fitted Kinect v2 -> Vicon map,
-a definition-corrected sensor baseline that needs no database), ``holt``, ``kalman``, and the
-reconstruction methods (``+ragdoll``: through the pybullet PD ragdoll). Columns: mean Eq. 13
-error, its ratio to raw, episodes better than raw, Err0.2, jitter, the worst joint's ratio to raw.
+Columns: FPG Eq. 13, MPJPE (absolute), root-relative and Procrustes-aligned MPJPE, the MPJPE of
+occluded and of visible joints, jitter, lag, bone-length error against the truth, the settled
+bone spread and the worst joint (MPJPE ratio to raw). One table per database and occlusion
+case, then every case pooled.
 
 Usage::
 
-    python scripts/real_kinect.py                          # 8 folds, 1 repetition per exercise
-    python scripts/real_kinect.py --subjects s01,s02 --databases uiprmd --reps 2
+    python scripts/real_kinect.py                      # 8 folds, 1 repetition per exercise
+    python scripts/real_kinect.py --subjects s01,s02 --databases uiprmd --occlusions none,legs
 """
 
 from __future__ import annotations
@@ -60,18 +55,17 @@ from fpg_gym.io.positions import read_positions
 from fpg_gym.io.recording import Recording, load_recording
 from fpg_gym.io.ui_prmd_import import import_uiprmd
 from fpg_gym.methods import MethodRunner
+from fpg_gym.reconstruct.bone_model import LinearBoneModel
+from fpg_gym.reconstruct.presets import SensorResources, pipeline
+from fpg_gym.simulate import episode_seed
+from fpg_gym.simulate.occlude import OCCLUSION_CASES, occlude
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data"
-DEFAULT_METHODS = (
-    "raw",
-    "holt",
-    "kalman",
-    "fpg:local-search",
-    "fpg:closed-form",
-    "shum:local-search",
-    "fpg:local-search+ragdoll",
-)
+BASELINES = ("raw", "holt", "one-euro", "raw+map", "holt+map", "one-euro+map")
+DEFAULT_METHODS = ("fpg:closed-form", "fpg:local-search", "papers:fpg:local-search")
+#: The baseline every ratio below "x map+holt" refers to.
+MAPPED_HOLT = "holt+map"
 
 
 def imported_uiprmd(work: Path, data: Path) -> Path:
@@ -153,138 +147,158 @@ def fold_maps(
     return sensor_map, output_map, {"sensor_map": sensor_map.info}
 
 
+def fold_resources(
+    train: list[Recording], imported: Path, held_out: str, thres1: float
+) -> tuple[SensorResources, FilteredPoseGraph]:
+    """The Kinect v2 resources fitted without ``held_out`` (map, bone model, reference poses)
+    and the UI-PRMD database of the other subjects."""
+    sensor = np.concatenate([r.positions for r in train])
+    truth = np.concatenate([r.ground_truth for r in train if r.ground_truth is not None])
+    groups = np.concatenate([[r.metadata["subject"]] * r.num_frames for r in train])
+    to_vicon = DefinitionMap.fit(sensor, truth, source="kinect-v2", target="vicon")
+    bones = LinearBoneModel.fit(to_vicon.apply(sensor), truth, groups, source="k2", target="v")
+    graph = uiprmd_graph(imported, {held_out}, thres1)
+    graph.params["definitions"] = "vicon"
+    return SensorResources(to_vicon, bones, graph.poses), graph
+
+
+def _scores(recording: Recording, poses: np.ndarray) -> dict[str, Any]:
+    truth = recording.ground_truth
+    assert truth is not None
+    occluded = recording.occluded
+    if occluded is None:
+        occluded = np.zeros(recording.states.shape, dtype=bool)
+    distances = metrics.joint_distances(truth, poses)
+    spread = metrics.settled_bone_spread(poses, timestamps=recording.timestamps)
+    return {
+        "frames": int(recording.num_frames),
+        "eq13_m": metrics.mean_error(truth, poses),
+        "mpjpe_m": float(distances.mean()),
+        "root_mpjpe_m": metrics.mpjpe(truth, poses, "root"),
+        "pa_mpjpe_m": metrics.mpjpe(truth, poses, "procrustes"),
+        "occluded_m": float(distances[occluded].mean()) if occluded.any() else float("nan"),
+        "occluded_sum_m": float(distances[occluded].sum()),
+        "occluded_count": int(occluded.sum()),
+        "visible_m": float(distances[~occluded].mean()),
+        "per_joint_m": distances.mean(axis=0).tolist(),
+        "jitter": float(np.nanmean(metrics.jitter(poses, fps=recording.fps))),
+        "lag_frames": metrics.lag(poses, truth),
+        "bone_length_error_mm": 1000.0 * float(metrics.bone_length_error(truth, poses).mean()),
+        "bone_spread_mm": (
+            float(1000.0 * np.nanmax(spread)) if np.isfinite(spread).any() else float("nan")
+        ),
+    }
+
+
 def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
-    """One held-out subject with one database: every method on every chosen episode."""
+    """One held-out subject with one database: every method on every episode and case."""
     work, data = Path(task["work"]), Path(task["data"])
     imported = Path(task["imported"])
     subjects = by_subject(imported / "recordings")
     held_out = task["subject"]
     train = [load_recording(p) for s, ps in subjects.items() if s != held_out for p in ps]
-    database = task["database"]
     t0 = time.process_time()
+    resources, uiprmd = fold_resources(train, imported, held_out, task["uiprmd_thres1"])
+    database = task["database"]
     if database == "uiprmd":
-        graph = uiprmd_graph(imported, {held_out}, task["uiprmd_thres1"])
+        graph = uiprmd
     elif database == "embedded":
         graph = default_graph()
     else:
         graph = _bandai_graph(work, data)
-    sensor_map, output_map, map_info = fold_maps(
-        database, graph, train, task["maps"], task["database_maps"]
-    )
-    kinect_to_vicon = DefinitionMap.fit(
-        np.concatenate([r.positions for r in train]),
-        np.concatenate([r.ground_truth for r in train if r.ground_truth is not None]),
-        source="kinect-v2",
-        target="vicon",
-    )
-    setup_s = time.process_time() - t0
-    options: dict[str, Any] = {
-        "sensor_map": sensor_map,
-        "output_map": output_map,
-        "sensor_blend": task["blend"],
+    chosen = {
+        "auto": pipeline("auto", "kinect-v2", graph, resources=resources),
+        "papers": pipeline("papers", "kinect-v2", graph),
     }
-    if task["calibrate"]:  # the output map fitted online from the stream's tracked joints
-        options.update(output_map=None, calibrate_output=True, calibration_map=kinect_to_vicon)
-    if task.get("temporal") == "off":  # the papers' pipeline (issue 15's switches off)
-        from fpg_gym.reconstruct import BoneSettlingConfig, TemporalConfig
-
-        options["temporal"] = TemporalConfig.off()
-        options["bones"] = BoneSettlingConfig(enabled=False)
-    elif task.get("temporal") == "no-placement":  # the defaults without placement smoothing
-        from fpg_gym.reconstruct import TemporalConfig
-
-        options["temporal"] = TemporalConfig(placement=False)
+    setup_s = time.process_time() - t0
+    runners = {
+        name: MethodRunner(graph, budget=task["budget"], reconstructor_options=p.options)
+        for name, p in chosen.items()
+    }
     rows = []
-    with MethodRunner(graph, budget=task["budget"], reconstructor_options=options) as runner:
-        for path in repetitions(subjects[held_out], task["reps"]):
-            recording = load_recording(path)
-            truth = recording.ground_truth
-            assert truth is not None
-            outputs = {"raw+map": kinect_to_vicon.apply(recording.positions)}
-            cpu: dict[str, float] = {"raw+map": 0.0}
-            for method in task["methods"]:
+    for path in repetitions(subjects[held_out], task["reps"]):
+        clean = load_recording(path)
+        for case in task["occlusions"]:
+            recording = (
+                clean
+                if case == "none"
+                else occlude(clean, case, episode_seed(task["seed"], path.stem, case))
+            )
+            for method in [*BASELINES, *task["methods"]]:
+                preset, name = "auto", method
+                if method.startswith("papers:"):
+                    preset, name = "papers", method.removeprefix("papers:")
                 c0 = time.process_time()
-                outputs[method] = runner.run(method, recording, seed=0).poses
-                cpu[method] = 1000 * (time.process_time() - c0) / recording.num_frames
-            for method, poses in outputs.items():
-                errors = metrics.frame_error(truth, poses)
-                spread = metrics.settled_bone_spread(poses, timestamps=recording.timestamps)
+                result = runners[preset].run(name, recording, seed=task["seed"])
+                cpu = 1000 * (time.process_time() - c0) / recording.num_frames
                 rows.append(
                     {
                         "database": database,
                         "subject": held_out,
                         "episode": path.stem,
+                        "case": case,
                         "method": method,
-                        "frames": int(recording.num_frames),
-                        "mean_error_m": float(errors.mean()),
-                        "err02": float(metrics.err_ratio(errors)),
-                        "per_joint_m": metrics.per_joint_error(truth, poses).tolist(),
-                        "jitter": float(np.nanmean(metrics.jitter(poses, fps=recording.fps))),
-                        "lag_frames": metrics.lag(poses, truth),
-                        "bone_spread_mm": (
-                            float(1000.0 * np.nanmax(spread))
-                            if np.isfinite(spread).any()
-                            else float("nan")
-                        ),
-                        "cpu_ms_per_frame": cpu[method],
+                        "cpu_ms_per_frame": cpu,
+                        **_scores(recording, result.poses),
                     }
                 )
+    for runner in runners.values():
+        runner.close()
     return {
         "database": database,
         "subject": held_out,
         "nodes": len(graph.poses),
         "setup_cpu_s": setup_s,
-        "maps": map_info,
+        "bone_model": resources.bone_model.info if resources.bone_model else None,
+        "pipelines": {name: p.summary() for name, p in chosen.items()},
         "rows": rows,
     }
 
 
-def _table(rows: list[dict[str, Any]], database: str) -> str:
-    mine = [r for r in rows if r["database"] == database]
-    raw = {r["episode"]: r for r in mine if r["method"] == "raw"}
-    methods = list(dict.fromkeys(r["method"] for r in mine))
+def _mean(rows: list[dict[str, Any]], key: str) -> float:
+    values = [r[key] for r in rows if np.isfinite(r[key])]
+    return float(np.mean(values)) if values else float("nan")
+
+
+def _pooled_occluded(rows: list[dict[str, Any]]) -> float:
+    count = sum(r["occluded_count"] for r in rows)
+    return sum(r["occluded_sum_m"] for r in rows) / count if count else float("nan")
+
+
+def table(rows: list[dict[str, Any]], title: str) -> str:
+    """One markdown table of ``rows`` (one database; one case or several pooled)."""
+    by_method: dict[str, list[dict[str, Any]]] = defaultdict(list)
+    for row in rows:
+        by_method[row["method"]].append(row)
+    raw, holt = by_method["raw"], by_method[MAPPED_HOLT]
+    raw_keyed = {(r["episode"], r["case"]): r for r in raw}
+    raw_joint = np.mean([r["per_joint_m"] for r in raw], axis=0)
+    raw_occluded = _pooled_occluded(raw)
     lines = [
-        f"### database: {database} ({len(raw)} episodes, "
-        f"{len({r['subject'] for r in mine})} held-out subjects)",
+        f"#### {title} ({len(raw)} episodes)",
         "",
-        "| method | mean error (m) | × raw | better than raw | Err0.2 (%) | worst joint × raw "
-        "| jitter (m/s²) | × raw jitter | lag (frames) | bone spread after 1 s, max (mm) "
-        "| CPU ms/frame |",
-        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+        "| method | Eq. 13 (m) | × raw | MPJPE (m) | × raw | × map+Holt | better than raw "
+        "| root-rel. | PA | occluded (m) | × raw | visible × map+Holt | jitter × raw "
+        "| lag (frames) | bone length err. (mm) | bone spread (mm) | worst joint × raw |",
+        "| --- " * 17 + "|",
     ]
-    raw_error = np.mean([r["mean_error_m"] for r in raw.values()])
-    raw_joint = np.mean([r["per_joint_m"] for r in raw.values()], axis=0)
-    raw_jitter = np.mean([r["jitter"] for r in raw.values()])
-    for method in methods:
-        rs = [r for r in mine if r["method"] == method]
-        error = np.mean([r["mean_error_m"] for r in rs])
-        better = sum(r["mean_error_m"] < raw[r["episode"]]["mean_error_m"] for r in rs)
-        joint = np.mean([r["per_joint_m"] for r in rs], axis=0)
-        ratio = joint / raw_joint
+    for method, rs in by_method.items():
+        mpjpe, eq13 = _mean(rs, "mpjpe_m"), _mean(rs, "eq13_m")
+        occluded = _pooled_occluded(rs)
+        better = sum(r["mpjpe_m"] < raw_keyed[(r["episode"], r["case"])]["mpjpe_m"] for r in rs)
+        ratio = np.mean([r["per_joint_m"] for r in rs], axis=0) / raw_joint
         worst = int(np.nanargmax(ratio))
-        jitter = np.mean([r["jitter"] for r in rs])
-        lag = np.nanmean([r.get("lag_frames", np.nan) for r in rs])
-        spread = np.nanmax([r.get("bone_spread_mm", np.nan) for r in rs])
         lines.append(
-            f"| {method} | {error:.4f} | {error / raw_error:.2f} | {better}/{len(rs)} | "
-            f"{100 * np.mean([r['err02'] for r in rs]):.1f} | "
-            f"{ratio[worst]:.2f} ({skeleton.JOINT_NAMES[worst]}) | {jitter:.1f} | "
-            f"{jitter / raw_jitter:.1f} | {lag:.2f} | {spread:.1f} | "
-            f"{np.median([r['cpu_ms_per_frame'] for r in rs]):.2f} |"
+            f"| {method} | {eq13:.4f} | {eq13 / _mean(raw, 'eq13_m'):.2f} | {mpjpe:.4f} | "
+            f"{mpjpe / _mean(raw, 'mpjpe_m'):.2f} | {mpjpe / _mean(holt, 'mpjpe_m'):.2f} | "
+            f"{better}/{len(rs)} | {_mean(rs, 'root_mpjpe_m'):.4f} | {_mean(rs, 'pa_mpjpe_m'):.4f} "
+            f"| {occluded:.3f} | {occluded / raw_occluded:.2f} | "
+            f"{_mean(rs, 'visible_m') / _mean(holt, 'visible_m'):.2f} | "
+            f"{_mean(rs, 'jitter') / _mean(raw, 'jitter'):.2f} | {_mean(rs, 'lag_frames'):.2f} | "
+            f"{_mean(rs, 'bone_length_error_mm'):.1f} | "
+            f"{np.nanmax([r['bone_spread_mm'] for r in rs]):.1f} | "
+            f"{ratio[worst]:.2f} ({skeleton.JOINT_NAMES[worst]}) |"
         )
-    return "\n".join(lines)
-
-
-def _joint_table(rows: list[dict[str, Any]], database: str, methods: list[str]) -> str:
-    mine = [r for r in rows if r["database"] == database]
-    header = "| joint | " + " | ".join(methods) + " |"
-    lines = [header, "| --- " * (len(methods) + 1) + "|"]
-    per = {
-        m: np.mean([r["per_joint_m"] for r in mine if r["method"] == m], axis=0) for m in methods
-    }
-    for j in range(1, skeleton.NUM_JOINTS):
-        cells = " | ".join(f"{100 * per[m][j]:.1f}" for m in methods)
-        lines.append(f"| {skeleton.JOINT_NAMES[j]} | {cells} |")
     return "\n".join(lines)
 
 
@@ -294,35 +308,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--work", type=Path, default=Path("runs/real_kinect"), help="work folder")
     parser.add_argument("--subjects", default="s01,s02,s03,s04,s05,s06,s07,s08")
     parser.add_argument("--databases", default="uiprmd,embedded,bandai")
+    parser.add_argument("--occlusions", default="none," + ",".join(OCCLUSION_CASES))
     parser.add_argument("--methods", default=",".join(DEFAULT_METHODS))
     parser.add_argument("--reps", type=int, default=1, help="repetitions per exercise scored")
     parser.add_argument("--budget", type=int, default=2000, help="evaluations per frame")
     parser.add_argument("--uiprmd-thres1", type=float, default=0.1)
-    parser.add_argument("--no-maps", action="store_true", help="run without definition maps")
-    parser.add_argument("--sensor-blend", type=float, default=0.0)
-    parser.add_argument(
-        "--no-database-maps",
-        action="store_true",
-        help="map the sensor to Vicon joint centres and take the database's as the same",
-    )
-    parser.add_argument(
-        "--temporal",
-        choices=("default", "off", "no-placement"),
-        default="default",
-        help="issue 15's temporal switches and bone settling: defaults, off (the papers'), or "
-        "the defaults without placement smoothing",
-    )
-    parser.add_argument(
-        "--calibrate-output",
-        action="store_true",
-        help="fit the output's definitions online from each stream's tracked joints (to the "
-        "sensor mapped to Vicon) instead of the database-fitted output map",
-    )
+    parser.add_argument("--seed", type=int, default=0, help="occlusions' and optimisers' seed")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write every row here")
     args = parser.parse_args(argv)
     if not (args.data / "ui_prmd").is_dir():
         print(f"no UI-PRMD data under {args.data}", file=sys.stderr)
+        return 2
+    occlusions = args.occlusions.split(",")
+    unknown = sorted(set(occlusions) - {"none", *OCCLUSION_CASES})
+    if unknown:
+        print(f"--occlusions: unknown {unknown}; expected none or {list(OCCLUSION_CASES)}")
         return 2
     args.work.mkdir(parents=True, exist_ok=True)
     imported = imported_uiprmd(args.work, args.data)
@@ -336,14 +337,11 @@ def main(argv: list[str] | None = None) -> int:
             "subject": subject,
             "database": database,
             "methods": args.methods.split(","),
+            "occlusions": occlusions,
             "reps": args.reps,
             "budget": args.budget,
             "uiprmd_thres1": args.uiprmd_thres1,
-            "maps": not args.no_maps,
-            "blend": args.sensor_blend,
-            "database_maps": not args.no_database_maps,
-            "temporal": args.temporal,
-            "calibrate": args.calibrate_output,
+            "seed": args.seed,
         }
         for database in args.databases.split(",")
         for subject in args.subjects.split(",")
@@ -354,21 +352,24 @@ def main(argv: list[str] | None = None) -> int:
         for result in pool.map(_run_fold, tasks):
             print(
                 f"{result['database']:>9} held out {result['subject']}: {result['nodes']} nodes, "
-                f"maps {json.dumps(result['maps'])}",
+                f"setup {result['setup_cpu_s']:.1f} s CPU",
                 file=sys.stderr,
             )
             results.append(result)
     rows = [row for result in results for row in result["rows"]]
     print(
         f"UI-PRMD leave-subjects-out, subjects {args.subjects}, {args.reps} repetition(s) per "
-        f"exercise, maps {'off' if args.no_maps else 'on'}, sensor blend {args.sensor_blend}, "
-        f"temporal {args.temporal}, output calibration {'on' if args.calibrate_output else 'off'}; "
+        f"exercise, occlusions {args.occlusions}, seed {args.seed}; "
         f"wall {time.perf_counter() - start_wall:.0f} s\n"
     )
     for database in args.databases.split(","):
-        print(_table(rows, database) + "\n")
-        methods = ["raw", "raw+map", *[m for m in args.methods.split(",") if m != "raw"]]
-        print(_joint_table(rows, database, methods) + "\n")
+        mine = [r for r in rows if r["database"] == database]
+        print(f"### database: {database}\n")
+        for case in occlusions:
+            print(table([r for r in mine if r["case"] == case], f"{database}, {case}") + "\n")
+        occluded = [r for r in mine if r["case"] != "none"]
+        if occluded:
+            print(table(occluded, f"{database}, every occlusion case pooled") + "\n")
     if args.json:
         args.json.write_text(
             json.dumps(
@@ -378,6 +379,7 @@ def main(argv: list[str] | None = None) -> int:
                     "folds": results,
                 },
                 indent=1,
+                default=str,
             )
         )
     return 0

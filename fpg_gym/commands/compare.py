@@ -73,7 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--graph",
         default="default",
         metavar="FILE",
-        help="pose graph .npz, or 'default' (embedded, without the evaluated embedded clips)",
+        help="pose graph .npz, or a name: 'default' (the inputs' sensor's default database: "
+        "'uiprmd' for Kinect v2 recordings, else 'embedded' without the evaluated embedded "
+        "clips), 'embedded', 'uiprmd'",
     )
     source = parser.add_argument_group("episodes")
     source.add_argument(
@@ -152,13 +154,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     methods.add_argument(
         "--output-map", metavar="MAP.json", help="joint-definition map applied to the output"
     )
-    methods.add_argument(
-        "--sensor-blend",
-        type=float,
-        default=0.0,
-        metavar="F",
-        help="pull reliable joints this fraction of the way to the sensor after the search (0)",
-    )
     add_calibration_arguments(methods)
     parser.add_argument(
         "--workers",
@@ -214,6 +209,8 @@ def run(args: argparse.Namespace) -> int:
         calibrate_output=args.calibrate_output,
         calibration_map=args.calibration_map,
         input_format=args.input_format,
+        sensor=args.sensor,
+        preset=args.preset,
     )
     outcome = run_compare(
         config, progress=not args.quiet, fresh=args.fresh, plots=not args.no_plots

@@ -36,7 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--graph",
         metavar="FILE",
-        help="pose graph .npz, or 'default' (embedded); needed by every method but the filters",
+        help="pose graph .npz, or a name: 'default' (the input sensor's default database: "
+        "'uiprmd' for a Kinect v2, else 'embedded'), 'embedded' (DeepMimic clips), 'uiprmd' "
+        "(packaged UI-PRMD joint centres); needed by every method but the filters",
     )
     parser.add_argument(
         "--input", required=True, metavar="REC", help="recording (.npz, MSRC-12, Kinect v2, ...)"
@@ -67,8 +69,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--method",
         metavar="NAME",
         help="a method name instead of --optimizer/--selector/--no-ragdoll: raw, holt[:PRESET], "
-        "kalman[:PRESET], shum[:OPTIMIZER], fpg[:OPTIMIZER], each optionally +ragdoll "
-        "(see fpg_gym.methods)",
+        "kalman[:PRESET], one-euro[:PRESET] (filters, +map: through the sensor's definition "
+        "map), shum[:OPTIMIZER], fpg[:OPTIMIZER], each optionally +ragdoll (see fpg_gym.methods)",
     )
     parser.add_argument("--seed", type=int, default=0, help="optimiser seed (default 0)")
     parser.add_argument(
@@ -93,14 +95,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="MAP.json",
         help="joint-definition map applied to the output (database -> wanted definitions)",
     )
-    parser.add_argument(
-        "--sensor-blend",
-        type=float,
-        default=0.0,
-        metavar="F",
-        help="after the search, move each joint this fraction of the way to the (mapped) "
-        "sensor, times its reliability (beyond the papers; default 0)",
-    )
     add_calibration_arguments(parser)
     parser.add_argument(
         "--checkpoint-s",
@@ -115,7 +109,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_calibration_arguments(parser: Any) -> None:
-    """``--calibrate-output`` and ``--calibration-map`` (reconstruct and compare)."""
+    """``--sensor``, ``--preset``, ``--sensor-blend``, ``--calibrate-output`` and
+    ``--calibration-map`` (reconstruct and compare)."""
+    parser.add_argument(
+        "--sensor",
+        metavar="NAME",
+        help="the sensor that made the input (default: what the recording says, else its "
+        "reader's format: kinect-v2, kinect-v1, azure-kinect, simulated; unknown otherwise)",
+    )
+    parser.add_argument(
+        "--preset",
+        choices=("auto", "papers"),
+        default="auto",
+        help="auto (default): the pipeline measured best on real data for the sensor "
+        "(docs/real-data.md); papers: Shum 2013 / FPG 2016 as published. Any of --sensor-map, "
+        "--output-map, --calibrate-output, --calibration-map, --sensor-blend replaces it",
+    )
+    parser.add_argument(
+        "--sensor-blend",
+        type=float,
+        default=None,
+        metavar="F",
+        help="after the search, move each joint this fraction of the way to the (mapped) "
+        "sensor, times its reliability (beyond the papers; 0 without a preset)",
+    )
     parser.add_argument(
         "--calibrate-output",
         action="store_true",
@@ -145,7 +162,6 @@ def definition_maps(
         ``--calibrate-output`` with ``--output-map``, or ``--calibration-map`` without
         ``--calibrate-output``.
     """
-    from fpg_gym.definitions import DefinitionMap
 
     if calibrate_output and output_map:
         raise ValueError("--calibrate-output and --output-map: give one (both set the output map)")
@@ -153,14 +169,53 @@ def definition_maps(
         raise ValueError("--calibration-map: only used with --calibrate-output")
     maps: dict[str, Any] = {}
     if sensor_map:
-        maps["sensor_map"] = DefinitionMap.load(sensor_map)
+        maps["sensor_map"] = load_map(sensor_map)
     if output_map:
-        maps["output_map"] = DefinitionMap.load(output_map)
+        maps["output_map"] = load_map(output_map)
     if calibrate_output:
         maps["calibrate_output"] = True
     if calibration_map:
-        maps["calibration_map"] = DefinitionMap.load(calibration_map)
+        maps["calibration_map"] = load_map(calibration_map)
     return maps
+
+
+def load_map(name: str) -> Any:
+    """A definition map from a JSON file, or a packaged map by name (``kinect-v2-to-vicon``,
+    :func:`fpg_gym.definitions.packaged_map`)."""
+    from fpg_gym.definitions import DefinitionMap, packaged_map, packaged_map_names
+
+    if not Path(name).suffix and name in packaged_map_names():
+        return packaged_map(name)
+    return DefinitionMap.load(name)
+
+
+def choose_pipeline(args: argparse.Namespace, recording: Any, graph: Any = None) -> Any:
+    """The pipeline of the arguments for ``recording`` (:func:`fpg_gym.reconstruct.presets.
+    choose_pipeline`), printed once."""
+    import sys
+
+    from fpg_gym.reconstruct.presets import choose_pipeline as choose
+    from fpg_gym.reconstruct.presets import sensor_of
+
+    tuning = definition_maps(
+        args.sensor_map, args.output_map, args.calibrate_output, args.calibration_map
+    )
+    tuning["sensor_blend"] = args.sensor_blend
+    chosen = choose(args.preset, sensor_of(recording, args.sensor), graph, tuning)
+    print(f"configuration    {chosen.preset}: {chosen.description}")
+    if chosen.note:
+        print(f"note: {chosen.note}", file=sys.stderr)
+    return chosen
+
+
+def resolve_graph(name: str | None, recording: Any, sensor: str | None) -> Any:
+    """The pose graph ``--graph`` names for ``recording`` (``default``: the sensor's)."""
+    from fpg_gym.graph import load_graph
+    from fpg_gym.reconstruct.presets import default_graph_name, sensor_of
+
+    if name in (None, "default"):
+        name = default_graph_name(sensor_of(recording, sensor))
+    return load_graph(name)
 
 
 def read_input(args: argparse.Namespace) -> Any:
@@ -239,10 +294,11 @@ def _print_errors(summary: dict[str, Any], label: str) -> None:
 
 def _check_out(args: argparse.Namespace) -> Path:
     """The output path, checked before any work (not an input, not a folder, writable)."""
+    from fpg_gym.graph import GRAPH_NAMES
     from fpg_gym.outputs import check_output
 
     inputs = [args.input]
-    if args.graph and args.graph != "default":
+    if args.graph and args.graph not in GRAPH_NAMES:
         inputs.append(args.graph)
     return check_output(args.out, inputs, npz=True)
 
@@ -252,7 +308,6 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fpg_gym.commands.output import emit_json
-    from fpg_gym.graph import load_graph
     from fpg_gym.outputs import interrupts_deferred
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
@@ -278,11 +333,10 @@ def run(args: argparse.Namespace) -> int:
     if not args.graph:
         raise ValueError("--graph: a pose graph is needed (a .npz file or 'default')")
     optimizer = make(args.optimizer)
-    maps = definition_maps(
-        args.sensor_map, args.output_map, args.calibrate_output, args.calibration_map
-    )
     recording = read_input(args)
-    graph = load_graph(args.graph)
+    graph = resolve_graph(args.graph, recording, args.sensor)
+    chosen = choose_pipeline(args, recording, graph)
+    args.pipeline = chosen.summary()
     reconstructor = Reconstructor(
         graph,
         ragdoll=not args.no_ragdoll,
@@ -290,8 +344,7 @@ def run(args: argparse.Namespace) -> int:
         k=args.k,
         max_evaluations=args.budget,
         weights=EnergyWeights(prior=args.prior),
-        sensor_blend=args.sensor_blend,
-        **maps,
+        **chosen.options,
     )
     start = time.perf_counter()
 
@@ -400,6 +453,7 @@ def _save_result(
         **{k: summary[k] for k in ("optimizer", "selector", "ragdoll", "seed", "budget")},
         "prior": args.prior,
         "k": args.k,
+        "pipeline": getattr(args, "pipeline", None),
         "interrupted": result.interrupted,
         "partial": partial,  # a checkpoint: the run was still going when it was written
         "frames": frames,
@@ -420,8 +474,12 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     from fpg_gym.outputs import save_npz
 
     recording = read_input(args)
+    options: dict[str, Any] = {}
+    if method.mapped:  # the sensor's map into the definitions a reconstruction would output
+        graph = resolve_graph(args.graph, recording, args.sensor)
+        options = choose_pipeline(args, recording, graph).options
     start = time.perf_counter()
-    with MethodRunner() as runner:
+    with MethodRunner(reconstructor_options=options) as runner:
         result = runner.run(method, recording)
     seconds = time.perf_counter() - start
     arrays: dict[str, Any] = {"poses": result.poses, "ms_per_frame": result.ms}

@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
-from fpg_gym.definitions import DefinitionMap
+from fpg_gym.definitions import DefinitionMap, packaged_map, packaged_map_names
 from fpg_gym.methods import BASELINE, parse_method
 from fpg_gym.simulate import PlannedEpisode
 
@@ -113,8 +113,9 @@ class CompareConfig:
     sensor_map, output_map : str or None
         Joint-definition map files (:class:`fpg_gym.definitions.DefinitionMap`) for the
         reconstruction methods (``ReconstructorConfig.sensor_map`` / ``output_map``).
-    sensor_blend : float
-        ``ReconstructorConfig.sensor_blend`` of the reconstruction methods (0).
+    sensor_blend : float or None
+        ``ReconstructorConfig.sensor_blend`` of the reconstruction methods (None: the
+        preset's).
     calibrate_output : bool
         ``ReconstructorConfig.calibrate_output`` (False).
     calibration_map : str or None
@@ -122,6 +123,12 @@ class CompareConfig:
     input_format : str or None
         Format of the ``inputs`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`); None guesses it
         per file.
+    sensor : str or None
+        The sensor of the episodes (None: what their recordings say,
+        :func:`fpg_gym.reconstruct.presets.sensor_of`).
+    preset : str
+        ``"auto"`` or ``"papers"`` (:mod:`fpg_gym.reconstruct.presets`); the map and blend
+        settings above, when given, replace it.
     """
 
     out: str
@@ -142,10 +149,12 @@ class CompareConfig:
     units: str = "auto"
     sensor_map: str | None = None
     output_map: str | None = None
-    sensor_blend: float = 0.0
+    sensor_blend: float | None = None
     calibrate_output: bool = False
     calibration_map: str | None = None
     input_format: str | None = None
+    sensor: str | None = None
+    preset: str = "auto"
 
     def __post_init__(self) -> None:
         self.methods = [parse_method(m).name for m in self.methods]
@@ -190,6 +199,8 @@ class CompareConfig:
             "sensor_map": _file_digest(self.sensor_map),
             "output_map": _file_digest(self.output_map),
             "sensor_blend": self.sensor_blend,
+            "sensor": self.sensor,
+            "preset": self.preset,
             **({"calibrate_output": True} if self.calibrate_output else {}),
             **(
                 {"calibration_map": _file_digest(self.calibration_map)}
@@ -198,18 +209,27 @@ class CompareConfig:
             ),
         }
 
-    def reconstructor_options(self) -> dict[str, Any]:
-        """The :class:`~fpg_gym.reconstruct.ReconstructorConfig` settings of the methods."""
-        options: dict[str, Any] = {"k": self.k, "sensor_blend": self.sensor_blend}
+    def tuning_options(self) -> dict[str, Any]:
+        """The explicit map and blend settings (they replace the preset when any is given)."""
+        options: dict[str, Any] = {}
+        if self.sensor_blend is not None:
+            options["sensor_blend"] = self.sensor_blend
         if self.sensor_map:
-            options["sensor_map"] = DefinitionMap.load(self.sensor_map)
+            options["sensor_map"] = _load_map(self.sensor_map)
         if self.output_map:
-            options["output_map"] = DefinitionMap.load(self.output_map)
+            options["output_map"] = _load_map(self.output_map)
         if self.calibrate_output:
             options["calibrate_output"] = True
         if self.calibration_map:
-            options["calibration_map"] = DefinitionMap.load(self.calibration_map)
+            options["calibration_map"] = _load_map(self.calibration_map)
         return options
+
+
+def _load_map(name: str) -> DefinitionMap:
+    """A map file, or a packaged map by name (:func:`fpg_gym.definitions.packaged_map`)."""
+    if not Path(name).suffix and name in packaged_map_names():
+        return packaged_map(name)
+    return DefinitionMap.load(name)
 
 
 def _file_digest(path: str | None) -> str | None:
@@ -217,4 +237,6 @@ def _file_digest(path: str | None) -> str | None:
     its content, so an edited map is not mistaken for the one a finished row used."""
     if not path:
         return None
+    if not Path(path).suffix and path in packaged_map_names():
+        return f"packaged:{path}"
     return hashlib.sha256(Path(path).read_bytes()).hexdigest()

@@ -71,6 +71,7 @@ from fpg_gym.io import DEFAULT_CLIP_NAMES
 from fpg_gym.io.recording import load_recording
 from fpg_gym.methods import Method, MethodResult, MethodRunner, parse_method
 from fpg_gym.outputs import write_text
+from fpg_gym.reconstruct.presets import choose_pipeline, default_graph_name, sensor_of
 from optimizers import make
 
 
@@ -300,6 +301,26 @@ def _check_optimizers(methods: Sequence[str]) -> None:
             make(method.optimizer)
 
 
+def _episodes_sensor(config: CompareConfig, folder: Path, episodes: Sequence[EpisodeSpec]) -> str:
+    """The sensor of the episodes: ``config.sensor``, else the one their recordings name
+    (simulated episodes: ``"simulated"``).
+
+    Raises
+    ------
+    ValueError
+        If the recordings come from several sensors and ``config.sensor`` is not given.
+    """
+    if config.sensor:
+        return config.sensor
+    sensors = {sensor_of(load_recording(folder / f"{e.id}.npz")) for e in episodes}
+    if len(sensors) > 1:
+        raise ValueError(
+            f"the episodes come from several sensors ({', '.join(sorted(sensors))}): compare "
+            "them separately or give --sensor"
+        )
+    return sensors.pop() if sensors else "unknown"
+
+
 def _held_out_warning(
     graph: Any, episodes: Sequence[EpisodeSpec], extra_names: Sequence[str] = ()
 ) -> str:
@@ -459,8 +480,14 @@ def run_compare(
     )
 
     embedded = sorted({*embedded, *(n for n in recorded if n in DEFAULT_CLIP_NAMES)})
-    exclude = embedded if config.graph == "default" else []
-    graph = load_graph(config.graph, exclude=exclude)
+    sensor = _episodes_sensor(config, out / "episodes", episodes)
+    graph_name = default_graph_name(sensor) if config.graph == "default" else config.graph
+    exclude = embedded if graph_name in ("default", "embedded") else []
+    graph = load_graph(graph_name, exclude=exclude)
+    chosen = choose_pipeline(config.preset, sensor, graph, config.tuning_options())
+    say(f"configuration: {chosen.preset}: {chosen.description}")
+    if chosen.note:
+        say(f"note: {chosen.note}")
     warning = _held_out_warning(graph, episodes, [*recorded, *clip_names])
     if warning:
         say(f"warning: {warning}")
@@ -471,7 +498,9 @@ def run_compare(
                 "config": asdict(config),
                 "resume_key": config.resume_key(),
                 "graph_exclude": exclude,
+                "graph_resolved": graph_name,
                 "graph_summary": repr(graph),
+                "pipeline": chosen.summary(),
                 "held_out_warning": warning,
                 "episodes": [asdict(e) for e in episodes],
             },
@@ -494,7 +523,7 @@ def run_compare(
     skipped = len(episodes) * len(config.methods) - len(tasks)
     if skipped:
         say(f"resuming: {skipped} finished task(s) in {results_path} are kept")
-    options = config.reconstructor_options()
+    options = {"k": config.k, **chosen.options}
     writer = ResultsWriter(results_path)
     bar = tqdm(total=len(tasks), desc="compare", unit="run", disable=not progress)
     interrupted = False
@@ -534,7 +563,7 @@ def run_compare(
                     for result in _run_batch(runner, batch, load_recording):
                         finish(*result)
         else:
-            interrupted = _run_pool(batches, workers, config, exclude, options, finish)
+            interrupted = _run_pool(batches, workers, config, graph_name, exclude, options, finish)
     except KeyboardInterrupt:
         interrupted = True
     finally:
@@ -561,6 +590,7 @@ def _run_pool(
     batches: Sequence[list[_Task]],
     workers: int,
     config: CompareConfig,
+    graph_name: str,
     exclude: list[str],
     options: dict[str, Any],
     finish: Callable[[dict[str, Any], dict[str, np.ndarray]], None],
@@ -575,7 +605,7 @@ def _run_pool(
         max_workers=workers,
         mp_context=multiprocessing.get_context("spawn"),
         initializer=_init_worker,
-        initargs=(config.graph, list(exclude), config.budget, options, os.getpid()),
+        initargs=(graph_name, list(exclude), config.budget, options, os.getpid()),
     )
     pending: dict[Future[Any], list[_Task]] = {}
     try:

@@ -1,0 +1,251 @@
+"""Occlusions put into real streams, the sensor's trust, the fusion, the bone model, presets."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+from fpg_gym import metrics, poses, skeleton
+from fpg_gym.errors import DataFormatError
+from fpg_gym.graph import default_graph, packaged_graph
+from fpg_gym.io import Recording, load_default_clips
+from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.reconstruct.bone_model import LinearBoneModel, packaged_bone_model
+from fpg_gym.reconstruct.fusion import FusionConfig, SensorFusion, SensorTrust, fuse_positions
+from fpg_gym.reconstruct.presets import (
+    SensorResources,
+    choose_pipeline,
+    default_graph_name,
+    pipeline,
+    sensor_of,
+)
+from fpg_gym.simulate import simulate
+from fpg_gym.simulate.occlude import OCCLUSION_CASES, occlude
+
+_J = skeleton.joint_index
+
+
+@pytest.fixture(scope="module")
+def stream() -> Recording:
+    """A clean, Kinect-like stream (no occlusion) with its truth, 3 s long (walk, looped)."""
+    clip = load_default_clips(["walk"])[0]
+    positions = np.concatenate([clip.positions + (i * 0.6, 0.0, 0.0) for i in range(3)])[:90]
+    return simulate(positions, "clean", seed=3)
+
+
+# --------------------------------------------------------------------------- occlusion cases
+
+
+@pytest.mark.parametrize("case", list(OCCLUSION_CASES))
+def test_occlude_changes_only_the_occluded_joints(stream: Recording, case: str) -> None:
+    first = occlude(stream, case, seed=1)
+    again = occlude(stream, case, seed=1)
+    assert np.array_equal(first.positions, again.positions)  # same seed, same occlusion
+    assert first.occluded is not None and first.occluded.any()
+    assert np.array_equal(first.ground_truth, stream.ground_truth)
+    # Joints never occluded keep the stream's report (the model's recovery is on hidden ones).
+    never = ~first.occluded.any(axis=0)
+    assert np.array_equal(first.positions[:, never], stream.positions[:, never])
+    hidden = first.occluded
+    moved = np.linalg.norm(first.positions - stream.positions, axis=-1)
+    assert moved[hidden].mean() > 0.01
+    states = first.states[hidden]
+    description = first.metadata["occlusion"]
+    assert description["case"] == case and description["frames"] > 0
+    if case == "legs":
+        assert np.mean(states == skeleton.NOT_TRACKED) > 0.5
+    elif case in ("hand-on-surface", "side-turn"):
+        assert np.all(states == skeleton.TRACKED)  # false positives and swaps look tracked
+    else:
+        assert np.all(states == skeleton.INFERRED)
+
+
+def test_occlude_rejects_an_unknown_case(stream: Recording) -> None:
+    with pytest.raises(ValueError, match="unknown 'moon'"):
+        occlude(stream, "moon")
+
+
+# --------------------------------------------------------------------------- trust
+
+
+def test_trust_of_states_runs_and_bones() -> None:
+    trust = SensorTrust(FusionConfig(flicker_s=0.1, inferred_half_life_s=0.2))
+    pose = poses.rest_pose()
+    states = np.full(20, skeleton.TRACKED)
+    for t in range(10):  # the lengths settle on a tracked stream
+        assert np.allclose(trust.update(pose, states, t / 30.0), 1.0)
+    lost = states.copy()
+    lost[_J("WristLeft")] = skeleton.INFERRED
+    lost[_J("AnkleRight")] = skeleton.NOT_TRACKED
+    values = [trust.update(pose, lost, (10 + t) / 30.0) for t in range(16)]
+    wrist = [v[_J("WristLeft")] for v in values]
+    assert wrist[0] == 1.0 and wrist[2] == 1.0  # a flicker keeps full trust
+    assert wrist[9] == pytest.approx(0.5 ** ((9 / 30.0 - 0.1) / 0.2))  # then halves every 0.2 s
+    assert wrist[15] == pytest.approx(0.25)  # 0.4 s after the flicker: two half-lives
+    hand = [v[_J("HandLeft")] for v in values]  # tracked: its own sight counts, not the wrist's
+    assert min(hand) == 1.0
+    assert all(v[_J("AnkleRight")] == 0.0 for v in values)
+    # A tracked joint that snaps away (its bone stretches by half) loses its trust.
+    snapped = pose.copy()
+    snapped[_J("HandRight")] += 0.5 * (pose[_J("HandRight")] - pose[_J("WristRight")])
+    assert trust.update(snapped, states, 2.0)[_J("HandRight")] < 0.5
+    # An inferred joint hangs off its parent: no more trust than the parent's.
+    child = states.copy()
+    child[_J("ElbowRight")] = skeleton.NOT_TRACKED
+    child[_J("WristRight")] = skeleton.INFERRED
+    out = trust.update(pose, child, 2.1)
+    assert out[_J("WristRight")] == 0.0
+
+
+def test_trust_keeps_a_joint_the_stream_always_infers() -> None:
+    trust = SensorTrust()
+    states = np.full(20, skeleton.TRACKED)
+    states[_J("HandLeft")] = skeleton.INFERRED  # e.g. UI-PRMD's placed hands
+    values = [trust.update(poses.rest_pose(), states, t / 30.0) for t in range(60)]
+    assert all(v[_J("HandLeft")] == 1.0 for v in values)
+
+
+# --------------------------------------------------------------------------- fusion
+
+
+def test_fuse_positions_keeps_trusted_joints_and_hangs_the_rest() -> None:
+    rng = np.random.default_rng(0)
+    truth = poses.rest_pose().astype(np.float64)
+    sensor = truth + rng.normal(scale=0.01, size=truth.shape)
+    database = truth + 0.2  # a rigid shift: right bones, wrong place
+    trust = np.ones(20)
+    trust[[_J("WristLeft"), _J("HandLeft")]] = 0.0
+    sensor[[_J("WristLeft"), _J("HandLeft")]] += 0.5  # the sensor's lost joints are far off
+    bones = poses.bone_vectors(truth)
+    fused = fuse_positions(sensor, trust, database, bones, bone_weight=50.0, database_weight=1e-3)
+    seen = trust > 0
+    assert np.abs(fused[seen] - truth[seen]).max() < 0.03
+    lost = [_J("WristLeft"), _J("HandLeft")]
+    assert np.linalg.norm(fused[lost] - truth[lost], axis=-1).max() < 0.05  # hung off the elbow
+    # Without a bone term, trusted joints are the sensor's and lost ones the database's.
+    plain = fuse_positions(sensor, trust, database, bones, bone_weight=0.0, database_weight=1.0)
+    assert np.allclose(plain[seen], sensor[seen]) and np.allclose(plain[lost], database[lost])
+
+
+def test_fusion_holds_a_lost_limb_where_it_was_moving_with_the_body() -> None:
+    config = FusionConfig(
+        sensor_filter="raw", agreement_good=0.0, agreement_bad=1e-6, database_weight=1e-3
+    )
+    fusion = SensorFusion(config)
+    pose = poses.rest_pose().astype(np.float64)
+    trust = np.ones(20)
+    for t in range(10):
+        out = fusion.update(pose, pose, trust, t / 30.0)
+    assert np.allclose(out, pose, atol=1e-6)
+    # The left forearm is lost; the database puts it elsewhere, the sensor drifts it away;
+    # the body walks 0.3 m: the held forearm comes along, in its last configuration.
+    lost = trust.copy()
+    lost[[_J("WristLeft"), _J("HandLeft")]] = 0.0
+    moved = pose + np.array([0.3, 0.0, 0.0])
+    drifted = moved.copy()
+    drifted[[_J("WristLeft"), _J("HandLeft")]] += np.array([0.0, 0.3, 0.2])
+    database = moved.copy()
+    database[[_J("WristLeft"), _J("HandLeft")]] -= np.array([0.0, 0.2, 0.0])
+    out = fusion.update(database, drifted, lost, 11 / 30.0)
+    assert np.abs(out - moved).max() < 0.02
+
+
+# --------------------------------------------------------------------------- bone model
+
+
+def _pairs(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    clips = load_default_clips(["punch", "dance_b", "crawl"])
+    clip = np.concatenate([c.positions[:40] for c in clips]).astype(np.float64)
+    sensor = clip + rng.normal(scale=0.003, size=clip.shape)
+    truth = clip.copy()  # the sensor's knees sit 4 cm low: a bias the model should learn
+    for knee in (_J("KneeLeft"), _J("KneeRight")):
+        truth[:, knee] += np.array([0.0, 0.04, 0.0])
+    return sensor, truth
+
+
+def test_bone_model_learns_a_bias_and_round_trips(tmp_path: Path) -> None:
+    rng = np.random.default_rng(1)
+    sensor, truth = _pairs(rng)
+    groups = np.repeat(["a", "b", "c"], 40)
+    model = LinearBoneModel.fit(sensor, truth, groups, source="s", target="t")
+    errors_before = metrics.mean_error(truth, sensor)
+    bones = np.stack([model.bone_vectors(p) for p in sensor])
+    after = np.linalg.norm(bones - poses.bone_vectors(truth), axis=-1).mean()
+    assert after < 0.5 * errors_before
+    assert model.info["penalty"] in (10.0, 100.0, 1000.0, 10000.0, 100000.0)
+    assert set(model.info["cross_validation_m"]) == {"10", "100", "1000", "10000", "100000"}
+    path = model.save(tmp_path / "bones.npz")
+    loaded = LinearBoneModel.load(path)
+    assert np.allclose(loaded.corrections(sensor[:5]), model.corrections(sensor[:5]), atol=1e-5)
+
+
+def test_bone_model_files_are_checked(tmp_path: Path) -> None:
+    np.savez(tmp_path / "bad.npz", weights=np.zeros(3))
+    with pytest.raises(DataFormatError, match="not a bone model"):
+        LinearBoneModel.load(tmp_path / "bad.npz")
+    packaged = packaged_bone_model("kinect-v2-to-vicon")
+    assert packaged.target == "vicon"
+    with pytest.raises(ValueError, match="unknown name"):
+        packaged_bone_model("kinect-v9")
+
+
+# --------------------------------------------------------------------------- presets
+
+
+def test_sensor_of_reads_the_recording() -> None:
+    class Rec:
+        def __init__(self, metadata: dict[str, Any]) -> None:
+            self.metadata = metadata
+
+    assert sensor_of(Rec({"sensor": "kinect-v2", "format": "msrc12"})) == "kinect-v2"
+    assert sensor_of(Rec({"format": "msrc12"})) == "kinect-v1"
+    assert sensor_of(Rec({"format": "simulated"})) == "simulated"
+    assert sensor_of(Rec({})) == "unknown"
+    assert sensor_of(Rec({"format": "msrc12"}), override="azure-kinect") == "azure-kinect"
+    assert default_graph_name("kinect-v2") == "uiprmd"
+    assert default_graph_name("simulated") == "embedded"
+
+
+def test_pipelines_by_sensor_and_preset() -> None:
+    uiprmd = packaged_graph("uiprmd")
+    assert uiprmd.params["definitions"] == "vicon"
+    kinect = pipeline("auto", "kinect-v2", uiprmd)
+    assert kinect.options["fusion"].enabled and kinect.options["bone_model"] is not None
+    assert "calibrate_output" not in kinect.options  # a database of joint centres
+    foreign = pipeline("auto", "kinect-v2", default_graph())
+    assert foreign.options["calibrate_output"] is True
+    assert foreign.options["calibration_map"].target == "vicon"
+    assert pipeline("auto", "simulated", uiprmd).options == {}
+    unknown = pipeline("auto", "kinect-v1", uiprmd)
+    assert unknown.options["calibrate_output"] is True and unknown.note
+    papers = pipeline("papers", "kinect-v2", uiprmd)
+    assert "fusion" not in papers.options and not papers.options["bones"].enabled
+    manual = choose_pipeline("auto", "kinect-v2", uiprmd, {"sensor_blend": 0.5, "sensor_map": None})
+    assert manual.preset == "manual" and manual.options == {"sensor_blend": 0.5}
+    with pytest.raises(ValueError, match="preset"):
+        pipeline("fastest", "kinect-v2", uiprmd)
+
+
+def test_kinect_v2_pipeline_runs_and_keeps_a_tracked_stream_near_the_sensor(
+    stream: Recording,
+) -> None:
+    graph = default_graph(exclude=["walk"])
+    resources = SensorResources.packaged("kinect-v2")
+    assert resources is not None
+    plain = resources.__class__(resources.to_reference, None, resources.reference_poses)
+    chosen = pipeline("auto", "kinect-v2", graph, resources=plain)
+    with Reconstructor(graph, **chosen.options) as reconstructor:
+        result = reconstructor.reconstruct(stream, "closed-form", rng=0)
+    mapped = resources.to_reference.apply(stream.positions)
+    distance = np.linalg.norm(result.poses - mapped, axis=-1)
+    assert np.median(distance[30:]) < 0.03  # a tracked stream: the output is the mapped sensor
+    occluded = occlude(stream, "legs", seed=2)
+    with Reconstructor(graph, **chosen.options) as reconstructor:
+        lost = reconstructor.reconstruct(occluded, "closed-form", rng=0).poses
+    assert occluded.occluded is not None and occluded.ground_truth is not None
+    raw = metrics.mpjpe(occluded.ground_truth, occluded.positions, mask=occluded.occluded)
+    fused = metrics.mpjpe(occluded.ground_truth, lost, mask=occluded.occluded)
+    assert fused < raw
