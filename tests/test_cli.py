@@ -147,3 +147,22 @@ def test_reconstruct_shows_progress_on_a_terminal_unless_told_not_to(tmp_path: P
     assert not bar.search(err) and "written" in out
     out, err = _reconstruct_with_stderr_on(False, tmp_path, "--progress")
     assert bar.search(err)
+
+
+def test_readme_and_demo_help_quote_the_same_demo_time() -> None:
+    """Issue 39: the README said about 15 s, ``demo --help`` about 30 s; one measurement, with
+    its machine and load, in both."""
+    from fpg_gym.commands.demo import HELP
+
+    found = re.search(
+        r"\((\d+) s, (\d+) CPU s, on a shared 2-core machine at load ([\d.]+); (\d+) s the first",
+        HELP,
+    )
+    assert found, HELP
+    wall, cpu, load, first = found.groups()
+    readme = " ".join((REPO / "README.md").read_text().split())
+    assert (
+        f"({wall} s of wall time and {cpu} CPU s on this shared 2-core machine at load {load},"
+        in readme
+    )
+    assert f"compiles the numba kernels, {first} s;" in readme
