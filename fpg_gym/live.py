@@ -4,7 +4,8 @@ The wire format (one JSON object per line, UTF-8; over UDP one or more lines per
 
 ``{"timestamp": 12.033, "joints": [[x, y, z], ... 20 ...], "states": [2, 2, 1, ...]}``
 
-- ``timestamp``: seconds (any origin, non-decreasing); optional, 30 Hz after the previous frame.
+- ``timestamp``: seconds (any origin, non-decreasing; jumps are survived, below); optional, 30 Hz
+  after the previous frame.
 - ``joints``: the 20 Kinect-20 joints in :data:`fpg_gym.skeleton.JOINT_NAMES` order, metres in
   camera space (Y up, Z away from the sensor); or an object ``{"HipCenter": [x, y, z], ...}``
   naming all 20.
