@@ -545,3 +545,22 @@ def test_warm_up_leaves_no_trace_on_the_stream() -> None:
     warmed = Reconstructor(graph(), ragdoll=False)
     warmed.warm_up()
     np.testing.assert_array_equal(warmed.reconstruct(rec, "local-search", rng=3).poses, fresh.poses)
+
+
+_STAMPS = st.lists(
+    st.none() | st.floats(-1e12, 1e12, allow_nan=False) | st.sampled_from([0.0, 1e12, -1e12]),
+    min_size=1,
+    max_size=40,
+)
+
+
+@settings(max_examples=200, deadline=None, derandomize=True)
+@given(stamps=_STAMPS)
+def test_any_timestamps_keep_the_stream_going_and_its_time_forward(stamps: list) -> None:
+    """Whole streams of arbitrary timestamps (issue 36): every frame is reconstructed or
+    skipped as late, never more than ``LATE_S`` back; the step's times never go back."""
+    stats, seen, _, out = _stream_times(stamps)
+    late = stats.malformed["timestamp goes back"]
+    assert stats.emitted + late == len(stamps) == stats.received
+    assert len(out) == stats.emitted and all(np.isfinite(t) for t in seen)
+    assert np.all(np.diff(np.asarray(seen, dtype=float)) >= 0)
