@@ -4,7 +4,8 @@ The wire format (one JSON object per line, UTF-8; over UDP one or more lines per
 
 ``{"timestamp": 12.033, "joints": [[x, y, z], ... 20 ...], "states": [2, 2, 1, ...]}``
 
-- ``timestamp``: seconds (any origin, non-decreasing); optional, 30 Hz after the previous frame.
+- ``timestamp``: seconds (any origin, non-decreasing; jumps are survived, below); optional, 30 Hz
+  after the previous frame.
 - ``joints``: the 20 Kinect-20 joints in :data:`fpg_gym.skeleton.JOINT_NAMES` order, metres in
   camera space (Y up, Z away from the sensor); or an object ``{"HipCenter": [x, y, z], ...}``
   naming all 20.
@@ -17,12 +18,23 @@ over well-formed frames), ``timestamp``, ``joints`` (20 × [x, y, z]), ``latency
 the line to emission: queueing plus reconstruction), ``ms`` (reconstruction only) and the
 running counts ``dropped`` and ``malformed``.
 
-Falling behind: received frames wait in a bounded queue; when it is full the oldest frame is
-dropped, and a frame older than ``max_age_s`` is skipped when a newer one waits — the output
-stays current instead of lagging (both counted in ``dropped``). A malformed line (bad JSON, a
-missing or wrong-shaped field, a non-finite or implausible value, a state outside 0/1/2, a
-timestamp going back) is counted by reason in ``malformed`` and skipped; it never stops the
-stream.
+Start-up: lines are read from the moment :class:`LiveReader` is made, before the pipeline is
+ready (graph loaded, compiled kernels warm). Every frame that arrives before it is ready, and
+every frame arriving while those are worked through, is reconstructed: nothing is dropped until
+the output has caught up with the input (the queue empties once), unless the waiting frames grow
+to twice the start-up backlog (a pipeline slower than the stream).
+
+Falling behind, after that: received frames wait in a bounded queue; when it is full the oldest
+frame is dropped, and a frame older than ``max_age_s`` is skipped when a newer one waits — the
+output stays current instead of lagging (both counted in ``dropped``). A malformed line (bad
+JSON, a missing or wrong-shaped field, a non-finite or implausible value, a state outside
+0/1/2) is counted by reason in ``malformed`` and skipped; it never stops the stream.
+
+Timestamps (:class:`StreamClock`): a frame up to :data:`LATE_S` older than the last one
+reconstructed arrived out of order and is skipped (``malformed``: "timestamp goes back"); one
+further back means the sender's clock jumped or restarted: the frame is reconstructed 1/30 s
+after the last one and the stream goes on from there (``clock_jumps``, and a notice). A jump
+forward is a gap: longer than the reconstructor's ``max_gap_s`` (0.5 s), the stream restarts.
 
 Every frame goes through one per-frame call, :meth:`fpg_gym.reconstruct.Reconstructor.\
 reconstruct_frame`, the same one :meth:`~fpg_gym.reconstruct.Reconstructor.reconstruct` makes
@@ -39,7 +51,7 @@ import threading
 import time
 from collections import Counter, deque
 from collections.abc import Callable, Iterable, Iterator
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, BinaryIO
 
 import numpy as np
@@ -51,14 +63,19 @@ from fpg_gym.validation import check_integer, check_number
 from optimizers import make
 
 __all__ = [
+    "MAX_JUMP_NOTICES",
     "FrameError",
     "FrameQueue",
+    "LiveAddressError",
     "LiveFrame",
+    "LiveReader",
     "LiveStats",
     "ReconstructorStep",
+    "StreamClock",
     "emit_frame",
     "frame_line",
     "is_end",
+    "open_udp_input",
     "parse_address",
     "parse_frame",
     "run_live",
@@ -73,6 +90,14 @@ MAX_COORDINATE_M = 1000.0
 DEFAULT_DT = 1.0 / 30.0
 #: Largest UDP datagram read.
 MAX_DATAGRAM = 65507
+#: Largest plausible timestamp (seconds, about 31,700 years): beyond it, a frame is corrupt (and
+#: a float64 no longer resolves a frame interval well).
+MAX_TIMESTAMP_S = 1e12
+#: A frame at most this much older than the last one (seconds) arrived out of order: skipped.
+#: Further back, the sender's clock jumped or restarted (:class:`StreamClock`).
+LATE_S = 0.1
+#: Frames held at most while the pipeline starts (before it first asks for a frame).
+MAX_STARTUP_FRAMES = 10_000
 
 
 class FrameError(FpgGymError, ValueError):
@@ -162,6 +187,8 @@ def parse_frame(line: str | bytes, index: int = 0, received: float | None = None
             raise FrameError("timestamp not finite") from None
         if not math.isfinite(stamp):
             raise FrameError("timestamp not finite")
+        if abs(stamp) > MAX_TIMESTAMP_S:
+            raise FrameError("timestamp implausible", f"beyond ±{MAX_TIMESTAMP_S:g} s")
     return LiveFrame(
         index=index,
         timestamp=stamp,
@@ -211,6 +238,8 @@ class LiveStats:
     latency_ms: list[float] = field(default_factory=list)
     ms: list[float] = field(default_factory=list)
     interrupted: bool = False
+    clock_jumps: int = 0
+    backlog: int = 0
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready counts and latency percentiles."""
@@ -224,6 +253,8 @@ class LiveStats:
             "dropped": self.dropped,
             "malformed": sum(self.malformed.values()),
             "malformed_by_reason": dict(self.malformed),
+            "clock_jumps": self.clock_jumps,
+            "waiting_at_start": self.backlog,
             "latency_ms_median": pct(self.latency_ms, 50),
             "latency_ms_p95": pct(self.latency_ms, 95),
             "latency_ms_max": max(self.latency_ms) if self.latency_ms else None,
@@ -233,28 +264,47 @@ class LiveStats:
 
 
 class FrameQueue:
-    """A bounded, thread-safe queue that drops its oldest frame when full.
+    """A bounded, thread-safe queue that drops its oldest frame when full, after start-up.
+
+    Start-up: until the consumer first finds the queue empty (it has caught up), no frame is
+    dropped, for size or age; the queue then holds at most twice the frames that waited at the
+    consumer's first :meth:`get` (the start-up backlog; before it, :data:`MAX_STARTUP_FRAMES`).
+    Past that bound the pipeline is slower than the stream: the start-up ends there.
 
     Parameters
     ----------
     size : int
-        Frames held at most (>= 1).
+        Frames held at most once started (>= 1).
+    startup : bool
+        Keep every frame until the consumer has caught up (True); False: the bounded queue
+        from the first frame.
     """
 
-    def __init__(self, size: int) -> None:
+    def __init__(self, size: int, startup: bool = True) -> None:
         self._frames: deque[LiveFrame] = deque()
         self._size = check_integer(size, "size", low=1)
         self._ready = threading.Condition()
         self._closed = False
+        self._starting = bool(startup)
+        self._startup_limit = MAX_STARTUP_FRAMES
         self.dropped = 0
+        self.backlog: int | None = None  # frames waiting at the first get (None: not yet)
+
+    def _limit(self) -> int:
+        return self._startup_limit if self._starting else self._size
+
+    def _trim(self) -> None:
+        while len(self._frames) > self._limit():
+            self._frames.popleft()
+            self.dropped += 1
 
     def put(self, frame: LiveFrame) -> None:
         """Add a frame; the oldest waiting one is dropped (and counted) when full."""
         with self._ready:
-            if len(self._frames) >= self._size:
-                self._frames.popleft()
-                self.dropped += 1
             self._frames.append(frame)
+            if self._starting and len(self._frames) > self._startup_limit:
+                self._starting = self.backlog is None  # behind the stream: start-up is over
+            self._trim()
             self._ready.notify()
 
     def close(self) -> None:
@@ -265,13 +315,19 @@ class FrameQueue:
 
     def get(self, max_age_s: float | None = None) -> LiveFrame | None:
         """The next frame (blocking), skipping frames older than ``max_age_s`` while a newer
-        one waits; None when closed and empty."""
+        one waits (after start-up); None when closed and empty."""
         with self._ready:
+            if self.backlog is None:
+                self.backlog = len(self._frames)
+                self._startup_limit = max(2 * self.backlog, self._size)
+                self._trim()
+            if not self._frames:
+                self._starting = False  # caught up with the stream
             while not self._frames and not self._closed:
                 self._ready.wait(0.1)
             if not self._frames:
                 return None
-            if max_age_s is not None:
+            if max_age_s is not None and not self._starting:
                 now = time.perf_counter()
                 while len(self._frames) > 1 and now - self._frames[0].received > max_age_s:
                     self._frames.popleft()
@@ -279,7 +335,74 @@ class FrameQueue:
             return self._frames.popleft()
 
 
+class StreamClock:
+    """The stream's time from the sender's timestamps, through jumps and restarts.
+
+    While the sender's clock runs forward, a frame's time is its timestamp (so that the live
+    output equals the offline one). A timestamp up to ``late_s`` before the last frame's is a
+    frame that arrived out of order: :meth:`place` says to skip it. Further back, the sender's
+    clock jumped or restarted: the frame is placed ``frame_dt`` after the last one, and the
+    frames after it follow their timestamps from there (one frame stamped far ahead, then the
+    stream again, is a gap and a jump). A frame without a timestamp is ``frame_dt`` after the
+    last one. Times never go back.
+
+    Parameters
+    ----------
+    late_s : float
+        Largest step back taken for a frame out of order (:data:`LATE_S`).
+    frame_dt : float
+        Step given to a frame after a jump or without a timestamp (:data:`DEFAULT_DT`).
+    """
+
+    def __init__(self, late_s: float = LATE_S, frame_dt: float = DEFAULT_DT) -> None:
+        self.late_s = check_number(late_s, "late_s", low=0.0)
+        self.frame_dt = check_number(frame_dt, "frame_dt", low=0.0, low_open=True)
+        self._last_stamp: float | None = None  # the last reconstructed frame's timestamp
+        self._last_time: float | None = None  # the last reconstructed frame's time
+        self._anchor: tuple[float, float] | None = None  # (stamp, time) since the last jump
+
+    @property
+    def last_stamp(self) -> float | None:
+        """The last reconstructed frame's timestamp (None: none yet)."""
+        return self._last_stamp
+
+    def _mapped(self, stamp: float) -> float:
+        if self._anchor is None:
+            return stamp
+        anchor_stamp, anchor_time = self._anchor
+        return anchor_time + (stamp - anchor_stamp)
+
+    def place(self, stamp: float | None) -> tuple[float, str]:
+        """The stream time of a frame stamped ``stamp`` (None: not stamped) and what it is:
+        ``"next"``, ``"late"`` (skip it; the time is then meaningless) or ``"jump"`` (the
+        sender's clock went back further than ``late_s``). Nothing changes until
+        :meth:`advance`."""
+        last = self._last_time
+        if last is None:
+            return (0.0 if stamp is None else stamp), "next"
+        if stamp is None:
+            return last + self.frame_dt, "next"
+        if self._last_stamp is not None and stamp < self._last_stamp:
+            if self._last_stamp - stamp <= self.late_s:
+                return last, "late"
+            return last + self.frame_dt, "jump"
+        mapped = self._mapped(stamp)
+        return (mapped if mapped >= last else last + self.frame_dt), "next"
+
+    def advance(self, stamp: float | None, time_s: float) -> None:
+        """Record a frame as reconstructed at ``time_s`` (from :meth:`place`)."""
+        if stamp is not None:
+            if self._mapped(stamp) != time_s:
+                self._anchor = (stamp, time_s)
+            self._last_stamp = stamp
+        self._last_time = time_s
+
+
 # --------------------------------------------------------------------------- sources and sinks
+
+
+class LiveAddressError(FpgGymError, ValueError):
+    """A ``udp://HOST:PORT`` that cannot be listened on or sent to (names the argument)."""
 
 
 def parse_address(text: str, argument: str) -> tuple[str, int]:
@@ -299,6 +422,46 @@ def parse_address(text: str, argument: str) -> tuple[str, int]:
     return host.strip("[]"), int(port)
 
 
+def _resolve(text: str, argument: str, passive: bool) -> tuple[Any, ...]:
+    """``(family, address)`` of a ``udp://HOST:PORT`` (the first of ``getaddrinfo``)."""
+    host, port = parse_address(text, argument)
+    try:
+        found = socket.getaddrinfo(
+            host, port, type=socket.SOCK_DGRAM, flags=socket.AI_PASSIVE if passive else 0
+        )
+    except (OSError, UnicodeError) as error:
+        reason = getattr(error, "strerror", None) or str(error)
+        raise LiveAddressError(
+            f"{argument} {text}: host {host!r} not found ({reason}); expected an IP address "
+            "or a host name this machine resolves"
+        ) from None
+    family, _, _, _, address = found[0]
+    return family, address
+
+
+def open_udp_input(text: str, argument: str = "--input") -> socket.socket:
+    """A UDP socket bound to ``udp://HOST:PORT`` (port 0: any free port).
+
+    Raises
+    ------
+    LiveAddressError
+        Naming ``argument`` and the address when it cannot be resolved or bound (in use, not an
+        address of this machine, a privileged port).
+    """
+    family, address = _resolve(text, argument, passive=True)
+    sock = socket.socket(family, socket.SOCK_DGRAM)
+    try:
+        sock.bind(address)
+    except OSError as error:
+        sock.close()
+        raise LiveAddressError(
+            f"{argument} {text}: cannot listen there ({error.strerror or error}); expected an "
+            "address of this machine (e.g. 0.0.0.0 or 127.0.0.1) and a free port (1024-65535, "
+            "or 0 for any)"
+        ) from None
+    return sock
+
+
 def stdin_lines(stream: BinaryIO | None = None) -> Iterator[bytes]:
     """Lines of standard input (or ``stream``) as they arrive."""
     source = sys.stdin.buffer if stream is None else stream
@@ -308,15 +471,19 @@ def stdin_lines(stream: BinaryIO | None = None) -> Iterator[bytes]:
 def udp_lines(
     sock: socket.socket, stop: threading.Event, idle_timeout_s: float | None = None
 ) -> Iterator[bytes]:
-    """Lines of the datagrams arriving on a bound UDP socket, until ``stop`` is set or no
-    datagram came for ``idle_timeout_s`` seconds (None: wait for ever)."""
+    """Lines of the datagrams arriving on a bound UDP socket, until ``stop`` is set or, after
+    the first datagram, none came for ``idle_timeout_s`` seconds (None: wait for ever)."""
     sock.settimeout(0.1)
-    last = time.monotonic()
+    last: float | None = None  # the idle time counts from the first datagram
     while not stop.is_set():
         try:
             data = sock.recv(MAX_DATAGRAM)
         except TimeoutError:
-            if idle_timeout_s is not None and time.monotonic() - last > idle_timeout_s:
+            if (
+                idle_timeout_s is not None
+                and last is not None
+                and time.monotonic() - last > idle_timeout_s
+            ):
                 return
             continue
         except OSError:  # e.g. an ICMP error reported on the socket: not a frame, go on
@@ -325,13 +492,28 @@ def udp_lines(
         yield from (line for line in data.splitlines() if line.strip())
 
 
-def udp_sender(host: str, port: int) -> Callable[[str], None]:
-    """A function sending one line as one UDP datagram to ``host:port``."""
-    sock = socket.socket(socket.AF_INET6 if ":" in host else socket.AF_INET, socket.SOCK_DGRAM)
-    address = (host, port)
+def udp_sender(text: str, argument: str = "--output") -> Callable[[str], None]:
+    """A function sending one line as one UDP datagram to ``udp://HOST:PORT`` (resolved once).
+
+    Raises
+    ------
+    LiveAddressError
+        Naming ``argument`` and the address: now when it cannot be resolved or its port is 0,
+        and from the function when a datagram cannot be sent.
+    """
+    family, address = _resolve(text, argument, passive=False)
+    if address[1] == 0:
+        raise LiveAddressError(f"{argument} {text}: expected a port from 1 to 65535, got 0")
+    sock = socket.socket(family, socket.SOCK_DGRAM)
 
     def send(line: str) -> None:
-        sock.sendto(line.encode("utf-8"), address)
+        try:
+            sock.sendto(line.encode("utf-8"), address)
+        except OSError as error:
+            raise LiveAddressError(
+                f"{argument} {text}: cannot send ({error.strerror or error}); expected a "
+                "reachable address"
+            ) from None
 
     return send
 
@@ -413,31 +595,79 @@ def _read_into(
         queue.close()
 
 
+class LiveReader:
+    """Reads, parses and queues ``lines`` in a background thread from the moment it is made.
+
+    Make it before the pipeline starts (loading the graph, warming the compiled kernels): the
+    frames that arrive meanwhile wait in its queue and are all reconstructed (:class:`FrameQueue`).
+
+    Parameters
+    ----------
+    lines : iterable of bytes or str
+        JSON lines as they arrive.
+    queue_size : int
+        Frames waiting at most once the stream has caught up (the oldest is dropped when full).
+    """
+
+    def __init__(self, lines: Iterable[bytes | str], queue_size: int = 2) -> None:
+        self.stats = LiveStats()
+        self.lock = threading.Lock()
+        self.queue = FrameQueue(check_integer(queue_size, "queue_size", low=1))
+        self.thread = threading.Thread(
+            target=_read_into,
+            args=(lines, self.queue, self.stats, self.lock),
+            name="fpg-gym-live-reader",
+            daemon=True,
+        )
+        self.thread.start()
+
+
+#: Clock jumps reported one by one through ``notify``; later ones are only counted.
+MAX_JUMP_NOTICES = 5
+
+
+def _jump_notice(index: int, stamp: float, previous: float, count: int) -> str:
+    """The one-line notice of a frame whose timestamp jumped back (the ``count``-th)."""
+    later = " (later jumps are only counted)" if count == MAX_JUMP_NOTICES else ""
+    return (
+        f"frame {index}: timestamp {stamp:.3f} s is {previous - stamp:.3f} s before the "
+        f"previous frame's ({previous:.3f} s): the sender's clock jumped or restarted; the "
+        f"stream goes on from this frame{later}"
+    )
+
+
 def run_live(
-    lines: Iterable[bytes | str],
+    lines: Iterable[bytes | str] | LiveReader,
     step: Callable[[LiveFrame], np.ndarray],
     emit: Callable[[dict[str, Any]], None],
     *,
     queue_size: int = 2,
     max_age_s: float | None = 0.1,
     max_frames: int | None = None,
+    notify: Callable[[str], None] | None = None,
 ) -> LiveStats:
     """Reconstruct frames as they arrive and emit each at once.
 
     Parameters
     ----------
-    lines : iterable of bytes or str
-        JSON lines as they arrive (read in a background thread).
+    lines : iterable of bytes or str, or LiveReader
+        JSON lines as they arrive (read in a background thread), or a :class:`LiveReader`
+        already reading them (made before the pipeline started).
     step : callable
-        ``frame -> pose (20, 3)``, e.g. a :class:`ReconstructorStep`.
+        ``frame -> pose (20, 3)``, e.g. a :class:`ReconstructorStep`; the frame it gets carries
+        the stream's time (:class:`StreamClock`) as its ``timestamp``.
     emit : callable
-        Called with each output object (:func:`emit_frame`).
+        Called with each output object (:func:`emit_frame`; its ``timestamp`` as received).
     queue_size : int
-        Frames waiting at most; the oldest is dropped when full.
+        Frames waiting at most (for ``lines``; a :class:`LiveReader` has its own queue).
     max_age_s : float or None
-        A waiting frame older than this is skipped when a newer one waits (None: never).
+        A waiting frame older than this is skipped when a newer one waits (None: never); not
+        while the stream starts (:class:`FrameQueue`).
     max_frames : int, optional
         Stop after emitting this many frames.
+    notify : callable, optional
+        Called with a one-line notice when the sender's clock jumps back (the first
+        :data:`MAX_JUMP_NOTICES`; all are counted in ``clock_jumps``).
 
     Returns
     -------
@@ -449,44 +679,47 @@ def run_live(
         max_age_s = check_number(max_age_s, "max_age_s", low=0.0)
     if max_frames is not None:
         max_frames = check_integer(max_frames, "max_frames", low=1)
-    stats = LiveStats()
-    lock = threading.Lock()
-    queue = FrameQueue(check_integer(queue_size, "queue_size", low=1))
-    reader = threading.Thread(
-        target=_read_into, args=(lines, queue, stats, lock), name="fpg-gym-live-reader", daemon=True
-    )
-    reader.start()
-    last_stamp: float | None = None
+    reader = lines if isinstance(lines, LiveReader) else LiveReader(lines, queue_size)
+    stats, lock, queue = reader.stats, reader.lock, reader.queue
+    clock = StreamClock()
     try:
         while max_frames is None or stats.emitted < max_frames:
             frame = queue.get(max_age_s)
             with lock:
                 stats.dropped = queue.dropped
+                stats.backlog = queue.backlog or 0
             if frame is None:
                 break
             stamp = frame.timestamp
-            if stamp is not None and last_stamp is not None and stamp < last_stamp:
+            previous = clock.last_stamp
+            time_s, kind = clock.place(stamp)
+            if kind == "late":
                 with lock:
                     stats.malformed["timestamp goes back"] += 1
                 continue
             start = time.perf_counter()
             try:
-                pose = step(frame)
+                pose = step(replace(frame, timestamp=time_s))
             except (FpgGymError, ValueError, ArithmeticError) as error:  # refused: skip it
                 with lock:
                     stats.malformed[f"refused ({type(error).__name__})"] += 1
                 continue
             ms = 1000.0 * (time.perf_counter() - start)
-            if stamp is not None:
-                last_stamp = stamp
+            clock.advance(stamp, time_s)
             with lock:
+                if kind == "jump":
+                    stats.clock_jumps += 1
                 output = emit_frame(frame, pose, ms, stats)
                 stats.emitted += 1
                 stats.latency_ms.append(output["latency_ms"])
                 stats.ms.append(ms)
+            if kind == "jump" and notify is not None and stats.clock_jumps <= MAX_JUMP_NOTICES:
+                assert stamp is not None and previous is not None
+                notify(_jump_notice(frame.index, stamp, previous, stats.clock_jumps))
             emit(output)
     except KeyboardInterrupt:
         stats.interrupted = True
     with lock:
         stats.dropped = queue.dropped
+        stats.backlog = queue.backlog or 0
     return stats

@@ -70,6 +70,7 @@ __all__ = [
     "mean_error",
     "mpjpe",
     "per_joint_error",
+    "robust_z_scores",
     "root_relative_error",
     "settled_bone_spread",
     "time_summary",
@@ -685,3 +686,31 @@ def settled_bone_spread(
         return np.full(skeleton.NUM_BONES, np.nan)
     lengths = poses.bone_lengths(pos[use])
     return np.asarray(lengths.max(axis=0) - lengths.min(axis=0))
+
+
+def robust_z_scores(values: npt.ArrayLike) -> np.ndarray:
+    """Modified z-scores ``0.6745 (x - median) / MAD`` (Iglewicz & Hoaglin 1993): how far each
+    value lies from the others' median, in robust standard deviations; above 3.5 is their
+    outlier rule. With a MAD of 0 the mean absolute deviation (times 1.2533) stands in; all
+    values equal give zeros.
+
+    Parameters
+    ----------
+    values : array_like, shape (N,)
+        Finite numbers.
+
+    Returns
+    -------
+    ndarray, shape (N,), float64
+    """
+    x = np.asarray(values, dtype=np.float64)
+    if x.ndim != 1 or not np.all(np.isfinite(x)):
+        raise ValueError(f"values: expected a 1-D array of finite numbers, got shape {x.shape}")
+    if len(x) == 0:
+        return x.copy()
+    deviation = x - np.median(x)
+    mad = float(np.median(np.abs(deviation)))
+    if mad > 0:
+        return 0.6745 * deviation / mad
+    mean_ad = float(np.mean(np.abs(deviation)))
+    return deviation / (1.2533 * mean_ad) if mean_ad > 0 else np.zeros_like(x)

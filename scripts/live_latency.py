@@ -41,9 +41,12 @@ def run_one(method: str, recording: Path, graph: Path) -> dict:
     sink = tempfile.TemporaryFile(mode="w+")
     live = subprocess.Popen(command, stdout=sink, stderr=subprocess.PIPE, text=True)
     assert live.stderr is not None
-    line = live.stderr.readline()  # "listening on ..." once the graph is loaded
-    if "listening" not in line:
-        raise RuntimeError(f"live did not start: {line}")
+    # "listening on ..." once bound, then "ready" once the graph is loaded and warm: the
+    # latencies are measured from there (frames sent earlier would wait for the start-up)
+    for expected in ("listening", "ready"):
+        line = live.stderr.readline()
+        if expected not in line:
+            raise RuntimeError(f"live did not start: {line}")
     sender = [sys.executable, str(REPO / "scripts" / "send_frames.py"), str(recording)]
     subprocess.run([*sender, "--to", f"udp://127.0.0.1:{port}", "--fps", "30", "--end"], check=True)
     _, err = live.communicate(timeout=600)

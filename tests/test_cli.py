@@ -87,3 +87,82 @@ def test_reconstruct_with_a_reference_filter(
         assert archive["poses"].shape == recording.positions.shape
     assert main(["reconstruct", "--input", str(path), "--method", "fpg", "--out", str(out)]) == 2
     assert "--graph: a pose graph is needed" in capsys.readouterr().err
+
+
+def _reconstruct_with_stderr_on(terminal: bool, tmp_path: Path, *flags: str) -> tuple[str, str]:
+    """``fpg-gym reconstruct`` of a short simulated walk in a new process, its stderr a
+    terminal (a pseudo-terminal) or a pipe: (stdout, stderr)."""
+    import fcntl
+    import os
+    import pty
+    import struct
+    import termios
+
+    from fpg_gym.io import load_default_clips, write_recording
+    from fpg_gym.simulate import simulate
+
+    path = tmp_path / "walk.npz"
+    if not path.exists():
+        write_recording(path, simulate(load_default_clips(["walk"])[0], "front-many", seed=0))
+    argv = [sys.executable, "-m", "fpg_gym.cli", "reconstruct", "--graph", "default"]
+    argv += ["--input", str(path), "--no-ragdoll", "--budget", "100"]
+    argv += ["--out", str(tmp_path / "out.npz"), *flags]
+    if not terminal:
+        done = subprocess.run(argv, capture_output=True, text=True, timeout=300, check=True)
+        return done.stdout, done.stderr
+    leader, follower = pty.openpty()
+    fcntl.ioctl(follower, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 100, 0, 0))  # 100 columns
+    try:
+        process = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=follower, text=True)
+        os.close(follower)
+        seen = b""
+        while True:
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:  # the terminal closed with the process
+                break
+            if not chunk:
+                break
+            seen += chunk
+        stdout, _ = process.communicate(timeout=300)
+    finally:
+        os.close(leader)
+    assert process.returncode == 0, seen.decode(errors="replace")
+    return stdout, seen.decode(errors="replace")
+
+
+def test_reconstruct_shows_progress_on_a_terminal_unless_told_not_to(tmp_path: Path) -> None:
+    """Issue 39: a progress bar by default when stderr is a terminal; none on a pipe, with
+    ``--no-progress`` or ``--quiet`` (which also leaves out the summary lines)."""
+    bar = re.compile(r"reconstruct: +\d+%.*frame")
+    out, err = _reconstruct_with_stderr_on(True, tmp_path)
+    assert bar.search(err), err
+    assert "written" in out
+    out, err = _reconstruct_with_stderr_on(True, tmp_path, "--no-progress")
+    assert not bar.search(err) and "written" in out
+    out, err = _reconstruct_with_stderr_on(True, tmp_path, "--quiet", "--json")
+    assert not bar.search(err)
+    assert len(out.strip().splitlines()) == 1 and json.loads(out)["frames"] == 38
+    out, err = _reconstruct_with_stderr_on(False, tmp_path)
+    assert not bar.search(err) and "written" in out
+    out, err = _reconstruct_with_stderr_on(False, tmp_path, "--progress")
+    assert bar.search(err)
+
+
+def test_readme_and_demo_help_quote_the_same_demo_time() -> None:
+    """Issue 39: the README said about 15 s, ``demo --help`` about 30 s; one measurement, with
+    its machine and load, in both."""
+    from fpg_gym.commands.demo import HELP
+
+    found = re.search(
+        r"\((\d+) s, (\d+) CPU s, on a shared 2-core machine at load ([\d.]+); (\d+) s the first",
+        HELP,
+    )
+    assert found, HELP
+    wall, cpu, load, first = found.groups()
+    readme = " ".join((REPO / "README.md").read_text().split())
+    assert (
+        f"({wall} s of wall time and {cpu} CPU s on this shared 2-core machine at load {load},"
+        in readme
+    )
+    assert f"compiles the numba kernels, {first} s;" in readme

@@ -4,6 +4,7 @@ held out and cross-validated whole, bad input named."""
 from __future__ import annotations
 
 import json
+import shutil
 from pathlib import Path
 
 import numpy as np
@@ -94,3 +95,28 @@ def test_train_sampler_learns_from_recordings(tmp_path: Path) -> None:
         TrainConfig(kind="supervised", out=str(out), recordings=[str(folder)])
     with pytest.raises(ValueError, match="only used with recordings"):
         TrainConfig(kind="linear", target="bones", out=str(out), group_pattern="(s)")
+
+
+def test_train_sampler_json_summarises_the_recordings(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 39: ``--json`` with recordings given one by one (a shell glob gives hundreds: a
+    30 KB line) lists them as a count, their folder and a hash."""
+    from fpg_gym.cli import main
+
+    folder = _write(tmp_path / "recordings", frames=20)
+    for path in list(folder.glob("*_e01.npz")):  # a second repetition of each
+        shutil.copy(path, path.with_name(path.name.replace("_e01", "_e02")))
+    files = sorted(str(p) for p in folder.glob("*.npz"))
+    command = [
+        "train-sampler", "--kind", "linear", "--target", "bones", "--follow", "anchor",
+        "--graph", "default", "--recordings", *files, "--group-pattern", r"_(s\d+)_",
+        "--eval-episodes", "2", "--quiet", "--json", "--out", str(tmp_path / "model"),
+    ]  # fmt: skip
+    assert main(command) == 0
+    line = capsys.readouterr().out.strip().splitlines()[-1]
+    summary = json.loads(line)["config"]["recordings"]
+    assert summary["count"] == 12 and summary["folders"] == [str(folder)]
+    assert len(summary["sha256"]) == 64 and "items" not in summary
+    assert not any(name in line for name in files)
+    assert json.loads(line)["config"]["clips"] is None

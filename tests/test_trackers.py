@@ -117,6 +117,25 @@ def test_azure_kinect_is_turned_into_kinect_camera_space(
     assert recording.positions[0, head, 2] == pytest.approx(2.5)
 
 
+def test_azure_joint_names_as_written_or_with_the_sdk_prefix(
+    tmp_path: Path, rng: np.random.Generator
+) -> None:
+    """The offline processor writes ``PELVIS``, ``SPINE_NAVEL``, ... (docs/input.md); the SDK's
+    ``K4ABT_JOINT_PELVIS`` spelling reads the same."""
+    poses = kinect_poses(rng, 3)
+    frames = [
+        {"timestamp_usec": 33_333 * i, "bodies": [azure_body(poses[i], 1, rng)]} for i in range(3)
+    ]
+    path = azure_file(tmp_path / "a.json", frames)
+    assert json.loads(path.read_text())["joint_names"][:2] == ["PELVIS", "SPINE_NAVEL"]
+    document = json.loads(path.read_text())
+    document["joint_names"] = [f"K4ABT_JOINT_{n}" for n in document["joint_names"]]
+    prefixed = tmp_path / "prefixed.json"
+    prefixed.write_text(json.dumps(document))
+    for file in (path, prefixed):
+        np.testing.assert_allclose(read_recording(file).positions, poses, atol=1e-6)
+
+
 @pytest.mark.parametrize(
     ("text", "message"),
     [
@@ -198,6 +217,86 @@ def test_mapped_json_and_joint_map_files(tmp_path: Path, rng: np.random.Generato
         np.testing.assert_allclose(recording.positions, poses, atol=1e-6)
         np.testing.assert_allclose(recording.timestamps, np.arange(4) / 30, atol=1e-9)
         assert np.all(recording.states[:, 3] == skeleton.NOT_TRACKED)
+
+
+#: A tracker's joint names (no pelvis) -> Kinect-20; HipCenter is the mean of the two hips.
+TRACKER_NAMES = {
+    "spine": "Spine",
+    "neck": "ShoulderCenter",
+    "head": "Head",
+    **{
+        f"{side[0].lower()}_{part.lower()}": f"{part}{side}"
+        for side in ("Left", "Right")
+        for part in ("Shoulder", "Elbow", "Wrist", "Hand", "Hip", "Knee", "Ankle", "Foot")
+    },
+}
+
+
+def test_a_millimetre_y_down_tracker_without_a_pelvis_is_mapped(
+    tmp_path: Path, rng: np.random.Generator, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 39: a JSON map lists several Kinect joints for a source (a pelvis from two hips)
+    and a text map sets units and axes, so a millimetre, Y-down, X-right tracker with no pelvis
+    joint is read in Kinect camera space through ``fpg-gym reconstruct --joint-map``."""
+    poses = kinect_poses(rng, 5)
+    hips = [skeleton.joint_index("HipLeft"), skeleton.joint_index("HipRight")]
+    poses[:, skeleton.joint_index("HipCenter")] = poses[:, hips].mean(axis=1)
+    names = list(TRACKER_NAMES)
+    header = ["timestamp"] + [f"{n}_{a}" for n in names for a in "xyz"]
+    lines = [",".join(header)]
+    for t in range(len(poses)):
+        cells = [f"{t / 30:.6f}"]
+        for name in names:  # the tracker: millimetres, X right, Y down, Z forward
+            point = poses[t, skeleton.joint_index(TRACKER_NAMES[name])].astype(float)
+            cells += [repr(v) for v in (point * [-1000.0, -1000.0, 1000.0]).tolist()]
+        lines.append(",".join(cells))
+    tracker = tmp_path / "tracker.csv"
+    tracker.write_text("\n".join(lines) + "\n")
+    joints: dict[str, str | list[str]] = dict(TRACKER_NAMES)
+    joints["l_hip"] = ["HipLeft", "HipCenter"]
+    joints["r_hip"] = ["HipRight", "HipCenter"]
+    json_map = tmp_path / "map.json"
+    json_map.write_text(json.dumps({"joints": joints, "units": "mm", "axes": "-x,-y,z"}))
+    text_map = tmp_path / "map.txt"
+    text_map.write_text(
+        "# tracker joint = Kinect-20 joint\nunits = mm  # the tracker's unit\naxes=-x,-y,z\n"
+        + "".join(f"{s}={k}\n" for s, k in TRACKER_NAMES.items())
+        + "l_hip=HipCenter\nr_hip=HipCenter\n"
+    )
+    for map_file in (json_map, text_map):
+        joint_map = JointMap.load(map_file)
+        assert joint_map.joints["HipCenter"] == ("l_hip", "r_hip")
+        assert joint_map.joints["HipLeft"] == ("l_hip",)
+        assert (joint_map.units, joint_map.axes) == ("mm", "-x,-y,z")
+        out = tmp_path / f"{map_file.suffix[1:]}.npz"
+        argv = ["reconstruct", "--method", "raw", "--input", str(tracker), "--out", str(out)]
+        assert main([*argv, "--joint-map", str(map_file)]) == 0, capsys.readouterr().err
+        np.testing.assert_allclose(np.load(out)["poses"], poses, atol=1e-5)
+    # the same map as arguments
+    pairs = [f"{s}={k}" for s, k in TRACKER_NAMES.items()]
+    pairs += ["l_hip=HipCenter", "r_hip=HipCenter", "units=mm", "axes=-x,-y,z"]
+    out = tmp_path / "pairs.npz"
+    argv = ["reconstruct", "--method", "raw", "--input", str(tracker), "--out", str(out)]
+    assert main([*argv, "--joint-map", *pairs]) == 0
+    np.testing.assert_allclose(np.load(out)["poses"], poses, atol=1e-5)
+
+
+@pytest.mark.parametrize(
+    ("text", "message"),
+    [
+        ('{"joints": {"a": ["HipLeft", 3]}}', "Kinect name or list of names"),
+        ('{"joints": {"a": []}}', "Kinect name or list of names"),
+        ('{"joints": {"a": "Head"}, "units": 1000}', "'units': expected text"),
+        ("a=Head\nunits=furlongs\n", "units"),
+        ("a=Head\njust a name\n", "line 2"),
+    ],
+)
+def test_bad_joint_map_files_name_the_file(tmp_path: Path, text: str, message: str) -> None:
+    path = tmp_path / "map.txt"
+    path.write_text(text)
+    with pytest.raises(DataFormatError, match=message) as caught:
+        JointMap.load(path)
+    assert str(path) in str(caught.value)
 
 
 def test_joint_map_errors(tmp_path: Path) -> None:

@@ -30,7 +30,13 @@ from fpg_gym.io.ui_prmd import (
     read_vicon_markers,
     vicon_joint_centres,
 )
-from fpg_gym.io.ui_prmd_import import find_repetitions, pair_repetitions
+from fpg_gym.io.ui_prmd_import import (
+    ALIGNMENT_OUTLIER_Z,
+    MAX_ALIGNMENT_M,
+    find_repetitions,
+    flag_alignment_outliers,
+    pair_repetitions,
+)
 from fpg_gym.pairing import apply_rigid, best_lag, kabsch, pair_session
 from fpg_gym.rotations import axis_rotation
 
@@ -381,6 +387,58 @@ def test_import_warns_of_an_implausible_pelvis(tmp_path, rng, capsys):
     printed = capsys.readouterr().out
     assert "warning: m01_s05: the Vicon pelvis markers" in printed
     assert (tmp_path / "o" / "recordings" / f"{stem}.npz").is_file()
+
+
+def _write_session(root: Path, stem: str, rng: np.random.Generator, arm_shift=None) -> None:
+    """One repetition, Kinect and Vicon over the same moments; ``arm_shift`` (metres) moves
+    the Vicon markers of the left forearm and hand (a misplaced marker set)."""
+    joints22 = _standing_joints22(60, rng)
+    joints22[:, :, 0] += 0.2 * np.sin(np.linspace(0, 6, 60))[:, None]
+    _write_kinect(root, stem, joints22)
+    times = np.arange(0, 59 / 30.0, 0.01)
+    vicon22 = np.stack([np.interp(times * 30.0, np.arange(60), joints22[:, j, a])
+                        for j in range(22) for a in range(3)], 1).reshape(-1, 22, 3)  # fmt: skip
+    markers = _markers_for(vicon22, rng)
+    if arm_shift is not None:
+        for name in ("LELB", "LFRM", "LWRA", "LWRB", "LFIN"):
+            markers[:, VICON_MARKERS.index(name)] += arm_shift
+    _write_vicon(root, stem, markers)
+
+
+def test_import_warns_of_a_session_whose_alignment_is_an_outlier(tmp_path, rng, capsys):
+    """Issue 39: a session whose Kinect and Vicon joints stay far apart after the alignment
+    (here a forearm's markers 0.3 m off) is flagged against the other sessions (robust z-score)
+    and recorded in import.json; the others are not, and every session is written."""
+    root = tmp_path / "UI-PRMD"
+    for subject in range(1, 8):
+        shift = np.array([0.0, -0.3, 0.2]) if subject == 4 else None
+        _write_session(root, f"m01_s{subject:02d}_e01", rng, arm_shift=shift)
+    out = tmp_path / "o"
+    assert main(["import-uiprmd", str(root), "--out", str(out), "--workers", "1", "--json"]) == 0
+    printed = capsys.readouterr().out
+    assert "warning: m01_s04: Kinect and Vicon joints" in printed
+    assert sum("warning:" in line for line in printed.splitlines()) == 1
+    summary = json.loads(printed.strip().splitlines()[-1])
+    assert summary["alignment_outliers"] == ["m01_s04"] and summary["repetitions"] == 7
+    reports = json.loads((out / "import.json").read_text())["session_reports"]
+    flagged = {r["session"]: (r["alignment_outlier"], r["alignment_z"]) for r in reports}
+    assert flagged["m01_s04"][0] and flagged["m01_s04"][1] > ALIGNMENT_OUTLIER_Z
+    assert not any(outlier for name, (outlier, _) in flagged.items() if name != "m01_s04")
+    assert len(list((out / "recordings").glob("*.npz"))) == 7
+
+
+def test_alignment_outliers_need_enough_sessions_or_a_large_error():
+    def reports(errors):
+        return [{"session": f"s{i}", "mean_alignment_m": e} for i, e in enumerate(errors)]
+
+    many = reports([0.050, 0.055, 0.060, 0.052, 0.058, 0.120, None])
+    assert [w.split(":")[0] for w in flag_alignment_outliers(many)] == ["s5"]
+    assert many[5]["alignment_outlier"] and many[5]["alignment_z"] > 3.5
+    assert "alignment_z" not in many[6]  # no alignment: nothing to score
+    few = reports([0.050, 0.060, 0.120])  # too few to compare: only the absolute bound
+    assert flag_alignment_outliers(few) == [] and few[2]["alignment_z"] is None
+    far = reports([0.050, 0.060, MAX_ALIGNMENT_M + 0.01])
+    assert "above 150 mm" in flag_alignment_outliers(far)[0]
 
 
 def test_import_refuses_bad_arguments(tmp_path, capsys):

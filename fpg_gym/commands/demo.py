@@ -7,7 +7,8 @@ import argparse
 NAME = "demo"
 HELP = (
     "the whole job on the embedded data (no files needed): graph, simulated Kinect episodes, "
-    "filters vs reconstruction, table, plots and a GIF (about 30 s)"
+    "filters vs reconstruction, table, plots and a GIF (51 s, 24 CPU s, on a shared 2-core "
+    "machine at load 8.5; 96 s the first time, which compiles the numba kernels)"
 )
 
 

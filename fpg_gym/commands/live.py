@@ -52,7 +52,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=0.0,
         metavar="S",
-        help="with UDP input, stop after S seconds without a datagram (default 0 = never)",
+        help="with UDP input, stop after S seconds without a datagram, counted from the first "
+        "one (default 0 = never)",
     )
     parser.add_argument(
         "--max-frames", type=int, default=None, metavar="N", help="stop after N output frames"
@@ -61,8 +62,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run the stream until its end (stdin EOF, ``{"end": true}``, idle timeout, Ctrl-C);
-    print the counts and latencies to stderr as one JSON line."""
-    import socket
+    print the counts and latencies to stderr as one JSON line.
+
+    The input is bound and read first, then the graph loads and the pipeline warms up: the
+    frames that arrive meanwhile wait and are all reconstructed (:class:`fpg_gym.live.FrameQueue`).
+    Two lines on stderr mark the start: ``listening on udp://...`` (UDP input, once bound) and
+    ``ready`` (the first frame can be reconstructed at once).
+    """
     import threading
 
     from fpg_gym import live
@@ -74,61 +80,71 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--queue: expected >= 1, got {args.queue}")
     if not args.max_age_ms >= 0:
         raise ValueError(f"--max-age-ms: expected >= 0, got {args.max_age_ms}")
+    if not args.idle_timeout_s >= 0:
+        raise ValueError(
+            f"--idle-timeout-s: expected >= 0 seconds (0 = never), got {args.idle_timeout_s}"
+        )
     if args.budget < 0:
         raise ValueError(f"--budget: expected >= 0, got {args.budget}")
+    if args.max_frames is not None and args.max_frames < 1:
+        raise ValueError(f"--max-frames: expected >= 1, got {args.max_frames}")
     method = parse_method(args.method)
     if method.is_filter:
         raise ValueError(
             f"--method: live runs reconstruction methods (fpg, shum), got {method.name}"
         )
-    inbound = None if args.input == "-" else live.parse_address(args.input, "--input")
-    outbound = None if args.output == "-" else live.parse_address(args.output, "--output")
-    assert method.optimizer is not None and method.selector is not None
-    reconstructor = Reconstructor(
-        load_graph(args.graph),
-        ragdoll=method.ragdoll,
-        selector=method.selector,
-        max_evaluations=args.budget,
-        weights=EnergyWeights().with_prior() if method.prior else EnergyWeights(),
-    )
-    step = live.ReconstructorStep(reconstructor, method.optimizer, args.seed)
-    stop = threading.Event()
-    lines: Any
-    sock = None
-    if inbound is None:
-        lines = live.stdin_lines()
-    else:
-        sock = socket.socket(
-            socket.AF_INET6 if ":" in inbound[0] else socket.AF_INET, socket.SOCK_DGRAM
-        )
-        sock.bind(inbound)
-        idle = args.idle_timeout_s if args.idle_timeout_s > 0 else None
-        lines = live.udp_lines(sock, stop, idle)
-        host, port = sock.getsockname()[:2]
-        print(f"fpg-gym live: listening on udp://{host}:{port}", file=sys.stderr, flush=True)
-    if outbound is None:
+    if args.input != "-":
+        live.parse_address(args.input, "--input")
+    if args.output == "-":
 
         def emit(frame: dict[str, Any]) -> None:
             print(json.dumps(frame, separators=(",", ":")), flush=True)
 
     else:
-        send = live.udp_sender(*outbound)
+        send = live.udp_sender(args.output, "--output")
 
         def emit(frame: dict[str, Any]) -> None:
             send(json.dumps(frame, separators=(",", ":")))
 
+    def say(text: str) -> None:
+        print(f"fpg-gym live: {text}", file=sys.stderr, flush=True)
+
+    stop = threading.Event()
+    sock = None
+    reconstructor = None
     try:
+        # Listen and read before the graph loads: frames sent meanwhile wait, none is lost.
+        if args.input == "-":
+            lines: Any = live.stdin_lines()
+        else:
+            sock = live.open_udp_input(args.input, "--input")
+            idle = args.idle_timeout_s if args.idle_timeout_s > 0 else None
+            lines = live.udp_lines(sock, stop, idle)
+            host, port = sock.getsockname()[:2]
+            say(f"listening on udp://{host}:{port}")
+        reader = live.LiveReader(lines, args.queue)
+        assert method.optimizer is not None and method.selector is not None
+        reconstructor = Reconstructor(
+            load_graph(args.graph),
+            ragdoll=method.ragdoll,
+            selector=method.selector,
+            max_evaluations=args.budget,
+            weights=EnergyWeights().with_prior() if method.prior else EnergyWeights(),
+        )
+        step = live.ReconstructorStep(reconstructor, method.optimizer, args.seed)
+        say("ready")
         stats = live.run_live(
-            lines,
+            reader,
             step,
             emit,
-            queue_size=args.queue,
             max_age_s=args.max_age_ms / 1000.0 if args.max_age_ms > 0 else None,
             max_frames=args.max_frames,
+            notify=say,
         )
     finally:
         stop.set()
-        reconstructor.close()
+        if reconstructor is not None:
+            reconstructor.close()
         if sock is not None:
             sock.close()
     print(json.dumps({"live": stats.summary()}), file=sys.stderr, flush=True)

@@ -104,7 +104,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="write the frames done so far to --out every S seconds, so a killed run keeps them "
         "(metadata 'partial': true; default 30, 0 = never)",
     )
-    parser.add_argument("--progress", action="store_true", help="show a progress bar")
+    parser.add_argument(
+        "--progress",
+        action=argparse.BooleanOptionalAction,
+        default=None,
+        help="a progress bar on stderr (default: when stderr is a terminal)",
+    )
+    parser.add_argument(
+        "-q",
+        "--quiet",
+        action="store_true",
+        help="no progress bar and no summary lines (errors and warnings still; --json still "
+        "prints its line)",
+    )
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 
 
@@ -273,23 +285,41 @@ def _error_summary(recording: Any, poses: Any) -> tuple[dict[str, Any], dict[str
     return arrays, summary
 
 
-def _print_errors(summary: dict[str, Any], label: str) -> None:
-    """The raw input's and the output's mean error and Err0.2 lines."""
-    print(
+def _print_errors(args: argparse.Namespace, summary: dict[str, Any], label: str) -> None:
+    """The raw input's and the output's mean error and Err0.2 lines (none with ``--quiet``)."""
+    _say(
+        args,
         f"raw input        mean error {summary['raw_mean_error_m']:.4f} m, "
-        f"Err0.2 {summary['raw_err02_pct']:.1f} %"
+        f"Err0.2 {summary['raw_err02_pct']:.1f} %",
     )
-    print(
+    _say(
+        args,
         f"{label:<16} mean error {summary['mean_error_m']:.4f} m, "
-        f"Err0.2 {summary['err02_pct']:.1f} %"
+        f"Err0.2 {summary['err02_pct']:.1f} %",
     )
     spread = summary["settled_bone_spread_mm"]
-    print(
+    _say(
+        args,
         f"jitter (m/s²)    input {summary['raw_jitter_ms2']:.1f}, output "
         f"{summary['jitter_ms2']:.1f}, truth {summary['truth_jitter_ms2']:.1f}; lag "
         f"{summary['lag_frames']:.2f} frames; bone spread after 1 s "
-        + ("–" if spread is None else f"{spread:.1f} mm")
+        + ("–" if spread is None else f"{spread:.1f} mm"),
     )
+
+
+def _show_progress(args: argparse.Namespace) -> bool:
+    """``--progress``/``--no-progress``, else a bar when stderr is a terminal (not ``--quiet``)."""
+    import sys
+
+    if args.quiet:
+        return False
+    return sys.stderr.isatty() if args.progress is None else bool(args.progress)
+
+
+def _say(args: argparse.Namespace, text: str) -> None:
+    """Print a summary line unless ``--quiet``."""
+    if not args.quiet:
+        print(text)
 
 
 def _check_out(args: argparse.Namespace) -> Path:
@@ -356,7 +386,7 @@ def run(args: argparse.Namespace) -> int:
             recording,
             optimizer,
             rng=np.random.default_rng(args.seed),
-            progress=args.progress,
+            progress=_show_progress(args),
             stop_on_interrupt=True,
             checkpoint=checkpoint,
             checkpoint_s=args.checkpoint_s,
@@ -370,31 +400,34 @@ def run(args: argparse.Namespace) -> int:
     total = recording.num_frames
 
     state = " (interrupted)" if result.interrupted else ""
-    print(f"frames           {frames} of {total}{state}")
-    print(
+    _say(args, f"frames           {frames} of {total}{state}")
+    _say(
+        args,
         f"optimizer        {args.optimizer}, selector {args.selector}, ragdoll "
-        f"{'off' if args.no_ragdoll else 'on'}, seed {args.seed}, budget {args.budget}"
+        f"{'off' if args.no_ragdoll else 'on'}, seed {args.seed}, budget {args.budget}",
     )
     if frames:
-        print(
+        _say(
+            args,
             f"ms per frame     median {summary['ms_per_frame_median']:.2f}, "
-            f"p95 {summary['ms_per_frame_p95']:.2f}"
+            f"p95 {summary['ms_per_frame_p95']:.2f}",
         )
-        print(
+        _say(
+            args,
             f"evaluations      mean {summary['evaluations_mean']:.0f} per frame, "
-            f"recoveries {summary['recoveries']}"
+            f"recoveries {summary['recoveries']}",
         )
     if summary["mean_error_m"] is not None:
-        _print_errors(summary, "reconstruction")
+        _print_errors(args, summary, "reconstruction")
         labels = [f"{lo:.2f}-{hi:.2f}" for lo, hi in itertools.pairwise(HISTOGRAM_EDGES)] + [
             f">={HISTOGRAM_EDGES[-1]:.2f}"
         ]
-        print("error histogram  (m: raw / reconstruction frames)")
+        _say(args, "error histogram  (m: raw / reconstruction frames)")
         for label, raw, rec in zip(
             labels, summary["raw_histogram"], summary["histogram"], strict=True
         ):
-            print(f"  {label:>10}  {raw:6d} / {rec:6d}")
-    print(f"written          {out}")
+            _say(args, f"  {label:>10}  {raw:6d} / {rec:6d}")
+    _say(args, f"written          {out}")
     if args.json:
         emit_json({**summary, "out": str(out)})
     return 130 if result.interrupted else 0
@@ -502,12 +535,12 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     metadata = {"input": str(args.input), "method": method.name, "frames": result.num_frames}
     arrays["metadata"] = np.array(json.dumps(metadata, sort_keys=True))
     out = save_npz(args.out, arrays)
-    print(f"frames           {result.num_frames}")
-    print(f"method           {method.name}")
-    print(f"ms per frame     median {summary['ms_per_frame_median']:.3f}")
+    _say(args, f"frames           {result.num_frames}")
+    _say(args, f"method           {method.name}")
+    _say(args, f"ms per frame     median {summary['ms_per_frame_median']:.3f}")
     if summary["mean_error_m"] is not None:
-        _print_errors(summary, method.name)
-    print(f"written          {out}")
+        _print_errors(args, summary, method.name)
+    _say(args, f"written          {out}")
     if args.json:
         emit_json({**summary, "out": str(out)})
     return 0

@@ -3,6 +3,9 @@
 from __future__ import annotations
 
 import argparse
+import hashlib
+from pathlib import Path
+from typing import Any
 
 from fpg_gym.commands.compare import add_backend_arguments
 
@@ -250,7 +253,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "data and fit checkpoints)",
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.add_argument("--json", action="store_true", help="print a JSON summary last")
+    parser.add_argument(
+        "--json",
+        action="store_true",
+        help="print a JSON summary last (the clips and recordings as counts, folders and a hash)",
+    )
+
+
+#: Inputs listed in ``--json``'s config as a summary (a shell glob can give thousands).
+LISTED_INPUTS: tuple[str, ...] = ("clips", "val_clips", "recordings")
+#: A list of inputs this short is kept whole in the summary.
+MAX_LISTED = 10
+
+
+def input_summary(items: list[str] | None) -> dict[str, Any] | None:
+    """A list of inputs in a few fields: ``count``, ``folders`` (those of the items that name
+    existing files or folders), ``sha256`` (of the items as given, one per line) and, for at
+    most :data:`MAX_LISTED` items, ``items``."""
+    if items is None:
+        return None
+    names = [str(item) for item in items]
+    folders = sorted({str(Path(n).parent) for n in names if Path(n).is_file()})
+    folders += sorted({n for n in names if Path(n).is_dir()} - set(folders))
+    summary: dict[str, Any] = {
+        "count": len(names),
+        "folders": folders,
+        "sha256": hashlib.sha256("\n".join(names).encode("utf-8")).hexdigest(),
+    }
+    if len(names) <= MAX_LISTED:
+        summary["items"] = names
+    return summary
 
 
 def run(args: argparse.Namespace) -> int:
@@ -323,10 +355,12 @@ def run(args: argparse.Namespace) -> int:
     )
     result = train_sampler(config)
     if args.json:
+        settings = config_dict(config)
+        settings.update({name: input_summary(settings[name]) for name in LISTED_INPUTS})
         emit_json(
             {
                 "model": result.model,
-                "config": config_dict(config),
+                "config": settings,
                 "seconds": result.seconds,
                 "evaluation": result.evaluation,
             }

@@ -15,8 +15,9 @@
    side by side; with rerun-sdk installed (``fpg-gym[view]``) also ``demo.rrd``, the same
    episode in 3D with every reconstruction method (:mod:`fpg_gym.experiments.view`).
 
-About 30 s on two cores. ``quick=True`` runs a reduced version (two clips, one scenario, 24
-frames, four methods) in a few seconds, for tests.
+About 24 CPU seconds with numba (README: the measured wall time and its load). ``quick=True``
+runs a reduced version (two clips, one scenario, 24 frames, four methods) in a few seconds,
+for tests.
 """
 
 from __future__ import annotations

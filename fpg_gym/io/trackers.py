@@ -2,8 +2,9 @@
 
 ``azure_kinect``
     The JSON written by the offline processor of Microsoft's Azure Kinect body-tracking samples
-    (``Azure-Kinect-Samples/body-tracking-samples/offline_processor``): ``joint_names`` (32,
-    ``K4ABT_JOINT_*`` names), ``frames`` -> ``timestamp_usec``, ``bodies`` -> ``body_id``,
+    (``Azure-Kinect-Samples/body-tracking-samples/offline_processor``): ``joint_names`` (the 32
+    names it writes, ``PELVIS``, ``SPINE_NAVEL``, ..., ``EAR_RIGHT``; ``K4ABT_JOINT_PELVIS`` and
+    so on are read too), ``frames`` -> ``timestamp_usec``, ``bodies`` -> ``body_id``,
     ``joint_positions`` (32 x [x, y, z] in millimetres, depth camera space: X right, Y down, Z
     forward) and ``joint_orientations`` (ignored). Positions become metres in the Kinect camera
     space (Y up, Z forward, X to the sensor's left): ``(x, y, z) -> (-x, -y, z) / 1000``, a
@@ -19,7 +20,8 @@
     per frame. JSON: a list of frames (or ``{"frames": [...]}``), each
     ``{"timestamp": s, "joints": {name: [x, y, z]}, "states": {name: 0|1|2}}``. The map names, for
     each Kinect-20 joint, one source joint or several (their mean, e.g. a pelvis from two hips);
-    ``units`` and ``axes`` turn the source's coordinates into metres in Kinect camera space.
+    ``units`` and ``axes`` turn the source's coordinates into metres in Kinect camera space
+    (:meth:`JointMap.load` reads them from JSON or from ``name=KinectName`` lines).
 
 Joint maps to Kinect-20 (:data:`AZURE_KINECT_TO_KINECT20`; docs/input.md has the table): PELVIS
 -> HipCenter, SPINE_NAVEL -> Spine, NECK -> ShoulderCenter, HEAD -> Head, and the limbs by name
@@ -279,11 +281,13 @@ def read_azure_kinect(path: str | Path, body: int = 0) -> Recording:
     names = data.get("joint_names", list(AZURE_KINECT_JOINT_NAMES))
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise DataFormatError(path, "'joint_names': expected a list of joint names")
-    index = {str(n).upper(): i for i, n in enumerate(names)}
+    index = {n.upper().removeprefix("K4ABT_JOINT_"): i for i, n in enumerate(names)}
     lacking = [a for a in AZURE_KINECT_TO_KINECT20.values() if a not in index]
     if lacking:
         raise DataFormatError(
-            path, f"'joint_names' lacks {lacking[:4]}; expected the 32 K4ABT_JOINT names"
+            path,
+            f"'joint_names' lacks {lacking[:4]}; expected the 32 Azure Kinect joint names "
+            "(PELVIS, SPINE_NAVEL, ...)",
         )
     source = np.array([index[AZURE_KINECT_TO_KINECT20[n]] for n in skeleton.JOINT_NAMES])
     count = len(names)
@@ -410,6 +414,8 @@ class JointMap:
     _signs: np.ndarray = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        check_choice(self.units, "joint map units", tuple(UNITS))
+        columns, signs = _parse_axes(self.axes)
         unknown = [k for k in self.joints if k not in skeleton.JOINT_NAMES]
         if unknown:
             raise ValueError(
@@ -419,8 +425,6 @@ class JointMap:
         lacking = [k for k in skeleton.JOINT_NAMES if not self.joints.get(k)]
         if lacking:
             raise ValueError(f"joint map: no source joint for {', '.join(lacking)}")
-        check_choice(self.units, "joint map units", tuple(UNITS))
-        columns, signs = _parse_axes(self.axes)
         object.__setattr__(self, "_columns", columns)
         object.__setattr__(self, "_signs", signs)
 
@@ -431,26 +435,47 @@ class JointMap:
 
     @classmethod
     def from_pairs(cls, pairs: Sequence[str], units: str = "m", axes: str = "x,y,z") -> JointMap:
-        """From ``source=KinectName`` strings (a Kinect joint named twice averages its
-        sources)."""
+        """From ``source=KinectName`` strings: a Kinect joint named twice averages its sources,
+        a source named twice feeds both joints. ``units=U`` and ``axes=A`` items set
+        :attr:`units` and :attr:`axes` (overriding the arguments).
+
+        Examples
+        --------
+        >>> pairs = [f"{n}={n}" for n in skeleton.JOINT_NAMES if n != "HipCenter"]
+        >>> m = JointMap.from_pairs(
+        ...     [*pairs, "HipLeft=HipCenter", "HipRight=HipCenter", "units=mm", "axes=-x,-y,z"]
+        ... )
+        >>> m.joints["HipCenter"], m.units, m.axes
+        (('HipLeft', 'HipRight'), 'mm', '-x,-y,z')
+        """
         joints: dict[str, list[str]] = {}
+        options = {"units": units, "axes": axes}
         for pair in pairs:
-            source, sep, target = pair.partition("=")
-            if not sep or not source.strip() or not target.strip():
+            source, sep, target = (part.strip() for part in pair.partition("="))
+            if not sep or not source or not target:
                 raise ValueError(f"joint map: expected name=KinectName, got {pair!r}")
-            joints.setdefault(target.strip(), []).append(source.strip())
-        return cls({k: tuple(v) for k, v in joints.items()}, units=units, axes=axes)
+            if source in options:
+                options[source] = target
+            else:
+                joints.setdefault(target, []).append(source)
+        return cls({k: tuple(v) for k, v in joints.items()}, **options)
 
     @classmethod
     def load(cls, path: str | Path) -> JointMap:
-        """From a JSON file ``{"joints": {"source": "KinectName", ...}, "units": "mm",
-        "axes": "-x,-y,z"}`` (or just the ``joints`` object), or a text file of
-        ``source=KinectName`` lines (``#`` comments allowed).
+        """From a JSON file or a text file of ``source=KinectName`` lines.
+
+        JSON: ``{"joints": {"source": "KinectName" or ["KinectName", ...], ...}, "units":
+        "mm", "axes": "-x,-y,z"}`` (or just the ``joints`` object, ``units`` and ``axes``
+        beside the names); a source listing several Kinect joints feeds each, and a Kinect
+        joint fed by several sources is their mean (``{"l_hip": ["HipLeft", "HipCenter"],
+        "r_hip": ["HipRight", "HipCenter"]}``: a pelvis from two hips). Text: one
+        ``source=KinectName`` per line (a Kinect joint on several lines: the mean), ``units=mm``
+        and ``axes=-x,-y,z`` lines, ``#`` comments.
 
         Raises
         ------
         DataFormatError
-            Naming the file when it does not fit.
+            Naming the file (and the line of a text map) when it does not fit.
         """
         path = Path(path)
         raw = read_input_bytes(path)
@@ -460,25 +485,57 @@ class JointMap:
             raise DataFormatError(path, "not UTF-8 text") from None
         try:
             if text.lstrip().startswith("{"):
-                data = json.loads(text)
-                if not isinstance(data, dict):
-                    raise ValueError("expected a JSON object")
-                pairs = data.get("joints", data)
-                if not isinstance(pairs, dict) or not all(
-                    isinstance(k, str) and isinstance(v, str) for k, v in pairs.items()
-                ):
-                    raise ValueError("'joints': expected an object of source name -> Kinect name")
-                return cls.from_pairs(
-                    [f"{k}={v}" for k, v in pairs.items() if k not in ("units", "axes")],
-                    units=str(data.get("units", "m")),
-                    axes=str(data.get("axes", "x,y,z")),
-                )
-            lines = [ln.split("#")[0].strip() for ln in text.splitlines()]
-            return cls.from_pairs([ln for ln in lines if ln])
+                return cls._from_json(json.loads(text))
         except json.JSONDecodeError as error:
             raise DataFormatError(path, f"not JSON ({error.msg})", line=error.lineno) from None
+        except RecursionError:
+            raise DataFormatError(path, "JSON nested too deeply") from None
         except ValueError as error:
             raise DataFormatError(path, str(error)) from None
+        pairs: list[str] = []
+        for number, line in enumerate(text.splitlines(), start=1):
+            item = line.split("#")[0].strip()
+            if not item:
+                continue
+            if "=" not in item:
+                raise DataFormatError(
+                    path,
+                    f"expected name=KinectName, units=U or axes=A, got {item[:60]!r}",
+                    line=number,
+                )
+            pairs.append(item)
+        try:
+            return cls.from_pairs(pairs)
+        except ValueError as error:
+            raise DataFormatError(path, str(error)) from None
+
+    @classmethod
+    def _from_json(cls, data: Any) -> JointMap:
+        """From a JSON map's data (see :meth:`load`)."""
+        if not isinstance(data, dict):
+            raise ValueError("expected a JSON object")
+        pairs = data.get("joints", data)
+        expected = "'joints': expected an object of source name -> Kinect name or list of names"
+        if not isinstance(pairs, dict):
+            raise ValueError(expected)
+        items: list[str] = []
+        for source, targets in pairs.items():
+            if source in ("units", "axes") and pairs is data:
+                continue
+            names = [targets] if isinstance(targets, str) else targets
+            if (
+                not isinstance(names, list)
+                or not names
+                or not all(isinstance(n, str) for n in names)
+            ):
+                raise ValueError(f"{expected}; got {source!r}: {str(targets)[:60]}")
+            items += [f"{source}={name}" for name in names]
+        for option, default in (("units", "m"), ("axes", "x,y,z")):
+            value = data.get(option, default)
+            if not isinstance(value, str):
+                raise ValueError(f"'{option}': expected text, e.g. {default!r}, got {value!r}")
+            items.append(f"{option}={value}")
+        return cls.from_pairs(items)
 
     def apply(self, values: np.ndarray, names: Sequence[str]) -> np.ndarray:
         """Source positions ``(T, S, 3)`` named ``names`` -> Kinect-20 positions ``(T, 20, 3)``

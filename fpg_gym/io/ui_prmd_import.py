@@ -15,7 +15,9 @@ session from Vicon space into the Kinect's camera space. Written under ``OUT``:
     Per session: alignment error, lags, frames, the Vicon pelvis width; repetitions skipped and
     why; warnings (a pelvis width outside :data:`~fpg_gym.io.ui_prmd.PLAUSIBLE_PELVIS_WIDTH_M`,
     whose hip centres, and so ``HipCenter`` and the hip and spine bones of the ground truth,
-    are suspect; the session is still written).
+    are suspect; an alignment error that is an outlier among the import's sessions,
+    :func:`flag_alignment_outliers`: a marker, a joint centre or the Kinect's tracking is then
+    suspect; the session is still written).
 
 Every file is written to a temporary name and renamed into place, so an interrupted import
 leaves complete files only (re-running the import rewrites the same files).
@@ -53,12 +55,16 @@ from fpg_gym.io.ui_prmd import (
     read_vicon_markers,
     vicon_joint_centres,
 )
+from fpg_gym.metrics import robust_z_scores
 from fpg_gym.pairing import apply_rigid, overlap, pair_session
 
 __all__ = [
+    "ALIGNMENT_OUTLIER_Z",
+    "MAX_ALIGNMENT_M",
     "PairedRepetition",
     "SessionReport",
     "find_repetitions",
+    "flag_alignment_outliers",
     "import_uiprmd",
     "pair_repetitions",
 ]
@@ -67,6 +73,15 @@ _KINECT_POSITIONS = Path("Kinect") / "Positions"
 _KINECT_ANGLES = Path("Kinect") / "Angles"
 _VICON_POSITIONS = Path("Vicon") / "Positions"
 _SUBJECT = re.compile(r"^s\d+$")
+
+#: A session's mean alignment error whose robust z-score against the import's sessions exceeds
+#: this is an outlier (Iglewicz & Hoaglin's rule, :func:`fpg_gym.metrics.robust_z_scores`), when
+#: at least :data:`MIN_SESSIONS_COMPARED` sessions are compared.
+ALIGNMENT_OUTLIER_Z = 3.5
+MIN_SESSIONS_COMPARED = 5
+#: A session's mean alignment error above this is an outlier however many sessions are imported
+#: (metres; UI-PRMD's sessions: median 55 mm, 39-117 mm but for two).
+MAX_ALIGNMENT_M = 0.15
 
 
 @dataclass(frozen=True)
@@ -273,6 +288,42 @@ def _import_session(
     return report.as_dict()
 
 
+def flag_alignment_outliers(reports: Sequence[dict[str, Any]]) -> list[str]:
+    """Mark the sessions whose mean alignment error is an outlier; return their warnings.
+
+    Each report (:meth:`SessionReport.as_dict`) with a ``mean_alignment_m`` gets
+    ``alignment_z`` (its robust z-score against the reports', None with fewer than
+    :data:`MIN_SESSIONS_COMPARED`) and ``alignment_outlier``: a z-score above
+    :data:`ALIGNMENT_OUTLIER_Z` or an error above :data:`MAX_ALIGNMENT_M`. An outlier's
+    warning is appended to its ``warnings`` and returned.
+    """
+    scored = [r for r in reports if r.get("mean_alignment_m") is not None]
+    errors = np.array([r["mean_alignment_m"] for r in scored], dtype=np.float64)
+    compared = len(scored) >= MIN_SESSIONS_COMPARED
+    scores = robust_z_scores(errors) if compared else np.full(len(scored), np.nan)
+    median = float(np.median(errors)) if len(errors) else 0.0
+    found: list[str] = []
+    for report, error, z in zip(scored, errors, scores, strict=True):
+        report["alignment_z"] = round(float(z), 2) if compared else None
+        outlier = bool((compared and z > ALIGNMENT_OUTLIER_Z) or error > MAX_ALIGNMENT_M)
+        report["alignment_outlier"] = outlier
+        if not outlier:
+            continue
+        why = (
+            f"a robust z-score of {z:.1f} against the {len(scored)} sessions' median of "
+            f"{1000 * median:.0f} mm (above {ALIGNMENT_OUTLIER_Z})"
+            if compared and z > ALIGNMENT_OUTLIER_Z
+            else f"above {1000 * MAX_ALIGNMENT_M:.0f} mm"
+        )
+        warning = (
+            f"{report['session']}: Kinect and Vicon joints {1000 * error:.0f} mm apart after "
+            f"alignment, {why}: a marker, a joint centre or the Kinect's tracking is suspect"
+        )
+        report.setdefault("warnings", []).append(warning)
+        found.append(warning)
+    return found
+
+
 def import_uiprmd(
     root: str | Path,
     out: str | Path,
@@ -324,6 +375,7 @@ def import_uiprmd(
                     bar.update()
     finally:
         bar.close()
+    flag_alignment_outliers(reports)
     alignment = [v for r in reports for v in r["alignment_m"]]
     lags = [v for r in reports for v in r["lags"]]
     summary = {
@@ -334,6 +386,7 @@ def import_uiprmd(
         "repetitions": len(alignment),
         "skipped": {k: v for r in reports for k, v in r["skipped"].items()},
         "warnings": [w for r in reports for w in r["warnings"]],
+        "alignment_outliers": [r["session"] for r in reports if r.get("alignment_outlier")],
         "mean_alignment_m": round(float(np.mean(alignment)), 5) if alignment else None,
         "median_lag_frames": float(np.median(lags)) if lags else None,
         "session_reports": reports,
