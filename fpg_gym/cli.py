@@ -7,6 +7,8 @@ Errors: a bad argument or bad input prints one line, ``fpg-gym COMMAND: error: .
 with status 2 (never a traceback). An argument ``@FILE`` is replaced by the lines of FILE, one
 argument per line; a line is always an argument, never an option (a line starting with ``-`` is
 refused). SIGTERM stops a command as Ctrl-C does: what was finished is written, status 130.
+Every command takes ``--accept-unusual``: its readers then accept inputs that are well formed
+but not a person in metres at a real frame rate (:mod:`fpg_gym.io.plausibility`).
 """
 
 from __future__ import annotations
@@ -23,6 +25,7 @@ from typing import Any, NoReturn
 
 from fpg_gym import __version__
 from fpg_gym.errors import FpgGymError
+from fpg_gym.io.plausibility import accepting_unusual
 from optimizers import OptimizerError
 
 #: Command modules under ``fpg_gym.commands``, in the order ``--help`` lists them.
@@ -133,6 +136,13 @@ def build_parser() -> argparse.ArgumentParser:
         module = importlib.import_module(f"fpg_gym.commands.{module_name}")
         sub = subparsers.add_parser(module.NAME, help=module.HELP, description=module.HELP)
         module.add_arguments(sub)
+        sub.add_argument(
+            "--accept-unusual",
+            action="store_true",
+            help="read inputs that are well formed but not a person in metres at a real frame "
+            "rate (a body outside 0.4-3 m head to ankles, a coordinate beyond 1000 m, a frame "
+            "rate outside 1-1000 Hz), as they are",
+        )
         sub.set_defaults(run=module.run)
     return parser
 
@@ -160,7 +170,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         parser.print_help()
         return 2
     try:
-        with _sigterm_interrupts():
+        with _sigterm_interrupts(), accepting_unusual(getattr(args, "accept_unusual", False)):
             return int(args.run(args) or 0)
     except KeyboardInterrupt:
         print("fpg-gym: interrupted; results written so far are kept", file=sys.stderr)

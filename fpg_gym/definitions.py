@@ -54,6 +54,8 @@ import numpy.typing as npt
 from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
+from fpg_gym.io.files import read_json
+from fpg_gym.outputs import write_text
 from fpg_gym.rotations import quaternion_to_matrix, shortest_arc
 
 __all__ = [
@@ -341,25 +343,32 @@ class DefinitionMap:
             raise DataFormatError(
                 where, "offsets_m: expected one [left, up, forward] entry per Kinect-20 joint"
             )
+        inverted = data.get("inverted", False)
+        if not isinstance(inverted, bool):  # bool("false") is True: never guess
+            raise DataFormatError(
+                where, f"expected true or false, got {inverted!r}", field="inverted"
+            )
+        info = data.get("info") or {}
+        if not isinstance(info, dict):
+            raise DataFormatError(where, f"expected a JSON object, got {info!r:.60}", field="info")
+        for name in ("source", "target"):
+            if not isinstance(data.get(name, ""), str):
+                raise DataFormatError(where, f"expected a name, got {data[name]!r:.60}", field=name)
         try:
             offsets = np.array([table[name] for name in skeleton.JOINT_NAMES], dtype=np.float64)
             return cls(
                 offsets,
-                source=str(data.get("source", "")),
-                target=str(data.get("target", "")),
-                info=dict(data.get("info") or {}),
-                inverted=bool(data.get("inverted", False)),
+                source=data.get("source", ""),
+                target=data.get("target", ""),
+                info=info,
+                inverted=inverted,
             )
-        except (TypeError, ValueError) as error:
+        except (TypeError, ValueError, OverflowError) as error:
             raise DataFormatError(where, f"offsets_m: {error}", field="offsets_m") from None
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the map as JSON (through a temporary file renamed into place)."""
-        path = Path(path)
-        tmp = path.with_name(f".{path.name}.partial")
-        tmp.write_text(json.dumps(self.to_dict(), indent=1) + "\n")
-        os.replace(tmp, path)
-        return path
+        return write_text(path, json.dumps(self.to_dict(), indent=1) + "\n")
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> DefinitionMap:
@@ -367,17 +376,13 @@ class DefinitionMap:
 
         Raises
         ------
+        FileNotFoundError
+            If the file does not exist.
         DataFormatError
-            If the file is not JSON or not a definition map.
+            If the path is not a readable file (:func:`fpg_gym.io.files.read_json`), or the
+            file is not JSON or not a definition map.
         """
-        path = Path(path)
-        try:
-            data = json.loads(path.read_text())
-        except FileNotFoundError:
-            raise FileNotFoundError(f"{path}: no such file") from None
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise DataFormatError(path, f"not JSON ({error})") from None
-        return cls.from_dict(data, str(path))
+        return cls.from_dict(read_json(path), str(path))
 
     def __repr__(self) -> str:
         size = 1000 * float(np.linalg.norm(self.offsets, axis=-1).max())

@@ -36,7 +36,6 @@ import importlib
 import json
 import os
 import time
-import uuid
 import warnings
 import zipfile
 import zlib
@@ -52,8 +51,11 @@ from fpg_gym import __version__, graph_build, skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.files import check_input_file
 from fpg_gym.io.npz import check_npz
+from fpg_gym.io.plausibility import check_plausible
 from fpg_gym.jsonable import jsonable
+from fpg_gym.outputs import atomic_path
 from fpg_gym.poses import mirror as mirror_poses
 from fpg_gym.poses import normalise
 
@@ -86,6 +88,16 @@ DEFAULT_EMBEDDED_THRES1 = 0.1
 DEFAULT_EMBEDDED_MIRROR = True
 
 _ARRAYS = ("poses", "clip_index", "frame_index", "mirrored", "indptr", "indices", "clip_names")
+#: The shapes of a graph file's arrays (``N`` nodes, ``E`` directed edges, ``C`` clips).
+_SHAPES: dict[str, tuple[int | str, ...]] = {
+    "poses": ("N", skeleton.NUM_JOINTS, 3),
+    "clip_index": ("N",),
+    "frame_index": ("N",),
+    "mirrored": ("N",),
+    "indices": ("E",),
+    "clip_names": ("C",),
+    "metadata": (),
+}
 
 
 def _progress_bar(enabled: bool, total: int, desc: str, unit: str) -> Any:
@@ -404,16 +416,9 @@ class FilteredPoseGraph:
             "clip_names": np.array(self.clip_names, dtype=str).reshape(len(self.clip_names)),
             "metadata": np.array(json.dumps(jsonable(metadata))),
         }
-        target.parent.mkdir(parents=True, exist_ok=True)
         # Write beside the target, then rename: readers never see a half-written file.
-        temporary = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
-        try:
-            with open(temporary, "xb") as stream:
-                np.savez(stream, **arrays)
-            os.replace(temporary, target)
-        except BaseException:
-            temporary.unlink(missing_ok=True)
-            raise
+        with atomic_path(target) as temporary, open(temporary, "xb") as stream:
+            np.savez(stream, **arrays)
         return target
 
     @classmethod
@@ -428,13 +433,12 @@ class FilteredPoseGraph:
             If the file is not a graph archive, is corrupt or inconsistent, or has another
             format version (the message names the file).
         """
-        source = Path(path)
-        if not source.is_file():
-            raise FileNotFoundError(f"{source}: no such graph file")
+        source = check_input_file(path)
         if not zipfile.is_zipfile(source):
             raise DataFormatError(source, "not an .npz archive (no zip directory)")
-        # Forged array headers and pickled arrays are refused before numpy allocates anything.
-        check_npz(source, (*_ARRAYS, "metadata"))
+        # Forged array headers, pickled arrays, shapes that do not fit one another and archives
+        # declaring more than the memory ceiling: refused before numpy inflates anything.
+        check_npz(source, (*_ARRAYS, "metadata"), shapes=_SHAPES)
         try:
             loaded = np.load(source, allow_pickle=False)
             if not isinstance(loaded, np.lib.npyio.NpzFile):
@@ -471,6 +475,10 @@ class FilteredPoseGraph:
             json.JSONDecodeError,
         ) as error:
             raise DataFormatError(source, f"corrupt or unreadable graph file ({error})") from error
+        poses = arrays["poses"]
+        if not np.issubdtype(poses.dtype, np.number) or not np.all(np.isfinite(poses)):
+            raise DataFormatError(source, "expected finite numbers (metres)", field="poses")
+        check_plausible(source, poses, field="poses")
         try:
             return cls(
                 arrays["poses"],

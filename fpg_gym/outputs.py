@@ -50,7 +50,10 @@ def same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
             return os.path.samefile(first, second)
     except OSError:
         pass
-    return first.resolve() == second.resolve()
+    try:
+        return first.resolve() == second.resolve()
+    except (OSError, RuntimeError):  # a loop of symbolic links: compare the paths as given
+        return os.path.abspath(first) == os.path.abspath(second)
 
 
 def _expand_inputs(inputs: Iterable[str | os.PathLike[str]]) -> list[Path]:
@@ -154,13 +157,25 @@ def interrupts_deferred() -> Iterator[None]:
 @contextmanager
 def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
     """A temporary path beside ``path``; renamed onto ``path`` when the block succeeds, removed
-    when it fails. Folders are created."""
+    when it fails. Folders are created.
+
+    Raises
+    ------
+    OutputError
+        Writing failed with an ``OSError`` (a full disk, say): the message names ``path``.
+    """
     target = Path(path)
-    target.parent.mkdir(parents=True, exist_ok=True)
     temporary = target.with_name(f".{target.name}.{os.getpid()}.{uuid.uuid4().hex[:8]}.tmp")
     try:
+        target.parent.mkdir(parents=True, exist_ok=True)
         yield temporary
         os.replace(temporary, target)
+    except OSError as error:  # a full disk, a quota, a read-only file system: name the file
+        temporary.unlink(missing_ok=True)
+        raise OutputError(
+            f"{target}: cannot write ({error.strerror or error}); the previous file, if any, "
+            "is left as it was"
+        ) from error
     except BaseException:
         temporary.unlink(missing_ok=True)
         raise

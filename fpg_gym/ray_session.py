@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import os
 import signal
+import socket
 import threading
 from collections.abc import Iterator
 from contextlib import contextmanager
@@ -20,6 +21,7 @@ from fpg_gym.errors import FpgGymError, import_optional
 
 __all__ = [
     "RayUnavailable",
+    "check_address",
     "ray_session",
     "require_ray",
     "restore_signals",
@@ -37,6 +39,59 @@ def require_ray() -> Any:
     return import_optional(  # optional extra fpg-gym[distributed]
         "ray", RayUnavailable("backend 'ray' needs Ray: pip install 'fpg-gym[distributed]'")
     )
+
+
+#: Seconds a Ray address has to accept a connection before it counts as dead.
+CONNECT_TIMEOUT_S = 5.0
+
+
+class RayAddressError(FpgGymError, ValueError):
+    """``--address`` names no Ray cluster that answers (the message names the address)."""
+
+
+def check_address(
+    address: str | None, timeout: float = CONNECT_TIMEOUT_S, *, argument: str = "--address"
+) -> None:
+    """Refuse, within ``timeout`` seconds, a ``HOST:PORT`` address nothing listens on (Ray's
+    own connection attempt retries for minutes and floods the log).
+
+    ``None``, ``"auto"`` and ``"local"`` (Ray's words) are left to Ray; so is a ``ray://``
+    client address's scheme (its host and port are checked).
+
+    Parameters
+    ----------
+    address : str or None
+    timeout : float
+        Seconds to wait for the connection.
+    argument : str
+        Where the address came from, for the message (``--address``, ``RAY_ADDRESS``).
+
+    Raises
+    ------
+    RayAddressError
+        The address is not ``HOST:PORT``, its host is unknown, or no connection is accepted.
+    """
+    if address is None or address in ("auto", "local"):
+        return
+    target = address.removeprefix("ray://")
+    host, colon, port_text = target.rpartition(":")
+    host = host.strip("[]")
+    if not colon or not host or not port_text.isdigit() or not 0 < int(port_text) < 65536:
+        raise RayAddressError(
+            f"{argument} {address!r}: expected HOST:PORT of a Ray cluster's head (e.g. "
+            "10.0.0.5:6379), 'auto' or 'local'"
+        )
+    try:
+        with socket.create_connection((host, int(port_text)), timeout=timeout):
+            pass
+    except socket.gaierror as error:
+        raise RayAddressError(f"{argument} {address}: unknown host ({error.strerror})") from None
+    except OSError as error:
+        reason = "no answer" if isinstance(error, TimeoutError) else error.strerror or error
+        raise RayAddressError(
+            f"{argument} {address}: no Ray cluster answers there ({reason} within "
+            f"{timeout:g} s); start one (`ray start --head`) or check the address"
+        ) from None
 
 
 def signal_handlers() -> dict[int, Any]:
@@ -65,11 +120,17 @@ def ray_session(address: str | None = None, num_cpus: int | None = None) -> Iter
     ------
     RayUnavailable
         Without Ray installed.
+    RayAddressError
+        ``address`` names nothing that answers (:func:`check_address`).
     """
     ray = require_ray()
     if ray.is_initialized():
         yield ray
         return
+    if address is not None:
+        check_address(address)
+    else:
+        check_address(os.environ.get("RAY_ADDRESS"), argument="RAY_ADDRESS")
     handlers = signal_handlers()
     kwargs: dict[str, Any] = {"include_dashboard": False, "log_to_driver": False}
     if address is None and not os.environ.get("RAY_ADDRESS"):

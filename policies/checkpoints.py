@@ -27,13 +27,17 @@ import hashlib
 import json
 import os
 import re
+import zipfile
+import zlib
 from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.errors import DataFormatError, OutputError
+from fpg_gym.io.files import read_json
+from fpg_gym.io.npz import check_npz
 from fpg_gym.jsonable import jsonable
 from fpg_gym.outputs import atomic_path, save_npz
 from policies.imitation import ImitationData
@@ -46,6 +50,15 @@ RUN_FORMAT = "fpg-gym-training-run"
 _DATA_NAME = re.compile(r"^data-(\d{5,})-(\d{5,})\.npz$")
 _FIT_STEM = "fit"
 _DATA_FIELDS = ("observations", "actions", "masks", "episodes", "search_energies")
+#: Shapes of a data file's arrays: ``N`` pairs of ``W`` observation values and ``L`` actions.
+_DATA_SHAPES: dict[str, tuple[int | str, ...]] = {
+    "chunk": ("E",),
+    "observations": ("N", "W"),
+    "actions": ("N", "L"),
+    "masks": ("N", "L"),
+    "episodes": ("N",),
+    "search_energies": ("N",),
+}
 
 
 def settings_digest(settings: Mapping[str, Any]) -> str:
@@ -70,7 +83,7 @@ class RunCheckpoints:
 
     Raises
     ------
-    ValueError
+    OutputError
         When ``folder`` holds a run with other settings and ``restart`` is False (naming the
         settings that differ).
     DataFormatError
@@ -89,7 +102,7 @@ class RunCheckpoints:
         self.settings = jsonable(dict(settings))
         self.digest = settings_digest(self.settings)
         say = log or (lambda _text: None)
-        earlier = self._read_run()
+        earlier = None if restart else self._read_run()  # --restart: even a damaged run.json
         if restart:
             removed = self._remove_own_files()
             if removed:
@@ -101,7 +114,7 @@ class RunCheckpoints:
                 for key in set(old) | set(self.settings)
                 if old.get(key) != self.settings.get(key)
             )
-            raise ValueError(
+            raise OutputError(
                 f"{self.folder}: checkpoints of a run with other settings ({', '.join(changed)}"
                 " differ); give the same settings to go on, or --restart to start over "
                 "(removes its data and fit checkpoints)"
@@ -115,14 +128,15 @@ class RunCheckpoints:
 
     def _read_run(self) -> dict[str, Any] | None:
         path = self.folder / "run.json"
-        if not path.is_file():
+        if not path.exists() and not path.is_symlink():
             return None
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise DataFormatError(path, f"not a JSON file ({error})") from None
+        data = read_json(path)
         if not isinstance(data, dict) or data.get("format") != RUN_FORMAT:
             raise DataFormatError(path, f"expected format {RUN_FORMAT!r}", field="format")
+        if not isinstance(data.get("settings", {}), dict):
+            raise DataFormatError(path, "expected a JSON object of settings", field="settings")
+        if not isinstance(data.get("digest", ""), str):
+            raise DataFormatError(path, "expected a SHA-256 digest", field="digest")
         return data
 
     def _data_files(self) -> list[tuple[int, int, Path]]:
@@ -154,11 +168,27 @@ class RunCheckpoints:
         """Episodes whose pairs are on disk."""
         done: set[int] = set()
         for first, last, path in self._data_files():
-            with np.load(path, allow_pickle=False) as archive:
-                done.update(int(e) for e in archive["chunk"])
+            done.update(int(e) for e in self._read(path, ("chunk",))["chunk"])
             if not done >= {first, last}:
                 raise DataFormatError(path, "the episodes of its name are not in its 'chunk'")
         return done
+
+    @staticmethod
+    def _read(path: Path, names: Sequence[str]) -> dict[str, np.ndarray]:
+        """Arrays of a data file, checked before they are inflated (sizes within the memory
+        ceiling, one row count across them; no pickle); a damaged file is named."""
+        check_npz(path, names, shapes=_DATA_SHAPES)
+        try:
+            with np.load(path, allow_pickle=False) as archive:
+                arrays = {name: np.asarray(archive[name]) for name in names}
+        except (OSError, ValueError, KeyError, EOFError, zlib.error, zipfile.BadZipFile) as error:
+            raise DataFormatError(
+                path, f"not a training-data checkpoint ({error}); --restart starts over"
+            ) from None
+        for name, array in arrays.items():
+            if not np.issubdtype(array.dtype, np.number) and array.dtype != bool:
+                raise DataFormatError(path, f"expected numbers, got {array.dtype}", field=name)
+        return arrays
 
     def save_chunk(self, episodes: Sequence[int], data: ImitationData) -> Path:
         """Write the pairs of one finished chunk of ``episodes`` (ascending)."""
@@ -173,9 +203,12 @@ class RunCheckpoints:
         fresh = set(np.unique(new.episodes).tolist())
         parts = []
         for _, _, path in self._data_files():
-            with np.load(path, allow_pickle=False) as archive:
-                if fresh.isdisjoint(archive["chunk"].tolist()):
-                    parts.append(ImitationData(*(archive[f] for f in _DATA_FIELDS)))
+            arrays = self._read(path, ("chunk", *_DATA_FIELDS))
+            if fresh.isdisjoint(arrays["chunk"].tolist()):
+                try:
+                    parts.append(ImitationData(*(arrays[f] for f in _DATA_FIELDS)))
+                except (TypeError, ValueError) as error:
+                    raise DataFormatError(path, f"inconsistent arrays ({error})") from None
         if not parts:
             return new
         # Each episode's rows are contiguous and in frame order: a stable sort by episode gives

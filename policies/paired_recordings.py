@@ -12,7 +12,7 @@ whole groups out, so no setting is chosen on a group its fit saw.
 from __future__ import annotations
 
 import re
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -21,6 +21,7 @@ import numpy as np
 
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io import expand_inputs, read_recording
+from fpg_gym.io.files import file_digest
 
 __all__ = ["PairedRecordings", "group_pattern", "paired_recordings", "recording_paths"]
 
@@ -88,6 +89,7 @@ def paired_recordings(
     episodes: int = 6,
     max_frames: int | None = None,
     seed: int = 0,
+    log: Callable[[str], None] | None = None,
 ) -> PairedRecordings:
     """Read paired recordings and hold out a seeded share of their groups.
 
@@ -98,7 +100,8 @@ def paired_recordings(
         :func:`fpg_gym.io.read_recording` reads that carries ground truth.
     pattern : str, optional
         Regular expression searched in each file name (without suffix); its first group is the
-        recording's group. None: each recording is its own group.
+        recording's group. None: each recording is its own group (named by its file name, or
+        by its path when files in two folders share a name).
     val_share : float
         Share of the groups held out (at least one; at least two groups stay for the
         cross-validation).
@@ -108,6 +111,9 @@ def paired_recordings(
         Keep the first frames of each recording.
     seed : int
         Seed of the held-out groups' draw.
+    log : callable, optional
+        Receives a note for each file whose content was already read (given twice, or a copy):
+        it is read once.
 
     Raises
     ------
@@ -117,8 +123,19 @@ def paired_recordings(
         A file name the pattern does not match, or fewer than 3 groups.
     """
     compiled = group_pattern(pattern)
+    say = log or (lambda _text: None)
     loaded: list[tuple[str, Path, Any]] = []
+    paths: list[Path] = []
+    seen: dict[str, Path] = {}
     for path in recording_paths(items):
+        digest = file_digest(path)
+        if digest in seen:  # one recording twice would weigh twice in the fit
+            say(f"note: --recordings {path}: the same recording as {seen[digest]}; read once")
+            continue
+        seen[digest] = path
+        paths.append(path)
+    stems = [path.stem for path in paths]
+    for path in paths:
         recording = read_recording(path)
         if recording.ground_truth is None:
             raise DataFormatError(
@@ -126,8 +143,8 @@ def paired_recordings(
                 "no ground truth: a sampler learns from paired recordings (a sensor stream "
                 "with its reference, e.g. fpg-gym import-uiprmd's repetitions)",
             )
-        if compiled is None:
-            group = path.stem
+        if compiled is None:  # its own group: named by its path where two share a name
+            group = path.stem if stems.count(path.stem) == 1 else path.with_suffix("").as_posix()
         else:
             match = compiled.search(path.stem)
             if match is None or match.group(1) is None:

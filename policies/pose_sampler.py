@@ -57,6 +57,8 @@ from __future__ import annotations
 
 import copy
 import os
+import zipfile
+import zlib
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
@@ -66,6 +68,7 @@ import numpy as np
 from fpg_gym import poses as pose_utils
 from fpg_gym.env_observation import CONTEXT_NAMES
 from fpg_gym.errors import DataFormatError
+from fpg_gym.io.npz import check_npz
 from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import quadratic_minimiser
 from policies.output_correction import CORRECTION_ARRAYS, RidgeOutputCorrection
@@ -75,6 +78,7 @@ from policies.sampler import (
     FeatureMap,
     GaussianSampler,
     SamplerSpec,
+    check_model_values,
     model_paths,
 )
 
@@ -304,20 +308,28 @@ class LinearPoseSampler(GaussianSampler):
         if spec.hyperparameters.get("output_correction") is not None:
             shapes.update({_CORRECTION_PREFIX + k: v for k, v in CORRECTION_ARRAYS.items()})
         names = list(shapes)
+        # Shapes and sizes from the array headers, before anything is inflated.
+        try:
+            check_npz(weights, names, shapes=shapes)
+        except DataFormatError as error:
+            raise DataFormatError(
+                weights, f"not a linear sampler's arrays ({error.reason})", field=error.field
+            ) from None
         try:
             with np.load(weights, allow_pickle=False) as data:
                 arrays = {name: np.array(data[name], dtype=np.float64) for name in names}
-        except (OSError, ValueError, KeyError) as error:
+        except (OSError, ValueError, KeyError, EOFError, zlib.error, zipfile.BadZipFile) as error:
             raise DataFormatError(weights, f"not a linear sampler's arrays ({error})") from None
         for name, shape in shapes.items():
-            if arrays[name].shape != shape or not np.all(np.isfinite(arrays[name])):
+            if arrays[name].shape != shape:
                 raise DataFormatError(
-                    weights,
-                    f"expected finite values of shape {shape}, got {arrays[name].shape}",
-                    field=name,
+                    weights, f"expected shape {shape}, got {arrays[name].shape}", field=name
                 )
+            check_model_values(weights, name, arrays[name])
         if np.any(arrays["regressor_scale"] <= 0):
             raise DataFormatError(weights, "expected positive scales", field="regressor_scale")
+        if np.any(arrays["std"] < 0):
+            raise DataFormatError(weights, "expected non-negative spreads", field="std")
         try:  # the correction's settings and scales: RidgeOutputCorrection checks them
             return cls(spec, arrays, seed)
         except (TypeError, KeyError, ValueError) as error:

@@ -68,9 +68,13 @@ import numpy as np
 
 from fpg_gym.env_observation import CONTEXT_NAMES, LATENT_LIMIT, ObservationLayout
 from fpg_gym.errors import DataFormatError, import_optional
+from fpg_gym.io.files import read_json
+from fpg_gym.io.npz import check_zip
 from fpg_gym.jsonable import jsonable
+from fpg_gym.outputs import write_text
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE, quadratic_minimiser
 from fpg_gym.reconstruct.energy import EnergyWeights
+from fpg_gym.validation import check_number
 from optimizers import MissingDependency
 
 __all__ = [
@@ -102,6 +106,9 @@ FORMAT_VERSION = 2
 WEIGHTS_SUFFIX = ".pt"
 #: Bounds on what a JSON may ask to build (a hostile file must not exhaust memory).
 MAX_LAYER_WIDTH = 8192
+#: Largest magnitude of a model's number (weights, biases, scales, settings): a trained model's
+#: values are far smaller; 1e300 or a value beyond float32 is a corrupt or forged file.
+MAX_MODEL_VALUE = 1e6
 MAX_LAYERS = 16
 MAX_LATENT_DIM = 1024
 MAX_CANDIDATES = 4096
@@ -483,8 +490,20 @@ class SamplerSpec:
             raise ValueError(f"action_mode: expected 'delta' or 'absolute', got {self.action_mode}")
         if self.anchor not in ANCHORS:
             raise ValueError(f"anchor: expected one of {ANCHORS}, got {self.anchor!r}")
-        if len(self.energy_weights) != 4:
+        if not isinstance(self.energy_weights, list | tuple) or len(self.energy_weights) != 4:
             raise ValueError(f"energy_weights: expected 4 weights, got {self.energy_weights}")
+        for index, weight in enumerate(self.energy_weights):
+            check_number(weight, f"energy_weights[{index}]", low=0, high=MAX_MODEL_VALUE)
+        check_number(self.action_scale, "action_scale", low=0, high=1e3, low_open=True)
+        check_number(self.anchor_style, "anchor_style", low=0, high=MAX_MODEL_VALUE)
+        check_number(self.frame_dt, "frame_dt", low=1e-3, high=1.0)
+        if not isinstance(self.features, list | tuple) or not all(
+            isinstance(f, str) for f in self.features
+        ):
+            raise ValueError(f"features: expected a list of field names, got {self.features!r}")
+        for name in ("hyperparameters", "training"):
+            if not isinstance(getattr(self, name), dict):
+                raise ValueError(f"{name}: expected a JSON object, got {getattr(self, name)!r}")
         size = ObservationLayout.of(self.latent_dim, self.candidates).size
         if size != self.observation_size:
             raise ValueError(
@@ -578,10 +597,7 @@ class SamplerSpec:
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the JSON to ``path``."""
-        target = Path(path)
-        target.parent.mkdir(parents=True, exist_ok=True)
-        target.write_text(json.dumps(jsonable(self.to_json()), indent=2) + "\n")
-        return target
+        return write_text(path, json.dumps(jsonable(self.to_json()), indent=2) + "\n")
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> SamplerSpec:
@@ -593,10 +609,7 @@ class SamplerSpec:
             Not a sampler file, an unknown version, or values out of range.
         """
         source = Path(path)
-        try:
-            data = json.loads(source.read_bytes().decode("utf-8"))
-        except (json.JSONDecodeError, UnicodeDecodeError, RecursionError) as error:
-            raise DataFormatError(source, f"not a JSON file ({error})") from None
+        data = read_json(source)
         if not isinstance(data, dict) or data.get("format") != FORMAT:
             raise DataFormatError(
                 source, f"not an fpg-gym sampler description (format {FORMAT!r})", field="format"
@@ -618,6 +631,10 @@ class SamplerSpec:
             raise DataFormatError(source, f"bad sampler description ({error})") from None
         if not isinstance(spec.hyperparameters, dict):
             raise DataFormatError(source, "expected a JSON object", field="hyperparameters")
+        try:
+            spec.feature_map()  # the observation fields it reads, known and fitting the layout
+        except (TypeError, ValueError) as error:
+            raise DataFormatError(source, str(error), field="features") from None
         return spec
 
 
@@ -674,6 +691,7 @@ def load_weights_file(path: str | os.PathLike[str]) -> dict[str, Any]:
                 else ""
             ),
         )
+    check_zip(source)  # declared sizes within the memory ceiling, before torch inflates it
     try:
         state = torch.load(source, map_location="cpu", weights_only=True)
     except Exception as error:  # the weights-only unpickler's errors vary (UnpicklingError, ...)
@@ -683,7 +701,31 @@ def load_weights_file(path: str | os.PathLike[str]) -> dict[str, Any]:
         isinstance(k, str) and isinstance(v, torch.Tensor) for k, v in state.items()
     ):
         raise DataFormatError(source, f"{refuse}; expected a mapping of names to tensors")
+    for name, tensor in state.items():
+        if tensor.is_floating_point() or tensor.is_complex():
+            check_model_values(source, name, tensor.detach().double().numpy())
     return dict(state)
+
+
+def check_model_values(source: str | os.PathLike[str], name: str, values: Any) -> None:
+    """Refuse a model array holding NaN, inf or a magnitude beyond :data:`MAX_MODEL_VALUE`.
+
+    Raises
+    ------
+    DataFormatError
+        Naming ``source`` and the array ``name``.
+    """
+    array = np.asarray(values, dtype=np.float64)
+    if not np.all(np.isfinite(array)):
+        raise DataFormatError(source, "NaN or inf in a model's numbers", field=name)
+    largest = float(np.abs(array).max(initial=0.0))
+    if largest > MAX_MODEL_VALUE:
+        raise DataFormatError(
+            source,
+            f"a value of {largest:g}: not a trained model's (expected magnitudes up to "
+            f"{MAX_MODEL_VALUE:g})",
+            field=name,
+        )
 
 
 def load_weights_into(

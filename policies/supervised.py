@@ -44,8 +44,11 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from fpg_gym.errors import DataFormatError
+from fpg_gym.io.files import read_json
+from fpg_gym.io.npz import check_zip
 from fpg_gym.jsonable import jsonable
 from fpg_gym.outputs import atomic_path
+from fpg_gym.validation import check_number
 from policies.sampler import (
     WEIGHTS_SUFFIX,
     GaussianSampler,
@@ -225,6 +228,17 @@ class SupervisedSampler(GaussianSampler):
 def _build(spec: SamplerSpec, in_size: int, source: str | os.PathLike[str] = "") -> Any:
     hyper = {**SUPERVISED_DEFAULTS, **spec.hyperparameters}
     hidden = check_layer_widths(hyper["hidden"], "hyperparameters.hidden", source)
+    for name in ("min_log_std", "max_log_std"):  # a std of e^1e308 is no model's
+        try:
+            check_number(hyper[name], name, low=-20.0, high=5.0)
+        except ValueError as error:
+            raise DataFormatError(source, str(error), field=f"hyperparameters.{name}") from None
+    if hyper["min_log_std"] > hyper["max_log_std"]:
+        raise DataFormatError(
+            source,
+            f"min_log_std {hyper['min_log_std']} is above max_log_std {hyper['max_log_std']}",
+            field="hyperparameters",
+        )
     try:
         return _module_class()(
             in_size,
@@ -307,13 +321,10 @@ class FitState:
         torch = import_learn("torch")
         stem = Path(stem)
         source = stem.with_suffix(".json")
-        try:
-            data = json.loads(source.read_text(encoding="utf-8"))
-        except (OSError, json.JSONDecodeError, UnicodeDecodeError) as error:
-            raise DataFormatError(source, f"not a readable JSON file ({error})") from None
+        data = read_json(source)
         if not isinstance(data, dict) or data.get("format") != FIT_STATE_FORMAT:
             raise DataFormatError(source, f"expected format {FIT_STATE_FORMAT!r}", field="format")
-        weights = stem.with_suffix(WEIGHTS_SUFFIX)
+        weights = check_zip(stem.with_suffix(WEIGHTS_SUFFIX))  # sizes before torch inflates
         try:
             tensors = torch.load(weights, map_location="cpu", weights_only=True)
         except Exception as error:  # torch raises several kinds on a bad file

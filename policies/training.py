@@ -14,7 +14,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import importlib.metadata as md
 import importlib.util
 import time
@@ -30,13 +29,15 @@ from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.definitions import DefinitionMap
 from fpg_gym.env import REWARD_MODES
 from fpg_gym.graph import load_graph
-from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, resolve_clips
+from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, find_mocap_files, resolve_clips
+from fpg_gym.io.files import file_digest
 from fpg_gym.poses import mirror
-from fpg_gym.ray_session import require_ray
+from fpg_gym.ray_session import check_address, require_ray
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.simulate import simulate_clips
+from fpg_gym.validation import check_integer, check_number
 from optimizers.random_search import RandomSearch
 from policies.checkpoints import RunCheckpoints
 from policies.imitation import (
@@ -50,7 +51,12 @@ from policies.imitation import (
 )
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
 from policies.output_correction import CorrectionSource, learn_correction
-from policies.paired_recordings import PairedRecordings, group_pattern, paired_recordings
+from policies.paired_recordings import (
+    PairedRecordings,
+    group_pattern,
+    paired_recordings,
+    recording_paths,
+)
 from policies.pose_sampler import (
     LINEAR_FEATURES,
     LinearPoseSampler,
@@ -438,6 +444,12 @@ class TrainConfig:
             )
         if self.algo not in ("ppo", "sac"):
             raise ValueError(f"algo: expected 'ppo' or 'sac', got {self.algo!r}")
+        check_integer(self.seed, "seed", low=0)
+        check_integer(self.k, "k", low=1)
+        check_integer(self.latent_dim, "latent_dim", low=1)
+        if self.eval_every is not None:
+            check_integer(self.eval_every, "eval_every", low=1)
+        check_number(self.action_scale, "action_scale", low=0, low_open=True)
         if self.target not in TARGETS:
             raise ValueError(f"target: expected one of {TARGETS}, got {self.target!r}")
         if self.follow not in FOLLOW or (
@@ -493,11 +505,17 @@ class TrainConfig:
         for name in _RUN_INDEPENDENT:
             settings.pop(name)
         if self.graph != "default" and Path(self.graph).is_file():
-            settings["graph_sha256"] = hashlib.sha256(Path(self.graph).read_bytes()).hexdigest()
+            settings["graph_sha256"] = file_digest(self.graph)
         if self.sensor_map is not None and Path(self.sensor_map).is_file():
-            settings["sensor_map_sha256"] = hashlib.sha256(
-                Path(self.sensor_map).read_bytes()
-            ).hexdigest()
+            settings["sensor_map_sha256"] = file_digest(self.sensor_map)
+        # The data's content, not its names: an edited take under the same path is new data.
+        for name, items, find in (
+            ("clips", self.clips, find_mocap_files),
+            ("val_clips", self.val_clips, find_mocap_files),
+            ("recordings", self.recordings, recording_paths),
+        ):
+            if items is not None:
+                settings[f"{name}_sha256"] = _content_digests(items, find)
         return settings
 
     def reconstructor_options(self) -> dict[str, Any]:
@@ -540,6 +558,20 @@ class TrainResult:
     seconds: dict[str, float]
 
 
+def _content_digests(
+    items: Sequence[str], find: Callable[[Sequence[str]], list[Path]]
+) -> list[str]:
+    """SHA-256 of every file ``items`` name (folders expanded by ``find``), in order; an item
+    that names no file (``default``, an embedded clip's name) stands for itself."""
+    digests: list[str] = []
+    for item in items:
+        if Path(item).exists():
+            digests.extend(file_digest(path) for path in find([item]))
+        else:
+            digests.append(str(item))
+    return digests
+
+
 def _load_graph(name: str) -> Any:
 
     if name != "default" and not Path(name).is_file():
@@ -576,6 +608,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         import_learn("stable_baselines3")
     if config.backend == "ray":
         require_ray()  # before any work
+        check_address(config.address)  # a dead address fails now, not after minutes
     say = log or (lambda text: print(text, flush=True))
     started = time.perf_counter()
     seconds: dict[str, float] = {}
@@ -591,6 +624,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             episodes=config.eval_episodes,
             max_frames=config.max_frames,
             seed=config.seed,
+            log=say,
         )
         validation = paired.validation
         say(
@@ -633,6 +667,12 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             "validation_clips": [c.name for c in val_clips],
             "scenarios": scenarios,
         }
+    if config.kind == "linear":  # before any work: the fit cross-validates over whole units
+        _check_linear_units(
+            [group for group, _ in paired.train]
+            if paired is not None
+            else [c.name.removesuffix("~mirror") for c in train_clips]
+        )
     out_json, stem = model_paths(config.out)
     checkpoints = stem.with_name(stem.name + ".checkpoints")
     # A supervised run goes on from a stopped one's files (or refuses other settings) now,
@@ -922,6 +962,19 @@ def _train_linear(
     return sampler, history
 
 
+def _check_linear_units(units: Sequence[str]) -> None:
+    """Refuse fewer than 2 distinct training clips or groups (the linear fit cross-validates
+    its settings over them; a clip's mirror image is the same unit)."""
+    distinct = sorted(set(units))
+    if len(distinct) < 2:
+        raise ValueError(
+            "kind 'linear': cross-validation needs at least 2 training clips or groups, got "
+            f"{len(distinct)} ({', '.join(distinct) or 'none'}) once the held-out share "
+            "(--val-share) is set apart; give more --clips (or --recordings groups), or "
+            "--val-clips"
+        )
+
+
 def _fit_linear_groups(
     spec: SamplerSpec,
     data: ImitationData,
@@ -933,10 +986,7 @@ def _fit_linear_groups(
     units (``unit``: each frame's clip or recording group, a label), dealt in sorted order;
     also each frame's group."""
     units, index = np.unique(unit, return_inverse=True)
-    if len(units) < 2:
-        raise ValueError(
-            "kind 'linear': cross-validation needs at least 2 training clips or groups"
-        )
+    _check_linear_units(units.tolist())
     group = index % min(LINEAR_GROUPS, len(units))
     groups = [
         (data.observations[take], data.actions[take], data.episodes[take])

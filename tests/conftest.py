@@ -48,6 +48,28 @@ def tiny_bvh(frames: list[str], frame_time: str = "0.0333333") -> str:
     return TINY_BVH_HIERARCHY + "\n".join(lines) + "\n"
 
 
+def one_error_line(capsys: pytest.CaptureFixture[str], command: str) -> str:
+    """The single error line of a failed command on stderr: asserts there is exactly one, of
+    the form ``fpg-gym COMMAND: error: ...``, and no traceback (a progress bar may precede it)."""
+    err = capsys.readouterr().err
+    lines = [line for line in err.splitlines() if ": error:" in line]
+    assert len(lines) == 1, err
+    assert lines[0].startswith(f"fpg-gym {command}: error: "), err
+    assert "Traceback" not in err
+    return lines[0]
+
+
+def exit_status(argv: list[str]) -> int:
+    """``fpg_gym.cli.main``'s exit status, whether returned or raised (argparse raises
+    SystemExit)."""
+    from fpg_gym.cli import main
+
+    try:
+        return main(argv)
+    except SystemExit as exit_:
+        return int(exit_.code or 0)
+
+
 def shared_path(*parts: str) -> Path:
     """A path under ``../shared/data``; skips the calling test when it does not exist."""
     path = SHARED_DATA.joinpath(*parts)

@@ -32,7 +32,8 @@ _J = skeleton.joint_index
 def stream() -> Recording:
     """A clean, Kinect-like stream (no occlusion) with its truth, 3 s long (walk, looped)."""
     clip = load_default_clips(["walk"])[0]
-    positions = np.concatenate([clip.positions + (i * 0.6, 0.0, 0.0) for i in range(3)])[:90]
+    step = np.array([0.6, 0.0, 0.0])
+    positions = np.concatenate([clip.positions + i * step for i in range(3)])[:90]
     return simulate(positions, "clean", seed=3)
 
 

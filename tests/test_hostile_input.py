@@ -25,7 +25,7 @@ from typing import Any
 
 import numpy as np
 import pytest
-from conftest import tiny_bvh
+from conftest import exit_status, one_error_line, tiny_bvh
 
 from fpg_gym import skeleton
 from fpg_gym.cli import main
@@ -53,17 +53,6 @@ def recording() -> Any:
     return simulate(load_default_clips(["punch"])[0], "front-many", seed=2).head(40)
 
 
-def _one_error_line(capsys: pytest.CaptureFixture[str], command: str) -> str:
-    """The single error line of a failed command on stderr (asserts there is exactly one; a
-    progress bar may precede it)."""
-    err = capsys.readouterr().err
-    lines = [line for line in err.splitlines() if ": error:" in line]
-    assert len(lines) == 1, err
-    assert lines[0].startswith(f"fpg-gym {command}: error: "), err
-    assert "Traceback" not in err
-    return lines[0]
-
-
 # --------------------------------------------------------------------------- outputs
 
 
@@ -73,12 +62,12 @@ def test_build_graph_refuses_to_overwrite_its_input(
     clip = write_positions(tmp_path / "walk.npz", load_default_clips(["walk"])[0])
     before = clip.read_bytes()
     assert main(["build-graph", str(clip), "--out", str(clip), "--quiet"]) == 2
-    assert "is the input" in _one_error_line(capsys, "build-graph")
+    assert "is the input" in one_error_line(capsys, "build-graph")
     assert clip.read_bytes() == before
     # The same file through a folder and another spelling of its path.
     spelled = tmp_path / "." / "walk.npz"
     assert main(["build-graph", str(tmp_path), "--out", str(spelled), "--quiet"]) == 2
-    _one_error_line(capsys, "build-graph")
+    one_error_line(capsys, "build-graph")
     assert clip.read_bytes() == before
 
 
@@ -92,7 +81,7 @@ def test_reconstruct_refuses_to_overwrite_its_input(
     out = str(tmp_path / out_name)
     argv = ["reconstruct", "--input", str(source), "--method", "raw", "--out", out]
     assert main(argv) == 2
-    assert "is the input" in _one_error_line(capsys, "reconstruct")
+    assert "is the input" in one_error_line(capsys, "reconstruct")
     assert source.read_bytes() == before
 
 
@@ -110,7 +99,7 @@ def test_simulate_refuses_to_overwrite_its_input(
     clip = write_positions(tmp_path / "walk.npz", load_default_clips(["walk"])[0])
     before = clip.read_bytes()
     assert main(["simulate", str(clip), "--out", str(tmp_path / "walk")]) == 2
-    assert "is the input" in _one_error_line(capsys, "simulate")
+    assert "is the input" in one_error_line(capsys, "simulate")
     assert clip.read_bytes() == before
 
 
@@ -141,7 +130,7 @@ def test_bad_outputs_are_refused_before_any_work(
     for out, message in cases.items():
         argv = ["reconstruct", "--input", str(source), "--method", "holt", "--out", out]
         assert main(argv) == 2
-        assert message in _one_error_line(capsys, "reconstruct")
+        assert message in one_error_line(capsys, "reconstruct")
     assert not calls
 
 
@@ -264,12 +253,12 @@ def test_compare_fresh_refuses_a_folder_it_did_not_create(
     before = sorted(str(p) for p in folder.rglob("*"))
     argv = ["compare", "--inputs", str(source), "--methods", "raw", "--workers", "1"]
     assert main([*argv, "--out", str(folder), "--fresh", "--quiet", "--no-plots"]) == 2
-    assert "did not write" in _one_error_line(capsys, "compare")
+    assert "did not write" in one_error_line(capsys, "compare")
     assert sorted(str(p) for p in folder.rglob("*")) == before
     assert (folder / "report.md").read_text() == "my notes"
     # Without --fresh it refuses too: it would overwrite report.md.
     assert main([*argv, "--out", str(folder), "--quiet", "--no-plots"]) == 2
-    _one_error_line(capsys, "compare")
+    one_error_line(capsys, "compare")
     assert (folder / "report.md").read_text() == "my notes"
 
 
@@ -325,7 +314,7 @@ def test_argument_file_lines_are_never_options(
     argv = ["compare", "--clips", f"@{listing}", "--scenarios", "front-many"]
     argv += ["--methods", "raw,holt", "--max-frames", "12", "--budget", "100"]
     assert main([*argv, "--workers", "1", "--out", str(out), "--quiet", "--no-plots"]) == 2
-    line = _one_error_line(capsys, "compare")
+    line = one_error_line(capsys, "compare")
     assert "clips.txt, line 2" in line and "never options" in line
     assert len(list(csv.DictReader((out / "results.csv").open()))) == 2  # nothing deleted
 
@@ -626,9 +615,7 @@ def test_corrupt_gzip_is_a_project_error_naming_the_file(tmp_path: Path, recordi
 
 
 def test_a_gzip_bomb_is_refused(tmp_path: Path, monkeypatch: Any) -> None:
-    from fpg_gym.io import _compression
-
-    monkeypatch.setattr(_compression, "MAX_DECOMPRESSED_BYTES", 1 << 20)
+    monkeypatch.setenv("FPG_GYM_MAX_INPUT_MB", "1")  # the memory ceiling, lowered
     path = tmp_path / "bomb.bvh.gz"
     path.write_bytes(gzip.compress(b"0 " * (1 << 20)))  # 2 MiB from 2 KiB
     with pytest.raises(DataFormatError, match=r"bomb\.bvh\.gz: gzip data expands beyond 1 MiB"):
@@ -699,21 +686,13 @@ def test_every_bad_input_is_one_line_with_status_2(
         ("read", ["read", f"@{tmp_path / 'no-list.txt'}"]),
     ]
     for command, argv in cases:
-        assert _status(argv) == 2, argv
-        _one_error_line(capsys, command)
+        assert exit_status(argv) == 2, argv
+        one_error_line(capsys, command)
     assert not Path("x.npz").exists() and not Path("y.npz").exists()
-
-
-def _status(argv: list[str]) -> int:
-    """``main``'s exit status, whether returned or raised (argparse raises SystemExit)."""
-    try:
-        return main(argv)
-    except SystemExit as exit_:
-        return int(exit_.code or 0)
 
 
 def test_argparse_errors_exit_2_on_one_line(capsys: pytest.CaptureFixture[str]) -> None:
     with pytest.raises(SystemExit) as info:
         main(["reconstruct", "--input", "x.npz", "--format", "bvh", "--out", "o.npz"])
     assert info.value.code == 2
-    _one_error_line(capsys, "reconstruct")
+    one_error_line(capsys, "reconstruct")

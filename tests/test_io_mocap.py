@@ -262,7 +262,7 @@ def test_deepmimic_forward_kinematics_matches_pybullet() -> None:
 @pytest.mark.parametrize(
     ("content", "message"),
     [
-        ("{not json", "not valid JSON"),
+        ("{not json", "not JSON"),
         ('{"Loop": "none"}', "expected a JSON object with a 'Frames' list"),
         ('{"Frames": []}', "the clip has no frames"),
         ('{"Frames": [[0.1, 1, 2]]}', "frame 0 has 3 values, expected 44"),

@@ -29,7 +29,7 @@ AZURE_INDEX = np.array(
 
 def kinect_poses(rng: np.random.Generator, frames: int = 6) -> np.ndarray:
     """Kinect-20 camera-space poses (metres) about 2 m in front of the sensor."""
-    return (rng.normal(scale=0.3, size=(frames, 20, 3)) + np.array([0.0, 0.0, 2.0])).astype(
+    return (rng.normal(scale=0.2, size=(frames, 20, 3)) + np.array([0.0, 0.0, 2.0])).astype(
         np.float32
     )
 

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from fpg_gym.commands import types
+
 NAME = "build-graph"
 HELP = "build a Filtered Pose Graph (FPG Alg. 1-4) from mocap clips and save it as .npz"
 
@@ -38,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--units", default="auto", choices=["auto", "m", "cm", "mm"], help="BVH units"
     )
-    parser.add_argument("--workers", type=int, default=None, help="reader processes")
+    parser.add_argument("--workers", type=types.workers, default=None, help="reader processes")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 

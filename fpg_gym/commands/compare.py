@@ -6,6 +6,7 @@ import argparse
 import os
 from typing import Any
 
+from fpg_gym.commands import types
 from fpg_gym.commands.reconstruct import add_calibration_arguments
 
 NAME = "compare"
@@ -46,6 +47,10 @@ def _seeds(text: str) -> list[int]:
         ) from None
     if not values or any(v < 0 for v in values):
         raise argparse.ArgumentTypeError(f"expected non-negative integers, got {text!r}")
+    if len(set(values)) < len(values):
+        raise argparse.ArgumentTypeError(
+            f"a seed given twice in {text!r}; each seed is one set of episodes"
+        )
     return values
 
 
@@ -110,7 +115,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--seeds", type=_seeds, default=[0], metavar="S,T", help="seeds (default 0)"
     )
     source.add_argument(
-        "--max-frames", type=int, default=None, metavar="N", help="first N frames per episode"
+        "--max-frames",
+        type=types.integer(3),
+        default=None,
+        metavar="N",
+        help="first N frames per episode",
     )
     methods = parser.add_argument_group("methods")
     methods.add_argument(
@@ -145,9 +154,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--baseline", default="fpg:local-search", help="method for the paired tests"
     )
     methods.add_argument(
-        "--budget", type=int, default=2000, help="energy evaluations per frame (default 2000)"
+        "--budget",
+        type=types.integer(0),
+        default=2000,
+        help="energy evaluations per frame (default 2000)",
     )
-    methods.add_argument("--k", type=int, default=30, help="candidates per frame (default 30)")
+    methods.add_argument(
+        "--k", type=types.integer(1), default=30, help="candidates per frame (default 30)"
+    )
     methods.add_argument(
         "--sensor-map", metavar="MAP.json", help="joint-definition map, sensor -> database"
     )
@@ -157,14 +171,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_calibration_arguments(methods)
     parser.add_argument(
         "--workers",
-        type=int,
+        type=types.workers,
         default=None,
         help="worker processes (default: CPU count; 1 runs in this process); with "
         "--backend ray and no --address, the CPUs of the local Ray instance",
     )
     parser.add_argument(
         "--batch",
-        type=int,
+        type=types.integer(1),
         default=8,
         metavar="N",
         help="episodes of one reconstruction method run side by side in a process, their "
@@ -227,7 +241,8 @@ def run(args: argparse.Namespace) -> int:
         f"{outcome.tasks_run} runs finished now, {outcome.tasks_skipped} kept from before; "
         f"{outcome.seconds:.1f} s{state}"
     )
-    print(f"written          {outcome.out}/report.md, results.csv, summary.json, *.png")
+    written = ["report.md", "results.csv", "summary.json", *summary.get("plots", {}).values()]
+    print(f"written          {outcome.out}/{', '.join(written)}")
     if args.json:
         emit_json(
             {

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from fpg_gym.commands import types
+
 NAME = "demo"
 HELP = (
     "the whole job on the embedded data (no files needed): graph, simulated Kinect episodes, "
@@ -27,9 +29,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="methods to run instead of the demo's set (see `fpg-gym compare --help`)",
     )
     parser.add_argument(
-        "--workers", type=int, default=None, help="processes (default: min(2, CPU count))"
+        "--workers", type=types.workers, default=None, help="processes (default: min(2, CPU count))"
     )
-    parser.add_argument("--seed", type=int, default=0, help="simulator/optimiser seed (0)")
+    parser.add_argument("--seed", type=types.seed, default=0, help="simulator/optimiser seed (0)")
     parser.add_argument("--no-gif", action="store_true", help="skip the animated GIF")
     parser.add_argument(
         "--no-view", action="store_true", help="skip demo.rrd (the 3D view; needs fpg-gym[view])"

@@ -37,6 +37,45 @@ def _format(path: Any) -> str:
     return suffix
 
 
+def _timestamps(path: str, stamps: Any, count: int) -> tuple[Any, float, str]:
+    """``(timestamps, fps, note)`` of the exported frames: the file's timestamps, checked
+    (one per frame, finite, increasing, a plausible rate), or 30 Hz when it has none (said in
+    the note).
+
+    Raises
+    ------
+    DataFormatError
+        Timestamps that do not fit the poses, naming the file and the field.
+    """
+    import numpy as np
+
+    from fpg_gym.errors import DataFormatError
+    from fpg_gym.io.plausibility import check_frame_rate
+
+    if stamps is None:
+        return np.arange(count) / 30.0, 30.0, " (no timestamps in the file: 30 Hz assumed)"
+    stamps = np.asarray(stamps)
+    if stamps.shape != (count,) or not np.issubdtype(stamps.dtype, np.number):
+        raise DataFormatError(
+            path,
+            f"expected {count} numbers (one per frame), got shape {stamps.shape} of {stamps.dtype}",
+            field="timestamps",
+        )
+    stamps = stamps.astype(np.float64)
+    steps = np.diff(stamps)
+    if not np.all(np.isfinite(stamps)) or np.any(steps < 0):
+        raise DataFormatError(
+            path, "expected finite seconds that never decrease", field="timestamps"
+        )
+    if count > 1 and not np.any(steps > 0):
+        raise DataFormatError(
+            path, "every frame has the same time; expected seconds", field="timestamps"
+        )
+    fps = float(1.0 / np.median(steps[steps > 0])) if count > 1 else 30.0
+    check_frame_rate(path, fps, field="timestamps")
+    return stamps, fps, ""
+
+
 def run(args: argparse.Namespace) -> int:
     """Write the file; print what was written."""
     import numpy as np
@@ -47,6 +86,7 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym.io.bvh_write import write_bvh
     from fpg_gym.io.kinect import write_csv
     from fpg_gym.io.npz import load_npz
+    from fpg_gym.io.plausibility import check_plausible
     from fpg_gym.outputs import atomic_path, check_output
 
     kind = _format(args.out)
@@ -62,13 +102,11 @@ def run(args: argparse.Namespace) -> int:
         raise DataFormatError(
             args.input, f"expected (T, 20, 3) poses, got shape {poses.shape}", field=key
         )
+    if not np.all(np.isfinite(poses)):
+        raise DataFormatError(args.input, "NaN or inf in the poses", field=key)
+    check_plausible(args.input, poses, field=key)
     count = len(poses)
-    stamps = arrays.get("timestamps")
-    if stamps is None or np.shape(stamps) != (count,):
-        stamps = np.arange(count) / 30.0
-    stamps = np.asarray(stamps, dtype=np.float64)
-    steps = np.diff(stamps)
-    fps = float(1.0 / np.median(steps[steps > 0])) if np.any(steps > 0) else 30.0
+    stamps, fps, rate_note = _timestamps(args.input, arrays.get("timestamps"), count)
     if kind == "bvh":
         write_bvh(out, poses, fps=fps)
     else:
@@ -79,5 +117,5 @@ def run(args: argparse.Namespace) -> int:
         )
         with atomic_path(out) as partial:
             write_csv(partial, recording)
-    print(f"written          {out} ({count} frames of {key!r}, {fps:.3g} Hz, {kind})")
+    print(f"written          {out} ({count} frames of {key!r}, {fps:.3g} Hz{rate_note}, {kind})")
     return 0

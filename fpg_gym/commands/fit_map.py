@@ -46,14 +46,17 @@ def run(args: argparse.Namespace) -> int:
     from fpg_gym.graph import load_graph
     from fpg_gym.io import expand_inputs
     from fpg_gym.io.recording import load_recording
+    from fpg_gym.outputs import check_output
 
     if args.graph and not args.output_map:
         raise ValueError("--output-map: needed with --graph (the map back to the truth's joints)")
+    # Before any work: neither output is an input (the recordings, the graph), a folder or
+    # unwritable, and the two are not one file.
+    inputs = [*args.recordings, *([args.graph] if args.graph and args.graph != "default" else [])]
+    check_output(args.out, inputs)
+    if args.output_map:
+        check_output(args.output_map, [*inputs, args.out], argument="--output-map")
     files = expand_inputs(args.recordings, lambda p: p.suffix == ".npz", ".npz recording")
-    outputs = [Path(args.out), *([Path(args.output_map)] if args.output_map else [])]
-    for out in outputs:
-        if any(out.resolve() == f.resolve() for f in files):
-            raise ValueError(f"--out: {out} is one of the input recordings")
     sensor, truth = [], []
     for path in files:
         recording = load_recording(path)

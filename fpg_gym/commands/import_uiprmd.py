@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from fpg_gym.commands import types
+
 NAME = "import-uiprmd"
 HELP = (
     "import UI-PRMD (real Kinect v2 + Vicon): paired recordings with ground truth and Vicon "
@@ -27,7 +29,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--max-lag", type=int, default=15, help="largest Kinect/Vicon lag searched, frames (15)"
     )
-    parser.add_argument("--workers", type=int, default=None, help="processes (all cores)")
+    parser.add_argument("--workers", type=types.workers, default=None, help="processes (all cores)")
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 
 

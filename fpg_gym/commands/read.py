@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import time
 
+from fpg_gym.commands import types
+
 NAME = "read"
 HELP = "read mocap clips (BVH, DeepMimic, positions .npz, or 'default') and print statistics"
 
@@ -13,7 +15,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the command's arguments."""
     parser.add_argument("inputs", nargs="+", metavar="INPUT", help="files, folders or 'default'")
     parser.add_argument("--units", default="auto", choices=["auto", "m", "cm", "mm"])
-    parser.add_argument("--workers", type=int, default=None, help="reader processes")
+    parser.add_argument("--workers", type=types.workers, default=None, help="reader processes")
     parser.add_argument("--json", action="store_true", help="last stdout line is a JSON summary")
 
 

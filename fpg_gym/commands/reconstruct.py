@@ -9,6 +9,8 @@ import time
 from pathlib import Path
 from typing import Any
 
+from fpg_gym.commands import types
+
 NAME = "reconstruct"
 HELP = (
     "reconstruct a Kinect recording (graph or brute-force selection, an optimiser, ragdoll), "
@@ -57,13 +59,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "name=KinectName lines) or name=KinectName pairs (docs/input.md)",
     )
     parser.add_argument(
-        "--body", type=int, default=0, help="which body of an NTU or Azure Kinect file (default 0)"
+        "--body",
+        type=types.integer(0),
+        default=0,
+        help="which body of an NTU or Azure Kinect file (default 0)",
     )
     parser.add_argument("--out", required=True, metavar="OUT.npz", help="output .npz")
     parser.add_argument(
-        "--optimizer", default="local-search", help="registered optimiser (default local-search)"
+        "--optimizer", default=None, help="registered optimiser (default local-search)"
     )
-    parser.add_argument("--selector", default="graph", choices=["graph", "brute-force"])
+    parser.add_argument(
+        "--selector", default=None, choices=["graph", "brute-force"], help="(default graph)"
+    )
     parser.add_argument("--no-ragdoll", action="store_true", help="skip the ragdoll stage")
     parser.add_argument(
         "--method",
@@ -72,11 +79,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "kalman[:PRESET], one-euro[:PRESET] (filters, +map: through the sensor's definition "
         "map), shum[:OPTIMIZER], fpg[:OPTIMIZER], each optionally +ragdoll (see fpg_gym.methods)",
     )
-    parser.add_argument("--seed", type=int, default=0, help="optimiser seed (default 0)")
+    parser.add_argument("--seed", type=types.seed, default=0, help="optimiser seed (default 0)")
     parser.add_argument(
-        "--budget", type=int, default=2000, help="energy evaluations per frame (default 2000)"
+        "--budget",
+        type=types.integer(0),
+        default=2000,
+        help="energy evaluations per frame (default 2000)",
     )
-    parser.add_argument("--k", type=int, default=30, help="candidates per frame (default 30)")
+    parser.add_argument(
+        "--k", type=types.integer(1), default=30, help="candidates per frame (default 30)"
+    )
     parser.add_argument(
         "--prior",
         type=float,
@@ -273,9 +285,9 @@ def _error_summary(recording: Any, poses: Any) -> tuple[dict[str, Any], dict[str
         "mean_error_m": float(errors.mean()),
         "raw_err02_pct": 100.0 * metrics.err_ratio(raw_errors),
         "err02_pct": 100.0 * metrics.err_ratio(errors),
-        "raw_jitter_ms2": float(np.nanmean(metrics.jitter(recording.positions))),
-        "jitter_ms2": float(np.nanmean(metrics.jitter(poses))),
-        "truth_jitter_ms2": float(np.nanmean(metrics.jitter(recording.ground_truth))),
+        "raw_jitter_ms2": _mean_jitter(recording.positions),
+        "jitter_ms2": _mean_jitter(poses),
+        "truth_jitter_ms2": _mean_jitter(recording.ground_truth),
         "lag_frames": metrics.lag(poses, recording.ground_truth),
     }
     spread = metrics.settled_bone_spread(poses, timestamps=recording.timestamps)
@@ -283,6 +295,25 @@ def _error_summary(recording: Any, poses: Any) -> tuple[dict[str, Any], dict[str
         float(1000.0 * np.nanmax(spread)) if np.isfinite(spread).any() else None
     )
     return arrays, summary
+
+
+def _mean_jitter(poses: Any) -> float:
+    """Mean acceleration magnitude (m/s²) over joints and frames; NaN, quietly, for a stream
+    too short to have one (fewer than 3 frames)."""
+    import numpy as np
+
+    from fpg_gym import metrics
+
+    values = np.asarray(metrics.jitter(poses), dtype=np.float64)
+    finite = values[np.isfinite(values)]
+    return float(finite.mean()) if finite.size else float("nan")
+
+
+def _number(value: Any, digits: int) -> str:
+    """``value`` with ``digits`` decimals, or ``–`` when there is none (NaN, None)."""
+    import math
+
+    return "–" if value is None or not math.isfinite(value) else f"{value:.{digits}f}"
 
 
 def _print_errors(args: argparse.Namespace, summary: dict[str, Any], label: str) -> None:
@@ -300,9 +331,9 @@ def _print_errors(args: argparse.Namespace, summary: dict[str, Any], label: str)
     spread = summary["settled_bone_spread_mm"]
     _say(
         args,
-        f"jitter (m/s²)    input {summary['raw_jitter_ms2']:.1f}, output "
-        f"{summary['jitter_ms2']:.1f}, truth {summary['truth_jitter_ms2']:.1f}; lag "
-        f"{summary['lag_frames']:.2f} frames; bone spread after 1 s "
+        f"jitter (m/s²)    input {_number(summary['raw_jitter_ms2'], 1)}, output "
+        f"{_number(summary['jitter_ms2'], 1)}, truth {_number(summary['truth_jitter_ms2'], 1)}; "
+        f"lag {_number(summary['lag_frames'], 2)} frames; bone spread after 1 s "
         + ("–" if spread is None else f"{spread:.1f} mm"),
     )
 
@@ -350,6 +381,22 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--prior: expected >= 0, got {args.prior}")
     if not args.checkpoint_s >= 0:
         raise ValueError(f"--checkpoint-s: expected >= 0 seconds, got {args.checkpoint_s}")
+    given = [
+        name
+        for name, value in (
+            ("--optimizer", args.optimizer),
+            ("--selector", args.selector),
+            ("--no-ragdoll", args.no_ragdoll or None),
+        )
+        if value is not None
+    ]
+    if args.method and given:
+        raise ValueError(
+            f"--method {args.method} and {', '.join(given)}: give one (a method name says the "
+            "optimiser, selector and ragdoll, e.g. fpg:cma-es or shum:local-search+ragdoll)"
+        )
+    args.optimizer = args.optimizer or "local-search"
+    args.selector = args.selector or "graph"
     args.out = _check_out(args)
     if args.method:
         from fpg_gym.methods import parse_method

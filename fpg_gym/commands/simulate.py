@@ -5,20 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 
+from fpg_gym.commands import types
+
 NAME = "simulate"
 HELP = "simulate a Kinect recording with ground truth from a mocap clip (see --list)"
 
 _DEFAULT_PREFIX = "default:"
-
-
-def _seed(text: str) -> int:
-    try:
-        value = int(text)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {text!r}") from None
-    if value < 0:
-        raise argparse.ArgumentTypeError(f"expected a non-negative integer, got {value}")
-    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -31,7 +23,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "embedded DeepMimic clip (default:walk)",
     )
     parser.add_argument("--scenario", default="front-few", help="scenario name (see --list)")
-    parser.add_argument("--seed", type=_seed, default=0, help="random seed (default 0)")
+    parser.add_argument("--seed", type=types.seed, default=0, help="random seed (default 0)")
     parser.add_argument("--out", metavar="FILE", help="recording file to write (.npz)")
     parser.add_argument(
         "--units", default="auto", choices=["auto", "m", "cm", "mm"], help="BVH length unit"

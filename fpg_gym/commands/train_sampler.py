@@ -7,6 +7,7 @@ import hashlib
 from pathlib import Path
 from typing import Any
 
+from fpg_gym.commands import types
 from fpg_gym.commands.compare import add_backend_arguments
 
 NAME = "train-sampler"
@@ -147,14 +148,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--timesteps",
-        type=int,
+        type=types.integer(1),
         default=None,
         metavar="N",
         help="env steps (rl, default 100000) or training frames collected (supervised, "
         "default 20000)",
     )
     parser.add_argument("--out", required=True, metavar="MODEL", help="model path (no suffix)")
-    parser.add_argument("--seed", type=int, default=0, help="seed (default 0)")
+    parser.add_argument("--seed", type=types.seed, default=0, help="seed (default 0)")
     parser.add_argument(
         "--target",
         choices=["best", "search", "truth", "bones"],
@@ -188,22 +189,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=0.002,
         help="acceleration weight of --reward smooth (0.002: 10 m/s^2 weighs as 2 cm of error)",
     )
-    parser.add_argument("--epochs", type=int, default=40, help="supervised epochs (40)")
+    parser.add_argument(
+        "--epochs", type=types.integer(1), default=40, help="supervised epochs (40)"
+    )
     parser.add_argument(
         "--eval-every",
-        type=int,
+        type=types.integer(1),
         default=None,
         metavar="N",
         help="evaluate and checkpoint every N env steps (rl) or epochs (supervised)",
     )
     parser.add_argument(
-        "--eval-episodes", type=int, default=6, metavar="N", help="held-out episodes (6)"
+        "--eval-episodes",
+        type=types.integer(1),
+        default=6,
+        metavar="N",
+        help="held-out episodes (6)",
     )
     parser.add_argument(
-        "--max-frames", type=int, default=None, metavar="N", help="first N frames per episode"
+        "--max-frames",
+        type=types.integer(2),
+        default=None,
+        metavar="N",
+        help="first N frames per episode",
     )
-    parser.add_argument("--k", type=int, default=30, help="candidates per frame (30)")
-    parser.add_argument("--latent-dim", type=int, default=20, help="latent axes (20)")
+    parser.add_argument("--k", type=types.integer(1), default=30, help="candidates per frame (30)")
+    parser.add_argument("--latent-dim", type=types.integer(1), default=20, help="latent axes (20)")
     parser.add_argument(
         "--action-mode",
         choices=["absolute", "delta"],
@@ -240,7 +251,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--units", default="auto", help="BVH units (auto)")
     parser.add_argument(
         "--workers",
-        type=int,
+        type=types.workers,
         default=1,
         metavar="N",
         help="processes (or Ray tasks) collecting the supervised data (1; the same data for any N)",

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from fpg_gym.commands import types
+
 NAME = "view"
 HELP = (
     "write a 3D view (rerun .rrd): the Kinect input coloured by tracking state, reconstructions "
@@ -36,7 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--graph", default="default", metavar="FILE", help="pose graph for --method (default)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="optimiser seed (default 0)")
+    parser.add_argument("--seed", type=types.seed, default=0, help="optimiser seed (default 0)")
     parser.add_argument("--out", required=True, metavar="VIEW.rrd", help="rerun file to write")
     parser.add_argument(
         "--spawn", action="store_true", help="also open the rerun viewer on the written file"

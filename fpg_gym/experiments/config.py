@@ -3,7 +3,6 @@
 
 from __future__ import annotations
 
-import hashlib
 import re
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -11,8 +10,10 @@ from typing import Any
 
 from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
 from fpg_gym.definitions import DefinitionMap, packaged_map, packaged_map_names
+from fpg_gym.io.files import file_digest
 from fpg_gym.methods import BASELINE, parse_method
 from fpg_gym.simulate import PlannedEpisode
+from policies.loading import LEARNED_PREFIXES, model_digest
 
 _SAFE = re.compile(r"[^A-Za-z0-9._+-]+")
 
@@ -187,11 +188,20 @@ class CompareConfig:
             raise ValueError("seeds: at least one seed")
         if any(s < 0 for s in self.seeds):
             raise ValueError(f"seeds: expected non-negative integers, got {self.seeds}")
+        repeated = sorted({s for s in self.seeds if self.seeds.count(s) > 1})
+        if repeated:
+            raise ValueError(
+                f"seeds: {', '.join(map(str, repeated))} given more than once; each seed is "
+                "one set of episodes, counted once"
+            )
+        if isinstance(self.workers, bool) or not isinstance(self.workers, int) or self.workers < 1:
+            raise ValueError(f"workers: expected an integer >= 1, got {self.workers!r}")
 
     def resume_key(self) -> dict[str, Any]:
-        """Settings that must match for a rerun to reuse finished rows."""
+        """Settings that must match for a rerun to reuse finished rows: files by their
+        content (the graph, the maps), not by their path."""
         return {
-            "graph": self.graph,
+            "graph": self.graph if self.graph == "default" else _file_digest(self.graph),
             "budget": self.budget,
             "k": self.k,
             "max_frames": self.max_frames,
@@ -208,6 +218,18 @@ class CompareConfig:
                 else {}
             ),
         }
+
+    def method_keys(self) -> dict[str, str]:
+        """A content key per method whose optimiser reads files (``learned:MODEL``): the
+        SHA-256 of the model's files, so that a rerun recomputes that method's rows when the
+        model changed (the other methods' rows are kept)."""
+        keys: dict[str, str] = {}
+        for name in self.methods:
+            optimizer = parse_method(name).optimizer or ""
+            prefix, _, model = optimizer.partition(":")
+            if prefix in LEARNED_PREFIXES:
+                keys[name] = model_digest(model)
+        return keys
 
     def tuning_options(self) -> dict[str, Any]:
         """The explicit map and blend settings (they replace the preset when any is given)."""
@@ -234,9 +256,9 @@ def _load_map(name: str) -> DefinitionMap:
 
 def _file_digest(path: str | None) -> str | None:
     """SHA-256 of a file's bytes (None for no file): settings that name a file are keyed by
-    its content, so an edited map is not mistaken for the one a finished row used."""
+    its content, so an edited map or graph is not mistaken for the one a finished row used."""
     if not path:
         return None
     if not Path(path).suffix and path in packaged_map_names():
         return f"packaged:{path}"
-    return hashlib.sha256(Path(path).read_bytes()).hexdigest()
+    return file_digest(path)

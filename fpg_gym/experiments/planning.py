@@ -21,6 +21,8 @@ from tqdm.auto import tqdm
 from fpg_gym.experiments.config import CompareConfig, EpisodeSpec, safe_name
 from fpg_gym.experiments.store import Manifest
 from fpg_gym.io import read_recording, resolve_clips, write_recording
+from fpg_gym.io.files import file_digest
+from fpg_gym.outputs import same_file
 from fpg_gym.simulate import EpisodeSimulator, episode_seed, get_scenario
 from fpg_gym.simulate import plan_episodes as plan_simulated
 
@@ -85,15 +87,6 @@ def plan_episodes(
     return episodes
 
 
-def _file_hash(path: str | Path) -> str:
-    """SHA-256 of a file's bytes (hex)."""
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
-
-
 def _clip_hash(clip: Any) -> str:
     """SHA-256 of a clip's content: its poses (float32) and frame rate (hex)."""
     digest = hashlib.sha256(np.ascontiguousarray(clip.positions, dtype=np.float32).tobytes())
@@ -119,7 +112,11 @@ def _unique_clip_names(clips: Sequence[Any], say: Callable[[str], None]) -> dict
     is kept once."""
     groups: dict[str, dict[str, Any]] = {}
     for clip in clips:
-        groups.setdefault(clip.name, {}).setdefault(_clip_hash(clip), clip)
+        variants = groups.setdefault(clip.name, {})
+        digest = _clip_hash(clip)
+        if digest in variants:
+            say(f"note: clip {clip.name!r} given more than once ({clip.source}); counted once")
+        variants.setdefault(digest, clip)
     by_name: dict[str, Any] = {}
     for name, variants in groups.items():
         if len(variants) == 1:
@@ -135,6 +132,37 @@ def _unique_clip_names(clips: Sequence[Any], say: Callable[[str], None]) -> dict
     return by_name
 
 
+def _unique_inputs(
+    inputs: Sequence[str], say: Callable[[str], None]
+) -> tuple[list[str], list[str]]:
+    """The ``--inputs`` with their content hashes, each content once: a file given twice (or
+    two copies of one recording) would count one episode twice in every mean and paired test.
+
+    Raises
+    ------
+    FileNotFoundError, DataFormatError
+        An input is missing or not a readable file (named with ``--inputs``).
+    """
+    kept: list[str] = []
+    digests: list[str] = []
+    first: dict[str, str] = {}
+    for name in inputs:
+        try:
+            digest = file_digest(name)
+        except FileNotFoundError:
+            raise FileNotFoundError(f"--inputs: {name}: no such file") from None
+        if digest in first:
+            same = (
+                "given twice" if same_file(name, first[digest]) else f"the same as {first[digest]}"
+            )
+            say(f"note: --inputs {name}: {same}; counted once")
+            continue
+        first[digest] = name
+        kept.append(name)
+        digests.append(digest)
+    return kept, digests
+
+
 def plan_keyed_episodes(
     config: CompareConfig, progress: bool, say: Callable[[str], None]
 ) -> tuple[list[EpisodeSpec], dict[str, Any], list[str], list[str]]:
@@ -146,22 +174,17 @@ def plan_keyed_episodes(
 
     for scenario in config.scenarios:
         get_scenario(scenario)  # unknown names fail here, before any work
-    for name in config.inputs:
-        if not Path(name).is_file():
-            raise FileNotFoundError(f"--inputs: {name}: no such file")
+    inputs, recording_hashes = _unique_inputs(config.inputs, say)
     clips, embedded = (
         resolve_clips(config.clips, config.units, progress=progress) if config.clips else ([], [])
     )
     by_name = _unique_clip_names(clips, say)
     hashes = {name: _clip_hash(clip) for name, clip in by_name.items()}
-    recording_hashes = [_file_hash(path) for path in config.inputs]
-    planned = plan_episodes(
-        list(by_name), config.scenarios, config.seeds, config.inputs, recording_hashes
-    )
+    planned = plan_episodes(list(by_name), config.scenarios, config.seeds, inputs, recording_hashes)
     # The format an input is read with is part of its content.
     by_path = {
         path: f"{digest}:{config.input_format or 'guessed'}"
-        for path, digest in zip(config.inputs, recording_hashes, strict=True)
+        for path, digest in zip(inputs, recording_hashes, strict=True)
     }
     episodes = [
         replace(

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import json
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -174,7 +174,10 @@ def _plot_methods(summary: dict[str, Any], limit: int = 6) -> list[str]:
     return [m for m in methods if m in chosen]
 
 
-def _write_plots(out: Path, summary: dict[str, Any], files: FrameFiles) -> dict[str, str]:
+def _write_plots(
+    out: Path, summary: dict[str, Any], files: FrameFiles, claim: Callable[[Path], None]
+) -> dict[str, str]:
+    """Write the plots the summary has data for (``claim`` each file first); their names."""
 
     methods = summary["method_order"]
     errors: dict[str, np.ndarray] = {}
@@ -195,24 +198,24 @@ def _write_plots(out: Path, summary: dict[str, Any], files: FrameFiles) -> dict[
     colours = plots.method_colours(methods)
     if errors:
         written["error_histogram"] = plots.plot_error_histogram(
-            errors, out / "error_histogram.png", colours=colours
+            errors, _claimed(out / "error_histogram.png", claim), colours=colours
         ).name
         written["cumulative"] = plots.plot_cumulative(
-            errors, out / "cumulative.png", colours=colours
+            errors, _claimed(out / "cumulative.png", claim), colours=colours
         ).name
         chosen = _plot_methods(summary)
         episode, series = _time_plot_series(summary, chosen, files)
         if episode:
             written["error_over_time"] = plots.plot_error_over_time(
                 series,
-                out / "error_over_time.png",
+                _claimed(out / "error_over_time.png", claim),
                 title=f"Per-frame error, episode {episode}",
                 colours=colours,
             ).name
             summary["time_plot_episode"] = episode
     if ms:
         written["frame_times"] = plots.plot_frame_times(
-            ms, out / "frame_times.png", colours=colours
+            ms, _claimed(out / "frame_times.png", claim), colours=colours
         ).name
     return written
 
@@ -234,27 +237,36 @@ def _time_plot_series(
     return "", {}
 
 
+def _claimed(path: Path, claim: Callable[[Path], None]) -> Path:
+    """``path``, after ``claim(path)`` (compare lists it in its manifest before writing it)."""
+    claim(path)
+    return path
+
+
 def write_report(
     out: str | Path,
     *,
     plots: bool = True,
     baseline: str = BASELINE.name,
     interrupted: bool = False,
+    claim: Callable[[Path], None] | None = None,
 ) -> dict[str, Any]:
     """Write ``summary.json``, ``report.md`` and the plots of a compare folder from its files.
 
     Works on a partial run (only finished rows count; ``interrupted`` says so in the report).
-    Returns the summary.
+    ``claim`` is called with each file before it is written (compare's manifest). Returns the
+    summary; ``summary["plots"]`` names the plots written (none with ``plots=False``).
     """
     out = Path(out)
+    claim = claim or (lambda _path: None)
     files = FrameFiles(out)
     summary = summarise_frames(out, baseline, files)
     summary["interrupted"] = bool(interrupted)
     summary["plots"] = (
-        _write_plots(out, summary, files) if plots and summary["method_order"] else {}
+        _write_plots(out, summary, files, claim) if plots and summary["method_order"] else {}
     )
-    write_text(out / "summary.json", json.dumps(jsonable(summary), indent=2))
-    write_text(out / "report.md", report_markdown(summary))
+    write_text(_claimed(out / "summary.json", claim), json.dumps(jsonable(summary), indent=2))
+    write_text(_claimed(out / "report.md", claim), report_markdown(summary))
     return summary
 
 
@@ -293,6 +305,12 @@ def report_markdown(summary: dict[str, Any]) -> str:
         lines += [f"**Warning:** {summary['held_out_warning']}.", ""]
     if summary.get("interrupted"):
         lines += ["**Interrupted:** the tables cover the finished runs only.", ""]
+    if summary.get("rows_not_reported"):
+        lines += [
+            f"`results.csv` also holds {summary['rows_not_reported']} row(s) of earlier runs "
+            "into this folder with other methods or episodes; they are not in this report.",
+            "",
+        ]
     if not summary["method_order"]:
         lines += ["No finished runs.", ""]
         return "\n".join(lines)

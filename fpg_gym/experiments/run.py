@@ -19,12 +19,18 @@ Output folder::
     *.png             error histogram, cumulative curve, error over time, frame times
 
 Safety: compare writes only into a folder it created (or an empty one) and lists every file it
-writes in ``manifest.txt`` before writing it; ``fresh=True`` deletes the listed files and nothing
-else, and is refused on a folder without a manifest. Resuming trusts nothing stale: a torn last
-row of ``results.csv`` (a kill during a write) is dropped with a warning, and episodes are keyed
-by content (:attr:`EpisodeSpec.key`, a hash of the input file or clip and of the episode's
-settings), so a different clip under the same file name is recomputed, and two inputs with the
-same file name stay two episodes.
+writes in ``manifest.txt`` before writing it (never over a file it did not list); ``fresh=True``
+deletes the listed files and nothing else, and is refused on a folder without a manifest. A run
+holds the folder's lock (:class:`~fpg_gym.experiments.store.Manifest`) until it ends: a second
+run on the same folder is refused. Resuming trusts nothing stale: a torn last row of
+``results.csv`` (a kill during a write) is dropped with a warning, a task whose per-frame file is
+missing or damaged runs again, the graph is keyed by its content (another graph is refused), a
+``learned:MODEL`` method by its model's files (a changed model's rows are recomputed), and
+episodes by content (:attr:`EpisodeSpec.key`, a hash of the input file or clip and of the
+episode's settings), so a different clip under the same file name is recomputed, two inputs with
+the same file name stay two episodes, and the same input given twice is one. The report covers
+this run's methods and episodes; rows an earlier run left in the folder are kept and counted
+apart.
 
 Hold-out rule: the graph must not contain the evaluated takes. ``--graph default`` builds the
 embedded graph without the evaluated embedded clips; for a graph file, build it from other takes
@@ -52,14 +58,16 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from fpg_gym import metrics
-from fpg_gym.errors import TaskError
+from fpg_gym.errors import FpgGymError, OutputError, TaskError
 from fpg_gym.experiments.config import CompareConfig, EpisodeSpec, safe_name
 from fpg_gym.experiments.distributed import require_ray, run_on_ray
 from fpg_gym.experiments.planning import plan_keyed_episodes, write_episodes
 from fpg_gym.experiments.report import format_table, write_report
 from fpg_gym.experiments.store import (
+    Manifest,
     ResultsWriter,
     claim_folder,
+    frames_intact,
     frames_path,
     read_config,
     read_rows,
@@ -71,6 +79,7 @@ from fpg_gym.io import DEFAULT_CLIP_NAMES
 from fpg_gym.io.recording import load_recording
 from fpg_gym.methods import Method, MethodResult, MethodRunner, parse_method
 from fpg_gym.outputs import write_text
+from fpg_gym.ray_session import check_address
 from fpg_gym.reconstruct.presets import choose_pipeline, default_graph_name, sensor_of
 from optimizers import make
 
@@ -335,17 +344,6 @@ def _held_out_warning(
     )
 
 
-#: Files :func:`write_report` may write at the top of a compare folder.
-_REPORT_FILES: tuple[str, ...] = (
-    "summary.json",
-    "report.md",
-    "error_histogram.png",
-    "cumulative.png",
-    "error_over_time.png",
-    "frame_times.png",
-)
-
-
 def _stale_episodes(
     out: Path, episodes: Sequence[EpisodeSpec], previous_config: dict[str, Any] | None
 ) -> set[str]:
@@ -354,8 +352,9 @@ def _stale_episodes(
     (:func:`repair_results`), their recordings rewritten (:func:`write_episodes`) and their
     tasks run again (which rewrites their per-frame files)."""
     previous: dict[str, str] = {}
-    if previous_config is not None:
-        for entry in previous_config.get("episodes", []):
+    entries = previous_config.get("episodes") if previous_config is not None else None
+    if isinstance(entries, list):
+        for entry in entries:
             if isinstance(entry, dict) and isinstance(entry.get("id"), str):
                 previous[entry["id"]] = str(entry.get("key", ""))
     rows = {r.get("episode") for r in read_rows(out / "results.csv")}
@@ -364,9 +363,30 @@ def _stale_episodes(
         episode_file = out / "episodes" / f"{episode.id}.npz"
         frames_folder = out / "frames" / safe_name(episode.id)
         exists = episode_file.exists() or frames_folder.exists() or episode.id in rows
-        if exists and previous.get(episode.id) != episode.key:
+        if exists and (previous.get(episode.id) != episode.key or not _readable(episode_file)):
             stale.add(episode.id)
     return stale
+
+
+def _readable(episode_file: Path) -> bool:
+    """Whether an episode's recording reads (a damaged one is written again)."""
+    try:
+        load_recording(episode_file)
+    except (FpgGymError, OSError):
+        return False
+    return True
+
+
+def _damaged_tasks(out: Path) -> set[tuple[str, str]]:
+    """``(episode, method)`` of the rows of ``results.csv`` whose per-frame file is missing or
+    damaged: their rows are dropped and their tasks run again."""
+    return {
+        (r["episode"], r["method"])
+        for r in read_rows(out / "results.csv")
+        if isinstance(r.get("episode"), str)
+        and isinstance(r.get("method"), str)
+        and not frames_intact(frames_path(out, r["episode"], r["method"]))
+    }
 
 
 def _run_batch(
@@ -453,17 +473,62 @@ def run_compare(
     _check_optimizers(config.methods)
     if config.backend == "ray":
         require_ray()  # before any episode is simulated
-    manifest = claim_folder(out, fresh, say)
+        check_address(config.address)  # a dead address fails now, not after minutes
+
+    method_keys = config.method_keys()  # the models' content, read before any work
+    with claim_folder(out, fresh, say) as manifest:
+        return _run_claimed(
+            config, out, manifest, fresh, plots, progress, say, started, method_keys
+        )
+
+
+def _resume_conflict(out: Path, previous: Any, current: dict[str, Any]) -> str:
+    """The message refusing to resume a folder whose run had other settings (named)."""
+    old = previous if isinstance(previous, dict) else {}
+    changed = sorted(k for k in set(old) | set(current) if old.get(k) != current.get(k))
+    names = ", ".join(
+        f"{k} (its content changed)" if k == "graph" and old.get(k) and current.get(k) else k
+        for k in changed
+    )
+    return (
+        f"--out {out} holds results of a run with other settings ({names or 'unknown'}); use "
+        "another --out, or --fresh to discard them"
+    )
+
+
+def _stale_methods(
+    out: Path, method_keys: dict[str, str], previous_config: dict[str, Any] | None
+) -> set[str]:
+    """Methods of this run that read files (``learned:MODEL``) whose rows in ``out`` were
+    computed from other file contents (or unknown ones): their rows are recomputed."""
+    if not method_keys:
+        return set()
+    previous = previous_config.get("method_keys") if previous_config else None
+    previous = previous if isinstance(previous, dict) else {}
+    rows = {r.get("method") for r in read_rows(out / "results.csv")}
+    return {m for m, key in method_keys.items() if m in rows and previous.get(m) != key}
+
+
+def _run_claimed(
+    config: CompareConfig,
+    out: Path,
+    manifest: Manifest,
+    fresh: bool,
+    plots: bool,
+    progress: bool,
+    say: Callable[[str], None],
+    started: float,
+    method_keys: dict[str, str],
+) -> CompareOutcome:
+    """:func:`run_compare` in a folder it holds (``manifest``)."""
     config_path = out / "config.json"
     results_path = out / "results.csv"
     previous_config = read_config(config_path)
+    resume_key = config.resume_key()
     if not fresh and results_path.is_file() and previous_config is not None:
         previous = previous_config.get("resume_key")
-        if previous != config.resume_key():
-            raise ValueError(
-                f"{out} holds results of a run with other settings ({previous}); use another "
-                "--out or --fresh"
-            )
+        if previous != resume_key:
+            raise OutputError(_resume_conflict(out, previous, resume_key))
 
     episodes, by_name, embedded, clip_names = plan_keyed_episodes(config, progress, say)
     stale = _stale_episodes(out, episodes, previous_config)
@@ -473,8 +538,23 @@ def run_compare(
             f"the same name, or no content key): recomputed ({', '.join(sorted(stale)[:3])}"
             + (" ...)" if len(stale) > 3 else ")")
         )
+    stale_methods = _stale_methods(out, method_keys, previous_config)
+    if stale_methods:
+        say(
+            f"resuming: the model of {', '.join(sorted(stale_methods))} changed since the last "
+            "run (or its content is unknown): its rows are recomputed"
+        )
+    damaged = _damaged_tasks(out)
+    if damaged:
+        say(
+            f"resuming: {len(damaged)} finished task(s) lack their per-frame file or have a "
+            "damaged one: they run again"
+        )
     manifest.add(results_path, config_path)
-    repair_results(results_path, say, drop_episodes=stale)
+    repair_results(
+        results_path, say, drop_episodes=stale, drop_methods=stale_methods, drop_tasks=damaged
+    )
+    _note_other_rows(results_path, config, episodes, say)
     recorded = write_episodes(
         config, episodes, by_name, out / "episodes", progress, manifest, rewrite=stale
     )
@@ -496,7 +576,8 @@ def run_compare(
         json.dumps(
             {
                 "config": asdict(config),
-                "resume_key": config.resume_key(),
+                "resume_key": resume_key,
+                "method_keys": method_keys,
                 "graph_exclude": exclude,
                 "graph_resolved": graph_name,
                 "graph_summary": repr(graph),
@@ -511,8 +592,7 @@ def run_compare(
     done = {
         (r["episode"], r["method"])
         for r in read_rows(results_path)
-        if r.get("interrupted") in ("0", "")
-        and frames_path(out, r["episode"], r["method"]).is_file()
+        if r.get("interrupted") in ("0", "")  # the others ran again: their file is rewritten
     }
     tasks = [
         _Task(e, m, str(out / "episodes" / f"{e.id}.npz"))
@@ -571,8 +651,9 @@ def run_compare(
         writer.close()
     if interrupted:
         say("interrupted: finished results are kept; writing the report from them")
-    manifest.add(*(out / name for name in _REPORT_FILES))
-    summary = write_report(out, plots=plots, baseline=config.baseline, interrupted=interrupted)
+    summary = write_report(
+        out, plots=plots, baseline=config.baseline, interrupted=interrupted, claim=manifest.add
+    )
     files = sorted(p for p in out.iterdir() if p.is_file())
     return CompareOutcome(
         out=out,
@@ -584,6 +665,30 @@ def run_compare(
         seconds=time.perf_counter() - started,
         files=files,
     )
+
+
+def _note_other_rows(
+    results_path: Path,
+    config: CompareConfig,
+    episodes: Sequence[EpisodeSpec],
+    say: Callable[[str], None],
+) -> None:
+    """Say when ``results.csv`` holds rows of methods or episodes outside this run (an earlier
+    run into the same folder with other ``--methods`` or inputs): they are kept in the file
+    and left out of this run's report."""
+    planned_methods, planned_episodes = set(config.methods), {e.id for e in episodes}
+    other = [
+        r
+        for r in read_rows(results_path)
+        if r.get("method") not in planned_methods or r.get("episode") not in planned_episodes
+    ]
+    if other:
+        methods = sorted({str(r.get("method")) for r in other} - planned_methods)
+        say(
+            f"note: {results_path} holds {len(other)} row(s) of earlier runs outside this one"
+            + (f" (methods {', '.join(methods[:5])})" if methods else "")
+            + "; they stay in the file and are left out of this report (--fresh discards them)"
+        )
 
 
 def _run_pool(

@@ -3,7 +3,6 @@ paired Wilcoxon tests against the baseline (``summary.json``)."""
 
 from __future__ import annotations
 
-import json
 import math
 import warnings
 from collections.abc import Sequence
@@ -14,7 +13,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym import metrics, skeleton
-from fpg_gym.experiments.store import FrameFiles, read_rows
+from fpg_gym.experiments.store import FrameFiles, read_config, read_rows
 from fpg_gym.methods import BASELINE
 
 
@@ -84,16 +83,31 @@ def summarise(out: str | Path, baseline: str = BASELINE.name) -> dict[str, Any]:
     return summarise_frames(out, baseline, FrameFiles(out))
 
 
+def _mapping(value: Any) -> dict[str, Any]:
+    """``value`` if it is a dict, else an empty one (a damaged config.json)."""
+    return value if isinstance(value, dict) else {}
+
+
+def _sequence(value: Any) -> list[Any]:
+    """``value`` if it is a list, else an empty one (a damaged config.json)."""
+    return value if isinstance(value, list) else []
+
+
 def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, Any]:
     rows = [r for r in read_rows(out / "results.csv") if r.get("interrupted") in ("0", "")]
     latest: dict[tuple[str, str], dict[str, str]] = {}
     for row in rows:  # a task rerun after an interruption: the last row counts
         latest[(row["episode"], row["method"])] = row
     rows = list(latest.values())
-    config: dict[str, Any] = {}
-    if (out / "config.json").is_file():
-        config = json.loads((out / "config.json").read_text())
-    order = list(config.get("config", {}).get("methods", []))
+    config = read_config(out / "config.json") or {}
+    settings = _mapping(config.get("config"))
+    order = [str(m) for m in _sequence(settings.get("methods"))]
+    # The report covers this run's methods and episodes: rows that an earlier run into the same
+    # folder left (other --methods, other inputs) stay in results.csv, counted apart.
+    episode_ids = {str(_mapping(e).get("id")) for e in _sequence(config.get("episodes"))}
+    every = len(rows)
+    if order and episode_ids:
+        rows = [r for r in rows if r["method"] in order and r["episode"] in episode_ids]
     for row in rows:
         if row["method"] not in order:
             order.append(row["method"])
@@ -214,7 +228,8 @@ def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, A
         "clips": sorted({r["clip"] for r in rows}),
         "ground_truth_jitter_ms2": float(truth_jitter.mean()) if truth_jitter.size else None,
         "input_mean_error_m": float(input_error.mean()) if input_error.size else None,
-        "config": config.get("config", {}),
+        "config": settings,
+        "rows_not_reported": every - len(rows),
         "graph": config.get("graph_summary", ""),
         "graph_exclude": config.get("graph_exclude", []),
         "held_out_warning": config.get("held_out_warning", ""),

@@ -22,8 +22,10 @@ import numpy as np
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
-from fpg_gym.io._compression import maybe_gunzip
+from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.files import decode_text
+from fpg_gym.io.plausibility import check_plausible
 from fpg_gym.poses import resample
 from fpg_gym.rotations import euler_to_matrix
 
@@ -113,18 +115,9 @@ class BvhMotion:
 
 
 def _read_text(path: Path) -> str:
-    try:
-        raw = path.read_bytes()
-    except OSError as error:
-        raise DataFormatError(path, f"cannot read the file ({error.strerror})") from None
-    raw = maybe_gunzip(raw, path)
-    try:
-        return raw.decode("utf-8")
-    except UnicodeDecodeError:
-        try:
-            return raw.decode("latin-1")
-        except UnicodeDecodeError:  # pragma: no cover - latin-1 decodes every byte
-            raise DataFormatError(path, "not a text file") from None
+    """The file's text: gzip inflated (within the memory ceiling), a UTF-8 byte-order mark
+    dropped, Latin-1 where it is not UTF-8."""
+    return decode_text(read_input_bytes(path), path, latin1=True)
 
 
 def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[BvhHierarchy, int]:
@@ -364,13 +357,15 @@ def parse_bvh(path: str | Path) -> BvhMotion:
 
 
 def detect_scale(hierarchy: BvhHierarchy) -> float:
-    """Metres per file unit, guessed from the bone offsets: centimetres when the median
-    non-zero offset exceeds 2 units (a human bone is 5-50 cm), metres otherwise."""
+    """Metres per file unit, guessed from the bone offsets (a human bone is 5-50 cm):
+    millimetres when the median non-zero offset exceeds 80 units, centimetres when it exceeds
+    2 units, metres otherwise."""
     lengths = np.linalg.norm(hierarchy.offsets, axis=1)
     lengths = lengths[lengths > 0]
     if len(lengths) == 0:
         return 1.0
-    return 0.01 if float(np.median(lengths)) > 2.0 else 1.0
+    median = float(np.median(lengths))
+    return 0.001 if median > 80.0 else 0.01 if median > 2.0 else 1.0
 
 
 def joint_positions(motion: BvhMotion) -> np.ndarray:
@@ -484,6 +479,7 @@ def read_bvh(
         direction /= np.maximum(np.linalg.norm(direction, axis=-1, keepdims=True), 1e-12)
         positions[:, joints] = base + direction * np.array([p.metres for _, p in extend])[:, None]
     source_fps = 1.0 / motion.frame_time
+    check_plausible(path, positions, fps=source_fps, field=None)
     if fps is not None:
         positions = resample(positions, source_fps, fps)
     name = path.name.removesuffix(".gz").removesuffix(".bvh")

@@ -21,7 +21,6 @@ vary between clips: 16, 24, 30 and 60 Hz), then forward kinematics, so bone leng
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
@@ -31,6 +30,13 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.files import read_json
+from fpg_gym.io.plausibility import (
+    MAX_COORDINATE_M,
+    check_frame_rate,
+    check_plausible,
+    unusual_accepted,
+)
 from fpg_gym.physics.pybullet_utils import connect_direct, data_path, pybullet, quiet_stdout
 from fpg_gym.rotations import axis_rotation, quaternion_to_matrix, slerp
 
@@ -181,14 +187,17 @@ def humanoid_model() -> HumanoidModel:
     return HumanoidModel(tuple(names), tuple(parents), offsets, points)
 
 
+#: Longest clip (seconds) read; a longer one is a corrupt file (its resampling would not fit
+#: in memory).
+MAX_DURATION_S = 24 * 3600.0
+
+
 def _parse(path: Path) -> tuple[np.ndarray, bool]:
-    """Frames array (T, 44) and whether the clip loops."""
-    try:
-        document = json.loads(path.read_text())
-    except json.JSONDecodeError as error:
-        raise DataFormatError(path, f"not valid JSON ({error.msg})", line=error.lineno) from None
-    except UnicodeDecodeError:
-        raise DataFormatError(path, "not a text file") from None
+    """Frames array (T, 44) and whether the clip loops, checked: finite numbers, durations of
+    a plausible frame rate (:data:`~fpg_gym.io.plausibility.FRAME_RATE_HZ`) lasting at most
+    :data:`MAX_DURATION_S`, root positions within
+    :data:`~fpg_gym.io.plausibility.MAX_COORDINATE_M` and rotations that are quaternions."""
+    document = read_json(path)
     if not isinstance(document, dict) or "Frames" not in document:
         raise DataFormatError(path, "expected a JSON object with a 'Frames' list", field="Frames")
     frames = document["Frames"]
@@ -210,6 +219,39 @@ def _parse(path: Path) -> tuple[np.ndarray, bool]:
     if np.any(array[:-1, 0] <= 0):
         index = int(np.argmax(array[:-1, 0] <= 0))
         raise DataFormatError(path, f"frame {index} has a non-positive duration", field="Frames")
+    if len(array) > 1:
+        durations = array[:-1, 0]
+        for index in (int(np.argmin(durations)), int(np.argmax(durations))):
+            check_frame_rate(path, 1.0 / durations[index], field=f"Frames[{index}][0]")
+        if durations.sum() > MAX_DURATION_S:
+            raise DataFormatError(
+                path,
+                f"the frames last {durations.sum() / 3600:.3g} h, more than "
+                f"{MAX_DURATION_S / 3600:g} h: a corrupt file",
+                field="Frames",
+            )
+    root = np.abs(array[:, 1:4]).max(axis=1)
+    if not unusual_accepted() and root.max() > MAX_COORDINATE_M:
+        index = int(np.argmax(root))
+        raise DataFormatError(
+            path,
+            f"frame {index}: root position {root[index]:g} m; expected metres within "
+            f"±{MAX_COORDINATE_M:g} m (--accept-unusual reads it as it is)",
+            field="Frames",
+        )
+    column = 4
+    for link, size in (("root", 4), *_MOTION_LAYOUT):
+        if size == 4:
+            norms = np.linalg.norm(array[:, column : column + 4], axis=1)
+            if norms.min() < 1e-6:
+                index = int(np.argmin(norms))
+                raise DataFormatError(
+                    path,
+                    f"frame {index}: the {link} rotation (values {column}-{column + 3}) is "
+                    "zero; expected a quaternion (w, x, y, z)",
+                    field="Frames",
+                )
+        column += size
     return array, document.get("Loop") == "wrap"
 
 
@@ -285,11 +327,22 @@ def read_deepmimic(path: str | Path, *, fps: float = TARGET_FPS) -> Clip:
     Raises
     ------
     DataFormatError
-        If the file is not valid JSON, a frame has the wrong number of values, or holds NaN/inf.
+        If the file is not valid JSON, a frame has the wrong number of values, holds NaN/inf,
+        a zero quaternion, a root beyond ±1000 m or a duration of an implausible frame rate,
+        or the clip is not a person in metres
+        (:func:`fpg_gym.io.plausibility.check_plausible`).
     """
     path = Path(path)
     frames, loops = _parse(path)
     positions = forward_kinematics(_resample_frames(frames, fps))
+    with np.errstate(over="ignore", invalid="ignore"):
+        finite = np.isfinite(positions.astype(np.float32))
+    if not finite.all():
+        frame = int(np.argwhere(~finite)[0, 0])
+        raise DataFormatError(
+            path, f"output frame {frame} is beyond float32 (a corrupt clip)", field="Frames"
+        )
+    check_plausible(path, positions, field="Frames")
     name = path.stem.removeprefix("humanoid3d_")
     return Clip(
         name=name,

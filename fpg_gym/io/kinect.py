@@ -61,8 +61,11 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io._compression import read_input_bytes
+from fpg_gym.io.files import check_input_file
+from fpg_gym.io.plausibility import MAX_COORDINATE_M, check_recording
 from fpg_gym.io.recording import NOT_TRACKED, TRACKED, Recording, load_recording
 from fpg_gym.io.trackers import JointMap, is_azure_kinect_json, read_azure_kinect, read_mapped
+from fpg_gym.outputs import atomic_path
 
 __all__ = [
     "KINECT_FORMATS",
@@ -96,9 +99,6 @@ _NTU_JOINT_FIELDS = 12
 _DEFAULT_FPS = 30.0
 _MAX_BAD_SHARE = 0.5
 _STATE_COLUMNS = ("x", "y", "z", "state")
-#: Largest plausible coordinate (metres, camera space): the sensors see up to about 8 m; a
-#: larger value (or one beyond float32, about 3.4e38) is a corrupt line.
-MAX_COORDINATE_M = 1000.0
 #: Data lines :func:`detect_format` looks at.
 _DETECT_LINES = 64
 
@@ -112,7 +112,8 @@ class SkippedLinesWarning(UserWarning):
 
 def _read_text(path: Path) -> list[str]:
     """The file's lines (gzip-compressed files are accepted)."""
-    return read_input_bytes(path).decode("utf-8", errors="replace").splitlines()
+    text = read_input_bytes(path).decode("utf-8", errors="replace")
+    return text.removeprefix("\ufeff").splitlines()  # a byte-order mark is not a header
 
 
 class _LineLog:
@@ -261,12 +262,14 @@ def _finish(
             "untracked_positions": "last_known" if filled else "sensor",
         }
     )
-    return Recording(
+    recording = Recording(
         positions=positions.astype(np.float32),
         states=states,
         timestamps=timestamps,
         metadata=metadata,
     )
+    check_recording(path, recording)
+    return recording
 
 
 # --------------------------------------------------------------------------- MSRC-12 / SDK v1
@@ -547,7 +550,7 @@ def write_csv(path: str | Path, recording: Recording) -> Path:
         ],
         axis=-1,
     ).reshape(count, -1)
-    with path.open("w", encoding="utf-8") as handle:
+    with atomic_path(path) as temporary, temporary.open("w", encoding="utf-8") as handle:
         handle.write(
             "# fpg-gym Kinect-20 recording: seconds; metres in camera space (Y up, Z away "
             "from the sensor); state 2 tracked, 1 inferred, 0 not tracked\n"
@@ -735,9 +738,7 @@ def read_recording(
     ValueError
         If ``format`` is unknown.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"{path}: no such file")
+    path = check_input_file(path)  # a folder, a link loop, an unreadable file: named as such
     kind = format or ("mapped" if joint_map is not None else detect_format(path))
     if kind not in KINECT_FORMATS:
         raise ValueError(f"format: expected one of {', '.join(KINECT_FORMATS)}, got {format!r}")

@@ -11,7 +11,9 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.files import check_input_file
 from fpg_gym.io.npz import check_npz
+from fpg_gym.io.plausibility import check_plausible
 from fpg_gym.outputs import save_npz
 
 
@@ -25,15 +27,19 @@ def read_positions(path: str | Path) -> Clip:
 
     Raises
     ------
+    FileNotFoundError
+        If the file does not exist.
     DataFormatError
-        If a key is missing, a shape is wrong, or a value is NaN/inf.
+        If a key is missing, a shape is wrong, or a value is NaN/inf; or the positions are not
+        a person in metres at a real frame rate
+        (:func:`fpg_gym.io.plausibility.check_plausible`).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise DataFormatError(path, "no such file")
+    path = check_input_file(path)
     if not zipfile.is_zipfile(path):
         raise DataFormatError(path, "not a readable .npz archive (not a zip file)")
-    check_npz(path)  # forged array headers, pickled arrays: refused before numpy allocates
+    # Forged array headers, pickled arrays, archives declaring more than the memory ceiling:
+    # refused before numpy inflates anything.
+    check_npz(path, shapes={"positions": ("T", skeleton.NUM_JOINTS, 3), "name": ()})
     try:
         with np.load(path, allow_pickle=False) as archive:
             keys = set(archive.files)
@@ -57,14 +63,19 @@ def read_positions(path: str | Path) -> Clip:
         raise DataFormatError(path, "the clip has no frames", field="positions")
     if not np.issubdtype(positions.dtype, np.number):
         raise DataFormatError(path, f"expected numbers, got {positions.dtype}", field="positions")
-    if not np.all(np.isfinite(positions)):
-        frame = int(np.argwhere(~np.isfinite(positions))[0, 0])
-        raise DataFormatError(path, f"NaN or inf at frame {frame}", field="positions")
+    with np.errstate(invalid="ignore", over="ignore"):
+        finite = np.isfinite(positions.astype(np.float32))  # float32 overflow is inf too
+    if not np.all(finite):
+        frame = int(np.argwhere(~finite)[0, 0])
+        raise DataFormatError(
+            path, f"NaN or inf at frame {frame} (or a value beyond float32)", field="positions"
+        )
     if fps_array.size != 1 or not np.issubdtype(fps_array.dtype, np.number):
         raise DataFormatError(path, f"expected a number, got {fps_array!r}", field="fps")
     fps = float(fps_array.reshape(()))
     if not (np.isfinite(fps) and fps > 0):
         raise DataFormatError(path, f"expected a positive frame rate, got {fps}", field="fps")
+    check_plausible(path, positions, fps=fps)
     return Clip(
         name=name,
         positions=positions.astype(np.float32),

@@ -38,7 +38,9 @@ import numpy.typing as npt
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
+from fpg_gym.io.files import check_input_file
 from fpg_gym.io.npz import check_npz
+from fpg_gym.io.plausibility import check_recording
 from fpg_gym.outputs import save_npz
 from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
 
@@ -65,6 +67,14 @@ RECORDING_KEYS: tuple[str, ...] = (
 #: Values of ``metadata["untracked_positions"]``.
 UNTRACKED_CONVENTIONS: tuple[str, ...] = ("sensor", "last_known", "simulated")
 _REQUIRED = ("positions", "states", "timestamps", "metadata")
+#: The shapes of a recording's arrays (``T`` frames), checked before they are inflated.
+_SHAPES: dict[str, tuple[int | str, ...]] = {
+    "positions": ("T", skeleton.NUM_JOINTS, 3),
+    "states": ("T", skeleton.NUM_JOINTS),
+    "timestamps": ("T",),
+    "ground_truth": ("T", skeleton.NUM_JOINTS, 3),
+    "metadata": (),
+}
 
 
 def _validate_positions(value: object, name: str, count: int | None) -> np.ndarray:
@@ -266,15 +276,14 @@ def load_recording(path: str | Path) -> Recording:
         has the wrong shape or holds NaN, a state is not 0/1/2, or the metadata is not a JSON
         object.
     """
-    path = Path(path)
-    try:
-        with path.open("rb") as handle:
-            magic = handle.read(4)
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: no such file") from None
+    path = check_input_file(path)
+    with path.open("rb") as handle:
+        magic = handle.read(4)
     if magic[:2] != b"PK":
         raise DataFormatError(path, "not a readable .npz archive (no zip header)")
-    check_npz(path)  # forged array headers, pickled arrays: refused before numpy allocates
+    # Forged array headers, pickled arrays, shapes that do not fit one another and archives
+    # declaring more than the memory ceiling: refused before numpy inflates anything.
+    check_npz(path, shapes=_SHAPES)
     try:
         with np.load(path, allow_pickle=False) as archive:
             keys = set(archive.files)
@@ -313,7 +322,7 @@ def load_recording(path: str | Path) -> Recording:
         if key in arrays and not np.issubdtype(arrays[key].dtype, np.number):
             raise DataFormatError(path, f"expected numbers, got {arrays[key].dtype}", field=key)
     try:
-        return Recording(
+        recording = Recording(
             positions=arrays["positions"],
             states=arrays["states"],
             timestamps=arrays["timestamps"],
@@ -324,3 +333,5 @@ def load_recording(path: str | Path) -> Recording:
     except ValueError as error:
         field_name = str(error).split(":", 1)[0]
         raise DataFormatError(path, str(error), field=field_name) from None
+    check_recording(path, recording)
+    return recording

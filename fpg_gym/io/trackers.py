@@ -52,6 +52,8 @@ import numpy as np
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io._compression import read_input_bytes
+from fpg_gym.io.files import decode_text
+from fpg_gym.io.plausibility import check_recording
 from fpg_gym.io.recording import INFERRED, NOT_TRACKED, TRACKED, Recording
 from fpg_gym.validation import check_choice, check_integer
 
@@ -219,12 +221,14 @@ def _build(
         filled_joint_frames=int(missing.sum()),
         untracked_positions="last_known" if missing.any() else "sensor",
     )
-    return Recording(
+    recording = Recording(
         positions=positions.astype(np.float32),
         states=states,
         timestamps=np.asarray(timestamps, dtype=np.float64),
         metadata=metadata,
     )
+    check_recording(path, recording)
+    return recording
 
 
 # --------------------------------------------------------------------------- Azure Kinect
@@ -478,11 +482,7 @@ class JointMap:
             Naming the file (and the line of a text map) when it does not fit.
         """
         path = Path(path)
-        raw = read_input_bytes(path)
-        try:
-            text = raw.decode("utf-8")
-        except UnicodeDecodeError:
-            raise DataFormatError(path, "not UTF-8 text") from None
+        text = decode_text(read_input_bytes(path), path)  # a byte-order mark dropped
         try:
             if text.lstrip().startswith("{"):
                 return cls._from_json(json.loads(text))
@@ -563,7 +563,7 @@ class JointMap:
 
 
 def _mapped_csv(path: Path, joint_map: JointMap, log: _FrameLog) -> tuple[Any, ...]:
-    text = read_input_bytes(path).decode("utf-8", errors="replace")
+    text = read_input_bytes(path).decode("utf-8", errors="replace").removeprefix("\ufeff")
     numbered = [
         (n, t) for n, t in enumerate(text.splitlines(), start=1) if t.strip() and t[0] != "#"
     ]

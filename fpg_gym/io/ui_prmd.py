@@ -57,9 +57,7 @@ See ``../shared/data/ui_prmd/README.md`` of the project for the pairing facts.
 
 from __future__ import annotations
 
-import gzip
 import re
-import zlib
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -67,6 +65,7 @@ import numpy as np
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
+from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.recording import Recording
 from fpg_gym.rotations import euler_to_matrix
 
@@ -165,15 +164,7 @@ def parse_repetition_name(path: str | Path) -> RepetitionId:
 
 def _read_table(path: Path, columns: int) -> np.ndarray:
     """A comma-separated numeric table (gzip or plain) with ``columns`` values a line."""
-    try:
-        raw = path.read_bytes()
-    except FileNotFoundError:
-        raise FileNotFoundError(f"{path}: no such file") from None
-    if raw[:2] == b"\x1f\x8b":
-        try:
-            raw = gzip.decompress(raw)
-        except (OSError, EOFError, zlib.error) as error:
-            raise DataFormatError(path, f"corrupt gzip data ({error})") from None
+    raw = read_input_bytes(path)  # gzip inflated within the memory ceiling
     try:
         text = raw.decode("ascii")
     except UnicodeDecodeError:

@@ -39,8 +39,9 @@ import numpy as np
 from tqdm.auto import tqdm
 
 from fpg_gym import poses
-from fpg_gym.errors import DataFormatError
+from fpg_gym.errors import DataFormatError, OutputError
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.files import read_json
 from fpg_gym.io.positions import write_positions
 from fpg_gym.io.recording import Recording, write_recording
 from fpg_gym.io.ui_prmd import (
@@ -56,6 +57,7 @@ from fpg_gym.io.ui_prmd import (
     vicon_joint_centres,
 )
 from fpg_gym.metrics import robust_z_scores
+from fpg_gym.outputs import write_text
 from fpg_gym.pairing import apply_rigid, overlap, pair_session
 
 __all__ = [
@@ -250,15 +252,48 @@ def pair_repetitions(
     return paired, report
 
 
-def _replace_into(path: Path, write: Any) -> None:
-    """Write with ``write(tmp_path)`` then rename onto ``path`` (never a half-written file)."""
-    tmp = path.with_name(f".{path.stem}.partial{os.getpid()}.npz")
+def _previous_import(out_dir: Path) -> set[str]:
+    """Files an earlier import wrote in ``out_dir`` (relative paths, from its ``import.json``;
+    empty without one).
+
+    Raises
+    ------
+    OutputError
+        ``import.json`` is there but is not an import summary (not this command's).
+    """
+    path = out_dir / "import.json"
+    if not path.exists():
+        return set()
     try:
-        written = write(tmp)
-        os.replace(written, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
+        summary = read_json(path)
+        names = [
+            name
+            for report in summary["session_reports"]
+            for name in report["repetitions"]
+            if isinstance(name, str)
+        ]
+    except (DataFormatError, FileNotFoundError, TypeError, KeyError):
+        raise OutputError(
+            f"--out {out_dir}: import.json is not an fpg-gym import-uiprmd summary; import "
+            "writes only into a new folder or one it wrote: choose another --out"
+        ) from None
+    return {f"{sub}/{name}.npz" for name in names for sub in ("recordings", "clips")}
+
+
+def _check_out(out_dir: Path, names: Iterable[str]) -> None:
+    """Refuse, before any work, to overwrite a file in ``out_dir`` that no earlier import
+    wrote (a user's file under a repetition's name, or an unrelated ``import.json``)."""
+    ours = _previous_import(out_dir)
+    for name in names:
+        for sub in ("recordings", "clips"):
+            relative = f"{sub}/{name}.npz"
+            target = out_dir / relative
+            if (target.exists() or target.is_symlink()) and relative not in ours:
+                raise OutputError(
+                    f"--out {out_dir}: {relative} is there and no earlier import-uiprmd wrote it "
+                    "(not in import.json); refusing to overwrite it: move it away, or choose "
+                    "another --out"
+                )
 
 
 def _import_session(
@@ -271,10 +306,8 @@ def _import_session(
         paired, report = pair_repetitions(root, reps, max_lag=max_lag)
     for pair in paired:
         name = pair.repetition.name
-        _replace_into(
-            out_dir / "recordings" / f"{name}.npz",
-            lambda tmp, pair=pair: write_recording(tmp, pair.recording),
-        )
+        # Both writers write beside the target and rename: never a half-written file.
+        write_recording(out_dir / "recordings" / f"{name}.npz", pair.recording)
         clip = Clip(
             name=name,
             positions=pair.reference,
@@ -282,9 +315,7 @@ def _import_session(
             source=str(_files(_root_folder(Path(root)), pair.repetition)[2]),
             metadata={"format": "ui-prmd-vicon", "joint_centre_rule": JOINT_CENTRE_RULE},
         )
-        _replace_into(
-            out_dir / "clips" / f"{name}.npz", lambda tmp, clip=clip: write_positions(tmp, clip)
-        )
+        write_positions(out_dir / "clips" / f"{name}.npz", clip)
     return report.as_dict()
 
 
@@ -357,8 +388,12 @@ def import_uiprmd(
     if resolved == folder or folder in resolved.parents or resolved in folder.parents:
         raise ValueError(f"--out: {out_dir} must not contain or lie inside the input {folder}")
     sessions = find_repetitions(folder, subjects)
+    _check_out(out_dir, (rep.name for reps in sessions.values() for rep in reps))
     for sub in ("recordings", "clips"):
-        (out_dir / sub).mkdir(parents=True, exist_ok=True)
+        try:
+            (out_dir / sub).mkdir(parents=True, exist_ok=True)
+        except OSError as error:
+            raise OutputError(f"--out {out_dir / sub}: cannot create ({error.strerror})") from None
     tasks = [(str(folder), reps, str(out_dir), max_lag) for reps in sessions.values()]
     workers = workers or os.cpu_count() or 1
     reports: list[dict[str, Any]] = []
@@ -391,7 +426,5 @@ def import_uiprmd(
         "median_lag_frames": float(np.median(lags)) if lags else None,
         "session_reports": reports,
     }
-    tmp = out_dir / ".import.json.partial"
-    tmp.write_text(json.dumps(summary, indent=1))
-    os.replace(tmp, out_dir / "import.json")
+    write_text(out_dir / "import.json", json.dumps(summary, indent=1))
     return summary
