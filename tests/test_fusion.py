@@ -133,7 +133,12 @@ def test_fuse_positions_keeps_trusted_joints_and_hangs_the_rest() -> None:
 
 def test_fusion_holds_a_lost_limb_where_it_was_moving_with_the_body() -> None:
     config = FusionConfig(
-        sensor_filter="raw", agreement_good=0.0, agreement_bad=1e-6, database_weight=1e-3
+        sensor_filter="raw",
+        output_filter="raw",
+        lengths="none",
+        agreement_good=0.0,
+        agreement_bad=1e-6,
+        database_weight=1e-3,
     )
     fusion = SensorFusion(config)
     pose = poses.rest_pose().astype(np.float64)

@@ -226,7 +226,7 @@ def choose_pipeline(args: argparse.Namespace, recording: Any, graph: Any = None)
     )
     tuning["sensor_blend"] = args.sensor_blend
     chosen = choose(args.preset, sensor_of(recording, args.sensor), graph, tuning)
-    print(f"configuration    {chosen.preset}: {chosen.description}")
+    _say(args, f"configuration    {chosen.preset}: {chosen.description}")
     if chosen.note:
         print(f"note: {chosen.note}", file=sys.stderr)
     return chosen

@@ -56,7 +56,8 @@ from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
 from fpg_gym.definitions import joint_frames
 from fpg_gym.filters import make_filter
-from fpg_gym.validation import check_number
+from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
+from fpg_gym.validation import check_choice, check_number
 
 __all__ = ["BoneModel", "FusionConfig", "SensorFusion", "SensorTrust", "fuse_positions"]
 
@@ -118,7 +119,13 @@ class FusionConfig:
     hold_s : float
         Time constant of the fade from the held bone to the database's, seconds (2).
     output_filter : str
-        Filter of the fused output (a :func:`fpg_gym.filters.make_filter` name; ``"raw"``).
+        Filter of the fused output (a :func:`fpg_gym.filters.make_filter` name; ``"kalman"``).
+    lengths : {"retarget", "solve", "none"}
+        How the output keeps the user's bone lengths (the mean of the seen bones of the sensor,
+        or of the bone model, under the settling rule of :mod:`fpg_gym.reconstruct.bones`):
+        retargeted after the filter (``"retarget"``, :func:`fpg_gym.poses.retarget`, the
+        default), a second solve on its own bone directions with a stiff bone term
+        (``"solve"``), or not at all (``"none"``).
     """
 
     enabled: bool = False
@@ -133,7 +140,8 @@ class FusionConfig:
     agreement_good: float = 0.15
     agreement_bad: float = 0.5
     hold_s: float = 2.0
-    output_filter: str = "raw"
+    output_filter: str = "kalman"
+    lengths: str = "retarget"
 
     def __post_init__(self) -> None:
         check_number(self.bone_weight, "bone_weight", low=0.0)
@@ -148,6 +156,7 @@ class FusionConfig:
         check_number(self.hold_s, "hold_s", low=0.0)
         make_filter(self.sensor_filter)  # raises on an unknown name
         make_filter(self.output_filter)
+        check_choice(self.lengths, "lengths", ("retarget", "solve", "none"))
 
 
 class SensorTrust:
@@ -242,9 +251,15 @@ class SensorFusion:
         place of the filtered sensor's own.
     """
 
-    def __init__(self, config: FusionConfig | None = None, bone_model: BoneModel | None = None):
+    def __init__(
+        self,
+        config: FusionConfig | None = None,
+        bone_model: BoneModel | None = None,
+        bones: BoneSettlingConfig | None = None,
+    ):
         self.config = config or FusionConfig()
         self.bone_model = bone_model
+        self._settler = BoneSettler(bones)
         self._filter = make_filter(self.config.sensor_filter)
         self._output_filter = make_filter(self.config.output_filter)
         self.reset()
@@ -253,6 +268,7 @@ class SensorFusion:
         """Forget the stream."""
         self._filter.reset()
         self._output_filter.reset()
+        self._settler.reset()
         self._length_sum = np.zeros(skeleton.NUM_BONES)
         self._length_count = np.zeros(skeleton.NUM_BONES)
         self._held = np.full((skeleton.NUM_BONES, 3), np.nan)  # in the parent joint's frame
@@ -304,19 +320,21 @@ class SensorFusion:
         )
         bone_trust = np.minimum(trust[_PARENT_BONE], trust[_CHILD_BONE])
         seen = bone_trust > 0.9
-        self._length_sum += np.where(seen, pose_utils.bone_lengths(filtered), 0.0)
-        self._length_count += seen
         database_bones = pose_utils.bone_vectors(database)
-        lengths = np.where(
-            self._length_count > 0,
-            self._length_sum / np.maximum(self._length_count, 1.0),
-            np.linalg.norm(database_bones, axis=-1),
-        )
         sensor_bones = (
             pose_utils.bone_vectors(filtered)
             if self.bone_model is None
             else self.bone_model.bone_vectors(np.where(trust[:, None] > 0.5, filtered, database))
         )
+        # The user's lengths: the mean of the seen (modelled) bones, then the settling rule.
+        self._length_sum += np.where(seen, np.linalg.norm(sensor_bones, axis=-1), 0.0)
+        self._length_count += seen
+        lengths = np.where(
+            self._length_count > 0,
+            self._length_sum / np.maximum(self._length_count, 1.0),
+            np.linalg.norm(database_bones, axis=-1),
+        )
+        lengths = self._settler.update(lengths, timestamp)
         # How well the database reproduces each bone while the sensor sees it.
         step = 0.0 if self._last_timestamp is None else timestamp - self._last_timestamp
         self._last_timestamp = timestamp
@@ -346,7 +364,13 @@ class SensorFusion:
             "bji,bj->bi", joint_frames(pose)[_PARENT_BONE], _unit(pose_utils.bone_vectors(pose))
         )
         self._held = np.where(seen[:, None], local, self._held)
-        return np.asarray(self._output_filter.update(pose, everywhere, timestamp), dtype=np.float64)
+        pose = np.asarray(self._output_filter.update(pose, everywhere, timestamp), dtype=np.float64)
+        if cfg.lengths == "retarget":
+            return np.asarray(pose_utils.retarget(pose, lengths), dtype=np.float64)
+        if cfg.lengths == "solve":  # the same directions at the settled lengths, stiffly
+            own = _with_lengths(pose_utils.bone_vectors(pose), lengths)
+            return fuse_positions(pose, trust, database, own, 100.0, cfg.database_weight)
+        return pose
 
 
 def _unit(vectors: np.ndarray) -> np.ndarray:

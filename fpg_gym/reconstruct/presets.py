@@ -246,7 +246,7 @@ def pipeline(
             },
             "the papers' pipeline (no maps, no temporal stage, no bone settling, no fusion)",
         )
-    fusion = FusionConfig(enabled=profile.fusion, output_filter="kalman")
+    fusion = FusionConfig(enabled=profile.fusion)
     if profile.fitted:
         resources = resources or SensorResources.packaged(profile.name)
     if profile.fitted and resources is not None:

@@ -634,7 +634,9 @@ class Reconstructor:
         )
         self._trust = SensorTrust(config.fusion) if config.fusion.enabled else None
         self._fusion = (
-            SensorFusion(config.fusion, config.bone_model) if config.fusion.enabled else None
+            SensorFusion(config.fusion, config.bone_model, config.bones)
+            if config.fusion.enabled
+            else None
         )
         self._sensor_output_map = sensor_to_output_map(config)
         self.reset()
@@ -1032,8 +1034,10 @@ class Reconstructor:
             # Fusion (not in the papers): the sensor where it is trusted, the reconstruction
             # where it is not.
             t5 = time.perf_counter()
-            mapped = sensor if self._sensor_output_map is None else (
-                self._sensor_output_map.apply(sensor)
+            mapped = (
+                sensor
+                if self._sensor_output_map is None
+                else (self._sensor_output_map.apply(sensor))
             )
             pose = self._fusion.update(pose, mapped, pending.trust, pending.timestamp)
             spent = 1e3 * (time.perf_counter() - t5)
