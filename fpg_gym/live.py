@@ -57,7 +57,10 @@ from typing import Any, BinaryIO
 import numpy as np
 
 from fpg_gym import skeleton
+from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.errors import FpgGymError
+from fpg_gym.filters import make_filter
+from fpg_gym.methods import Method
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.validation import check_integer, check_number
 from optimizers import make
@@ -560,6 +563,37 @@ class ReconstructorStep:
             frame.positions, frame.states, frame.timestamp, self.optimizer, self.rng
         )
         return pose
+
+
+class FilterStep:
+    """The per-frame step of a reference filter (``raw``, ``holt``, ``kalman``, ``one-euro``,
+    optionally ``+map``: the sensor through the map into the reconstruction's output
+    definitions, :func:`fpg_gym.definitions.sensor_to_output_map` of ``options``).
+
+    Raises
+    ------
+    ValueError
+        For ``+ragdoll`` (the filters' ragdoll stage runs on whole streams) or ``+map`` without
+        a map in ``options``.
+    """
+
+    def __init__(self, method: Method, options: dict[str, Any]) -> None:
+        if method.ragdoll:
+            raise ValueError(f"--method {method.name}: live runs the filters without the ragdoll")
+        assert method.filter_name is not None
+        self.filter = make_filter(method.filter_name)
+        self.mapping = sensor_to_output_map(options) if method.mapped else None
+        if method.mapped and self.mapping is None:
+            raise ValueError(
+                f"--method {method.name}: no definition map to apply; give --sensor kinect-v2 "
+                "or a map (--sensor-map, --calibration-map)"
+            )
+
+    def __call__(self, frame: LiveFrame) -> np.ndarray:
+        positions = np.asarray(frame.positions, dtype=np.float64)
+        if self.mapping is not None:
+            positions = self.mapping.apply(positions)
+        return np.asarray(self.filter.update(positions, frame.states, frame.timestamp))
 
 
 def _read_into(

@@ -332,6 +332,7 @@ def test_live_command_stdin_to_stdout(
     text = "\n".join([*lines, '{"end": true}', "ignored after the end"]) + "\n"
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO(text.encode())))
     argv = ["live", "--graph", str(graph_path), "--method", f"fpg:{OPTIMIZER}"]
+    argv += ["--sensor", "simulated"]  # the stream's sensor, as the offline recording says
     assert main([*argv, "--queue", "1000", "--max-age-ms", "0"]) == 0
     captured = capsys.readouterr()
     out = [json.loads(line) for line in captured.out.splitlines()]
@@ -345,7 +346,7 @@ def test_live_command_stdin_to_stdout(
 def test_live_command_bad_arguments(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["live", "--graph", "default", "--input", "tcp://x:1"]) == 2
     assert "--input: expected '-' or udp://HOST:PORT" in capsys.readouterr().err
-    assert main(["live", "--graph", "default", "--method", "holt"]) == 2
+    assert main(["live", "--graph", "default", "--method", "holt+ragdoll"]) == 2
     assert "--method" in capsys.readouterr().err
     for flag, value in (("--idle-timeout-s", "-1"), ("--idle-timeout-s", "nan")):
         assert main(["live", "--graph", "default", flag, value]) == 2
@@ -398,6 +399,7 @@ def test_live_command_goes_on_after_the_sender_clock_restarts(
         ]
         monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO("\n".join(lines).encode())))
         argv = ["live", "--graph", str(graph_path), "--method", f"fpg:{OPTIMIZER}"]
+        argv += ["--sensor", "simulated"]
         assert main([*argv, "--queue", "1000", "--max-age-ms", "0"]) == 0
         captured = capsys.readouterr()
         out = [json.loads(line) for line in captured.out.splitlines()]
@@ -564,3 +566,27 @@ def test_any_timestamps_keep_the_stream_going_and_its_time_forward(stamps: list)
     assert stats.emitted + late == len(stamps) == stats.received
     assert len(out) == stats.emitted and all(np.isfinite(t) for t in seen)
     assert np.all(np.diff(np.asarray(seen, dtype=float)) >= 0)
+
+
+def test_live_runs_the_mapped_filters_as_offline(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 33: the baselines a Kinect user has (the sensor through a definition map and a
+    filter) run live too, frame for frame as offline."""
+    from fpg_gym.definitions import KINECT_V2_TO_VICON, packaged_map
+    from fpg_gym.filters import make_filter
+
+    rec = recording()
+    lines = [
+        live.frame_line(rec.positions[i], rec.states[i], rec.timestamps[i])
+        for i in range(rec.num_frames)
+    ]
+    monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO("\n".join(lines).encode())))
+    argv = ["live", "--method", "holt+map", "--sensor", "kinect-v2", "--queue", "1000"]
+    assert main([*argv, "--max-age-ms", "0"]) == 0
+    captured = capsys.readouterr()
+    assert "configuration auto: kinect-v2" in captured.err
+    poses = np.array([json.loads(line)["joints"] for line in captured.out.splitlines()])
+    mapped = packaged_map(KINECT_V2_TO_VICON).apply(rec.positions)
+    expected = make_filter("holt").filter_sequence(mapped, rec.states, rec.timestamps)
+    np.testing.assert_allclose(poses, expected, atol=1e-4)

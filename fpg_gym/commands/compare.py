@@ -162,12 +162,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     methods.add_argument(
         "--k", type=types.integer(1), default=30, help="candidates per frame (default 30)"
     )
-    methods.add_argument(
-        "--sensor-map", metavar="MAP.json", help="joint-definition map, sensor -> database"
-    )
-    methods.add_argument(
-        "--output-map", metavar="MAP.json", help="joint-definition map applied to the output"
-    )
     add_calibration_arguments(methods)
     parser.add_argument(
         "--workers",

@@ -7,6 +7,8 @@ import json
 import sys
 from typing import Any
 
+from fpg_gym.commands.reconstruct import add_calibration_arguments, choose_pipeline, resolve_graph
+
 NAME = "live"
 HELP = (
     "reconstruct a live stream: JSON-line frames from stdin or udp://HOST:PORT, each "
@@ -17,7 +19,11 @@ HELP = (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Register the command's arguments."""
     parser.add_argument(
-        "--graph", required=True, metavar="FILE", help="pose graph .npz or 'default'"
+        "--graph",
+        default="default",
+        metavar="FILE",
+        help="pose graph .npz or a name: 'default' (the --sensor's default database), "
+        "'embedded', 'uiprmd' (default: 'default')",
     )
     parser.add_argument(
         "--input", default="-", metavar="SRC", help="'-' (stdin, the default) or udp://HOST:PORT"
@@ -30,8 +36,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default="fpg:local-search",
         metavar="NAME",
         help="a reconstruction method (fpg[:OPTIMIZER], shum[:OPTIMIZER], optionally +ragdoll; "
-        "default fpg:local-search)",
+        "default fpg:local-search) or a reference filter (raw, holt, kalman, one-euro, each "
+        "optionally +map)",
     )
+    add_calibration_arguments(parser)
     parser.add_argument("--seed", type=int, default=0, help="optimiser seed (default 0)")
     parser.add_argument(
         "--budget", type=int, default=2000, help="energy evaluations per frame (default 2000)"
@@ -72,7 +80,6 @@ def run(args: argparse.Namespace) -> int:
     import threading
 
     from fpg_gym import live
-    from fpg_gym.graph import load_graph
     from fpg_gym.methods import parse_method
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
 
@@ -89,10 +96,8 @@ def run(args: argparse.Namespace) -> int:
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames: expected >= 1, got {args.max_frames}")
     method = parse_method(args.method)
-    if method.is_filter:
-        raise ValueError(
-            f"--method: live runs reconstruction methods (fpg, shum), got {method.name}"
-        )
+    if method.is_filter and method.ragdoll:
+        raise ValueError(f"--method {method.name}: live runs the filters without the ragdoll")
     if args.input != "-":
         live.parse_address(args.input, "--input")
     if args.output == "-":
@@ -123,15 +128,22 @@ def run(args: argparse.Namespace) -> int:
             host, port = sock.getsockname()[:2]
             say(f"listening on udp://{host}:{port}")
         reader = live.LiveReader(lines, args.queue)
-        assert method.optimizer is not None and method.selector is not None
-        reconstructor = Reconstructor(
-            load_graph(args.graph),
-            ragdoll=method.ragdoll,
-            selector=method.selector,
-            max_evaluations=args.budget,
-            weights=EnergyWeights().with_prior() if method.prior else EnergyWeights(),
-        )
-        step = live.ReconstructorStep(reconstructor, method.optimizer, args.seed)
+        graph = resolve_graph(args.graph, None, args.sensor)
+        chosen = choose_pipeline(args, None, graph, say)
+        step: Any
+        if method.is_filter:
+            step = live.FilterStep(method, chosen.options)
+        else:
+            assert method.optimizer is not None and method.selector is not None
+            reconstructor = Reconstructor(
+                graph,
+                ragdoll=method.ragdoll,
+                selector=method.selector,
+                max_evaluations=args.budget,
+                weights=EnergyWeights().with_prior() if method.prior else EnergyWeights(),
+                **chosen.options,
+            )
+            step = live.ReconstructorStep(reconstructor, method.optimizer, args.seed)
         say("ready")
         stats = live.run_live(
             reader,

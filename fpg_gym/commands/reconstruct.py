@@ -97,16 +97,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="weight of the latent prior Ep (beyond the papers; default 0 = the papers' energy, "
         "0.1 was chosen on a validation split)",
     )
-    parser.add_argument(
-        "--sensor-map",
-        metavar="MAP.json",
-        help="joint-definition map from the sensor's to the database's joints (fpg-gym fit-map)",
-    )
-    parser.add_argument(
-        "--output-map",
-        metavar="MAP.json",
-        help="joint-definition map applied to the output (database -> wanted definitions)",
-    )
     add_calibration_arguments(parser)
     parser.add_argument(
         "--checkpoint-s",
@@ -133,8 +123,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def add_calibration_arguments(parser: Any) -> None:
-    """``--sensor``, ``--preset``, ``--sensor-blend``, ``--calibrate-output`` and
-    ``--calibration-map`` (reconstruct and compare)."""
+    """``--sensor``, ``--preset``, ``--sensor-map``, ``--output-map``, ``--sensor-blend``,
+    ``--calibrate-output`` and ``--calibration-map`` (reconstruct, compare and live)."""
+    parser.add_argument(
+        "--sensor-map",
+        metavar="MAP",
+        help="joint-definition map from the sensor's to the database's joints: a JSON file "
+        "(fpg-gym fit-map) or a packaged name (kinect-v2-to-vicon, kinect-v2-to-embedded, "
+        "kinect-v2-to-bandai)",
+    )
+    parser.add_argument(
+        "--output-map",
+        metavar="MAP",
+        help="joint-definition map applied to the output (database -> wanted definitions)",
+    )
     parser.add_argument(
         "--sensor",
         metavar="NAME",
@@ -165,7 +167,7 @@ def add_calibration_arguments(parser: Any) -> None:
     )
     parser.add_argument(
         "--calibration-map",
-        metavar="MAP.json",
+        metavar="MAP",
         help="with --calibrate-output: map from the sensor to the definitions wanted in the "
         "output (default: the sensor's own)",
     )
@@ -213,9 +215,12 @@ def load_map(name: str) -> Any:
     return DefinitionMap.load(name)
 
 
-def choose_pipeline(args: argparse.Namespace, recording: Any, graph: Any = None) -> Any:
+def choose_pipeline(
+    args: argparse.Namespace, recording: Any, graph: Any = None, say: Any = None
+) -> Any:
     """The pipeline of the arguments for ``recording`` (:func:`fpg_gym.reconstruct.presets.
-    choose_pipeline`), printed once."""
+    choose_pipeline`; ``recording`` None: only ``--sensor`` names the sensor), printed once
+    (by ``say``, else as a summary line)."""
     import sys
 
     from fpg_gym.reconstruct.presets import choose_pipeline as choose
@@ -226,7 +231,11 @@ def choose_pipeline(args: argparse.Namespace, recording: Any, graph: Any = None)
     )
     tuning["sensor_blend"] = args.sensor_blend
     chosen = choose(args.preset, sensor_of(recording, args.sensor), graph, tuning)
-    _say(args, f"configuration    {chosen.preset}: {chosen.description}")
+    line = f"configuration    {chosen.preset}: {chosen.description}"
+    if say is not None:
+        say(" ".join(line.split()))
+    else:
+        _say(args, line)
     if chosen.note:
         print(f"note: {chosen.note}", file=sys.stderr)
     return chosen

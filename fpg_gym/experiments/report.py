@@ -23,6 +23,10 @@ TABLE_COLUMNS: tuple[str, ...] = (
     "method",
     "episodes",
     "mean error (m) ± std",
+    "MPJPE (m)",
+    "root-rel. / PA-MPJPE (m)",
+    "occluded / visible MPJPE (m)",
+    "bone-length error (mm)",
     "Err0.2 (%) min / mean / max",
     "bone-length spread (mm)",
     "jitter (m/s²)",
@@ -70,6 +74,10 @@ def table_rows(summary: dict[str, Any]) -> list[list[str]]:
                 label,
                 str(m["episodes"]),
                 error,
+                _fmt(m.get("mpjpe_m")),
+                f"{_fmt(m.get('root_mpjpe_m'))} / {_fmt(m.get('pa_mpjpe_m'))}",
+                f"{_fmt(m.get('occluded_mpjpe_m'))} / {_fmt(m.get('visible_mpjpe_m'))}",
+                _fmt(m.get("bone_length_error_mm"), 1),
                 err_text,
                 _fmt(m["bone_length_spread_mm"], 1),
                 _fmt(m["jitter_ms2"], 1),
@@ -138,20 +146,27 @@ def format_scenarios(summary: dict[str, Any]) -> str:
 
 
 def format_joints(summary: dict[str, Any], limit: int = 8) -> str:
-    """Markdown table of the root-relative error per joint (cm), one column per method (the
-    first ``limit`` methods); empty when no method has ground truth."""
+    """Markdown table of each joint's error (cm), one column per method (the first ``limit``
+    methods): absolute (MPJPE's), root-relative, and the Eq. 13 term of the bone ending at it
+    in parentheses; empty when no method has ground truth."""
     methods = [
         m for m in summary["method_order"] if summary["methods"][m].get("per_joint_root_error_m")
     ][:limit]
     if not methods:
         return ""
     rows = []
-    for joint in skeleton.JOINT_NAMES[1:]:
+    for joint in skeleton.JOINT_NAMES:
         cells = []
         for m in methods:
-            value = summary["methods"][m]["per_joint_root_error_m"][joint]
-            bone = (summary["methods"][m].get("per_joint_error_m") or {}).get(joint)
-            cells.append(f"{100 * value:.1f}" + (f" ({100 * bone:.1f})" if bone else ""))
+            entry = summary["methods"][m]
+            root = entry["per_joint_root_error_m"][joint]
+            absolute = (entry.get("per_joint_mpjpe_m") or {}).get(joint)
+            bone = (entry.get("per_joint_error_m") or {}).get(joint)
+            text = f"{100 * absolute:.1f} / " if absolute is not None else ""
+            text += f"{100 * root:.1f}"
+            if bone is not None and math.isfinite(bone):
+                text += f" ({100 * bone:.1f})"
+            cells.append(text)
         rows.append([joint, *cells])
     return markdown_table(["joint", *methods], rows)
 
@@ -321,10 +336,15 @@ def report_markdown(summary: dict[str, Any]) -> str:
         format_table(summary),
         "",
         "Mean error: FPG Eq. 13 (mean over the 19 bones of the bone-vector error) over all "
-        "frames, ± its standard deviation over frames. Err0.2: share of frames with error "
-        "≥ 0.2 m, min / mean / max over episodes. Bone-length spread: standard deviation of "
-        "each bone's length over an episode, mean over bones and episodes. Jitter: mean "
-        "acceleration magnitude over joints and frames"
+        "frames, ± its standard deviation over frames. MPJPE: mean distance of each joint to "
+        "the ground truth in the space both share (absolute); root-relative: once both have "
+        "their HipCenter at the origin; PA: after the best similarity transform of each frame "
+        "(Procrustes); occluded / visible: the joints the recording marks as hidden (or "
+        "mislabelled) and the others. Bone-length error: mean absolute difference of each "
+        "bone's length from the truth's, over bones, frames and episodes. Err0.2: share of "
+        "frames with error ≥ 0.2 m, min / mean / max over episodes. Bone-length spread: "
+        "standard deviation of each bone's length over an episode, mean over bones and "
+        "episodes. Jitter: mean acceleration magnitude over joints and frames"
         + (f" (ground truth: {truth_jitter:.1f} m/s²)" if truth_jitter is not None else "")
         + ". Lag: the shift (frames) that best aligns the output with the ground truth "
         "(`fpg_gym.metrics.lag`), mean over episodes; positive is late. Bone spread after 1 s: "
@@ -357,9 +377,9 @@ def report_markdown(summary: dict[str, Any]) -> str:
             "",
             joints,
             "",
-            "Root-relative error: distance of each joint to the ground truth once both have "
-            "their HipCenter at the origin, mean over frames; in brackets the FPG Eq. 13 "
-            "summand (the error of the bone that ends at the joint).",
+            "Absolute error (MPJPE's term) / root-relative error (distance of each joint to the "
+            "ground truth once both have their HipCenter at the origin), mean over frames; in "
+            "brackets the FPG Eq. 13 summand (the error of the bone that ends at the joint).",
             "",
         ]
     plots = summary.get("plots", {})

@@ -223,6 +223,26 @@ def _row(
         arrays["errors"] = errors
         arrays["per_joint_error"] = metrics.per_joint_error(truth[:count], poses)
         arrays["per_joint_root_error"] = metrics.root_relative_error(truth[:count], poses)
+        # The field's measures beside Eq. 13: absolute, root-relative and Procrustes-aligned
+        # joint distances, bone lengths against the truth, occluded and visible joints apart.
+        distances = metrics.joint_distances(truth[:count], poses)
+        arrays["per_joint_mpjpe"] = distances.mean(axis=0)
+        row.update(
+            mpjpe_m=float(distances.mean()),
+            root_mpjpe_m=metrics.mpjpe(truth[:count], poses, "root"),
+            pa_mpjpe_m=metrics.mpjpe(truth[:count], poses, "procrustes"),
+            bone_length_error_mm=1000.0
+            * float(metrics.bone_length_error(truth[:count], poses).mean()),
+            input_mpjpe_m=metrics.mpjpe(truth[:count], recording.positions[:count]),
+        )
+        occluded = getattr(recording, "occluded", None)
+        if occluded is not None:
+            hidden = np.asarray(occluded[:count], dtype=bool)
+            row["occluded_joint_frames"] = int(hidden.sum())
+            if hidden.any():
+                row["occluded_mpjpe_m"] = float(distances[hidden].mean())
+            if (~hidden).any():
+                row["visible_mpjpe_m"] = float(distances[~hidden].mean())
         if count >= 3:
             frames_lag = metrics.lag(poses, truth[:count])
             row["lag_frames"] = frames_lag

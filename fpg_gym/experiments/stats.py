@@ -93,6 +93,14 @@ def _sequence(value: Any) -> list[Any]:
     return value if isinstance(value, list) else []
 
 
+def _per_joint(parts: list[tuple[np.ndarray, int]]) -> dict[str, float] | None:
+    """A per-joint mean over episodes, weighted by their frames, by joint name."""
+    if not parts:
+        return None
+    mean = np.sum([j * n for j, n in parts], axis=0) / sum(n for _, n in parts)
+    return dict(zip(skeleton.JOINT_NAMES, mean.tolist(), strict=True))
+
+
 def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, Any]:
     rows = [r for r in read_rows(out / "results.csv") if r.get("interrupted") in ("0", "")]
     latest: dict[tuple[str, str], dict[str, str]] = {}
@@ -120,7 +128,7 @@ def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, A
     result: dict[str, Any] = {}
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
-        errors, ms, joints, root_joints = [], [], [], []
+        errors, ms, joints, root_joints, mpjpe_joints = [], [], [], [], []
         stage_sums: dict[str, list[np.ndarray]] = {}
         for r in mine:
             frames = files.get(r["episode"], method)
@@ -131,6 +139,8 @@ def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, A
                 joints.append((frames["per_joint_error"], len(frames["errors"])))
                 if "per_joint_root_error" in frames:
                     root_joints.append((frames["per_joint_root_error"], len(frames["errors"])))
+                if "per_joint_mpjpe" in frames:
+                    mpjpe_joints.append((frames["per_joint_mpjpe"], len(frames["errors"])))
             ms.append(frames["ms"])
             for i, stage in enumerate(frames["stage_names"]):
                 stage_sums.setdefault(str(stage), []).append(frames["stage_ms"][:, i])
@@ -144,7 +154,7 @@ def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, A
         def weighted(
             column: str, rows_: list[dict[str, str]] = mine, w: np.ndarray = weights
         ) -> Any:
-            values = np.array([_num(r[column]) for r in rows_])
+            values = np.array([_num(r.get(column, "")) for r in rows_])
             use = np.isfinite(values) & (w > 0)
             return float(np.average(values[use], weights=w[use])) if use.any() else None
 
@@ -189,20 +199,19 @@ def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, A
                 if joints
                 else None
             ),
-            "per_joint_root_error_m": (
-                dict(
-                    zip(
-                        skeleton.JOINT_NAMES,
-                        (
-                            np.sum([j * n for j, n in root_joints], axis=0)
-                            / sum(n for _, n in root_joints)
-                        ).tolist(),
-                        strict=True,
-                    )
-                )
-                if root_joints
-                else None
+            "per_joint_root_error_m": _per_joint(root_joints),
+            "per_joint_mpjpe_m": _per_joint(mpjpe_joints),
+            "mpjpe_m": weighted("mpjpe_m"),
+            "root_mpjpe_m": weighted("root_mpjpe_m"),
+            "pa_mpjpe_m": weighted("pa_mpjpe_m"),
+            "visible_mpjpe_m": weighted("visible_mpjpe_m"),
+            "occluded_mpjpe_m": weighted(
+                "occluded_mpjpe_m",
+                mine,
+                np.array([_num(r.get("occluded_joint_frames", "")) for r in mine]),
             ),
+            "input_mpjpe_m": weighted("input_mpjpe_m"),
+            "bone_length_error_mm": weighted("bone_length_error_mm"),
             "per_scenario_mean_error_m": {},
         }
         for scenario in sorted({r["scenario"] for r in mine}):

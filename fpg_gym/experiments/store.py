@@ -49,6 +49,14 @@ CSV_FIELDS: tuple[str, ...] = (
     "p95_error_m",
     "err02_pct",
     "input_mean_error_m",
+    "mpjpe_m",
+    "root_mpjpe_m",
+    "pa_mpjpe_m",
+    "occluded_mpjpe_m",
+    "visible_mpjpe_m",
+    "occluded_joint_frames",
+    "input_mpjpe_m",
+    "bone_length_error_mm",
     "bone_length_spread_mm",
     "jitter_ms2",
     "truth_jitter_ms2",
@@ -443,6 +451,7 @@ _FRAME_SHAPES: dict[str, tuple[int | str, ...]] = {
     "energy": ("T",),
     "per_joint_error": (skeleton.NUM_JOINTS,),
     "per_joint_root_error": (skeleton.NUM_JOINTS,),
+    "per_joint_mpjpe": (skeleton.NUM_JOINTS,),
 }
 _FRAME_REQUIRED = ("poses", "ms", "stage_names", "stage_ms")
 
@@ -468,6 +477,7 @@ _REPORT_KEYS = (
     "errors",
     "per_joint_error",
     "per_joint_root_error",
+    "per_joint_mpjpe",
     "ms",
     "stage_names",
     "stage_ms",
