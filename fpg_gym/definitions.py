@@ -77,7 +77,7 @@ __all__ = [
 #: ``format`` entry of a definition-map JSON file.
 FORMAT = "fpg-gym-definition-map-1"
 #: Name of the packaged Kinect v2 -> Vicon joint-centre map (:func:`packaged_map`), fitted on
-#: every UI-PRMD subject (s01-s08) with ``fpg-gym fit-map`` (see ``fpg_gym/data/README.md``).
+#: UI-PRMD subjects s01-s07 (``scripts/package_data.py``, see ``fpg_gym/data/README.md``).
 KINECT_V2_TO_VICON = "kinect-v2-to-vicon"
 _DATA = Path(__file__).resolve().parent / "data"
 
@@ -597,7 +597,7 @@ def packaged_map(name: str) -> DefinitionMap:
     """A definition map shipped with fpg-gym (``fpg_gym/data/NAME.json``).
 
     :data:`KINECT_V2_TO_VICON` maps Kinect v2 joints onto marker-based joint centres; it was
-    fitted on all UI-PRMD subjects, so never score a UI-PRMD subject with it (fit per fold with
+    fitted on UI-PRMD subjects s01-s07, so never score one of them with it (fit per fold with
     :func:`fit_sensor_maps` instead, as ``scripts/real_kinect.py`` does).
 
     Raises

@@ -13,7 +13,8 @@
 * a **callable** ``obs -> action`` (e.g. ``lambda obs: env.action_space.sample()``);
 * a **method name** (:mod:`fpg_gym.methods`): ``fpg:OPTIMIZER`` / ``shum:OPTIMIZER`` run that
   optimiser (the env's selector and ragdoll setting must match the name), and the reference
-  filters ``raw``, ``holt[:PRESET]``, ``kalman[:PRESET]`` (optionally ``+ragdoll``) run on the
+  filters ``raw``, ``holt[:PRESET]``, ``kalman[:PRESET]``, ``one-euro[:PRESET]`` (optionally
+  ``+map``, through the env reconstructor's definition maps, and ``+ragdoll``) run on the
   episode's recording after the reset, without stepping the env (their rewards and energies are
   NaN; frame errors are measured when the recording has ground truth).
 
@@ -236,7 +237,8 @@ def run_episode(
     if max_steps is not None:
         total = max_steps if total is None else min(total, max_steps)
     if kind == "filter":
-        return _run_filter_episode(base.recording, actor, label, total, reset_info)
+        config = getattr(getattr(base, "reconstructor", None), "config", None)
+        return _run_filter_episode(base.recording, actor, label, total, reset_info, config)
     bar = None
     if progress:
         bar = tqdm(total=total, unit="frame", desc=f"episode ({label})", leave=False)
@@ -303,13 +305,21 @@ def run_episode(
 
 
 def _run_filter_episode(
-    recording: Any, method: Any, label: str, frames: int | None, reset_info: dict[str, Any]
+    recording: Any,
+    method: Any,
+    label: str,
+    frames: int | None,
+    reset_info: dict[str, Any],
+    config: Any = None,
 ) -> EpisodeResult:
-    """A reference filter over the episode's recording (the env is not stepped)."""
+    """A reference filter over the episode's recording (the env is not stepped); ``+map``
+    uses the maps of the env's reconstructor ``config``."""
 
     part = recording.head(frames)
     count = part.num_frames
-    with MethodRunner() as runner:
+    maps = ("sensor_map", "output_map", "calibrate_output", "calibration_map")
+    options = {name: getattr(config, name, None) for name in maps} if config else {}
+    with MethodRunner(reconstructor_options=options) as runner:
         result = runner.run(method, part)
     truth = part.ground_truth
     nan = np.full(count, np.nan)

@@ -1,7 +1,8 @@
 """Rebuild the Kinect v2 data shipped in ``fpg_gym/data`` from UI-PRMD's shared subjects.
 
-Writes, from the eight subjects of ``../shared/data/ui_prmd`` (s01-s08; UI-PRMD's own s09 and
-s10 are never used):
+Writes, from seven subjects of ``../shared/data/ui_prmd`` (s01-s07; s08 is kept out of every
+packaged model so that the demo can score its repetitions, and UI-PRMD's own s09 and s10 are
+never used):
 
 * ``kinect-v2-to-vicon.json``: the Kinect v2 -> Vicon joint-centre definition map
   (:meth:`fpg_gym.definitions.DefinitionMap.fit` on every paired frame);
@@ -11,7 +12,9 @@ s10 are never used):
   marked ``params["definitions"] = "vicon"``;
 * ``kinect-v2-to-embedded.json`` and ``kinect-v2-to-bandai.json``: Kinect v2 -> the embedded
   and the Bandai Namco ``dataset-1`` databases' definitions
-  (:func:`fpg_gym.definitions.fit_sensor_maps`).
+  (:func:`fpg_gym.definitions.fit_sensor_maps`);
+* ``demo/*.npz``: four repetitions of s08 (the middle one of a squat, a hurdle step, a sit to
+  stand and a shoulder abduction) with their Vicon joint centres, for ``fpg-gym demo``.
 
 Usage::
 
@@ -31,12 +34,15 @@ from fpg_gym.definitions import DefinitionMap, fit_sensor_maps
 from fpg_gym.graph import FilteredPoseGraph, default_graph
 from fpg_gym.io import load_clips
 from fpg_gym.io.positions import read_positions
-from fpg_gym.io.recording import load_recording
+from fpg_gym.io.recording import Recording, load_recording, write_recording
 from fpg_gym.io.ui_prmd_import import import_uiprmd
 from fpg_gym.reconstruct.bone_model import LinearBoneModel
 
 REPO = Path(__file__).resolve().parents[1]
-SUBJECTS = ("s01", "s02", "s03", "s04", "s05", "s06", "s07", "s08")
+SUBJECTS = ("s01", "s02", "s03", "s04", "s05", "s06", "s07")
+#: The demo's subject and repetitions (never in a packaged model).
+DEMO_SUBJECT = "s08"
+DEMO_REPETITIONS = ("m01_s08_e05", "m02_s08_e05", "m05_s08_e05", "m07_s08_e05")
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -47,7 +53,8 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     imported = args.work / "ui_prmd"
     if not (imported / "import.json").is_file():
-        import_uiprmd(args.data / "ui_prmd", imported, subjects=list(SUBJECTS), progress=True)
+        subjects = [*SUBJECTS, DEMO_SUBJECT]
+        import_uiprmd(args.data / "ui_prmd", imported, subjects=subjects, progress=True)
     recordings = [
         load_recording(p)
         for p in sorted((imported / "recordings").glob("m*_s*_e*.npz"))
@@ -58,6 +65,20 @@ def main(argv: list[str] | None = None) -> int:
     groups = np.concatenate([[r.metadata["subject"]] * r.num_frames for r in recordings])
     args.out.mkdir(parents=True, exist_ok=True)
 
+    (args.out / "demo").mkdir(exist_ok=True)
+    for name in DEMO_REPETITIONS:
+        demo = load_recording(imported / "recordings" / f"{name}.npz")
+        metadata = {k: v for k, v in demo.metadata.items() if k != "source"}
+        write_recording(
+            args.out / "demo" / f"{name}.npz",
+            Recording(
+                demo.positions,
+                demo.states,
+                demo.timestamps,
+                demo.ground_truth,
+                {**metadata, "source": f"UI-PRMD {name} (Vakanski et al. 2018, ODC-PDDL)"},
+            ),
+        )
     to_vicon = DefinitionMap.fit(sensor, truth, source="kinect-v2", target="vicon")
     to_vicon.info["recordings"] = len(recordings)
     to_vicon.save(args.out / "kinect-v2-to-vicon.json")

@@ -10,7 +10,8 @@ import pytest
 
 from fpg_gym.cli import main
 from fpg_gym.experiments import TABLE_COLUMNS
-from fpg_gym.experiments.demo import DEMO_METHODS, QUICK_METHODS
+from fpg_gym.experiments.demo import DEMO_METHODS, QUICK_METHODS, REAL_METHODS, demo_recordings
+from fpg_gym.io.recording import load_recording
 from fpg_gym.experiments.view import rerun_available
 
 
@@ -22,8 +23,8 @@ def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     summary = json.loads(lines[-1])
     # The printed table has the report's columns and one row per method.
     header = "| " + " | ".join(TABLE_COLUMNS) + " |"
-    assert header in lines
-    start = lines.index(header)
+    assert lines.count(header) == 3  # the two real sections, then the simulated one
+    start = len(lines) - 1 - lines[::-1].index(header)
     rows = [line for line in lines[start + 2 :] if line.startswith("|")]
     rows = rows[: len(QUICK_METHODS)]
     assert [r.split("|")[1].strip().strip("*") for r in rows] == list(QUICK_METHODS)
@@ -32,7 +33,25 @@ def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert set(summary["methods"]) == set(QUICK_METHODS)
     for method in QUICK_METHODS:
         assert 0 < summary["methods"][method]["mean_error_m"] < 0.5
+    # The real section comes first: the shipped UI-PRMD repetitions against Vicon, as they are
+    # and with the legs lost; the default pipeline beats what a Kinect user has on both.
+    real = summary["real"]
+    assert set(real) == {"clean", "occluded"}
+    quick_real = [m for m in REAL_METHODS if m != "holt"]
+    for part in real.values():
+        assert list(part) == quick_real
+    assert printed.index("real Kinect v2 streams") < printed.index("simulated episodes")
+    occluded = real["occluded"]
+    assert occluded["fpg:local-search"]["occluded_mpjpe_m"] < occluded["raw"]["occluded_mpjpe_m"]
+    assert real["clean"]["fpg:local-search"]["mpjpe_m"] < real["clean"]["raw"]["mpjpe_m"]
+    report = (out / "report.md").read_text()
+    assert report.index("## Real Kinect v2 streams") < report.index("## Simulated streams")
+    headline = (out / "headline.md").read_text()
+    assert "`fpg:local-search`" in headline and "occluded joints' MPJPE" in headline
+    for name in ("clean", "occluded"):
+        assert (out / "real" / name / "results.csv").is_file()
     expected = {
+        "headline.md",
         "results.csv",
         "summary.json",
         "report.md",
@@ -47,7 +66,8 @@ def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     assert expected <= set(summary["files"])
     assert expected <= {p.name for p in out.iterdir()}
     gif = iio.imread(out / "demo.gif")
-    assert gif.shape[0] == 24  # one GIF frame per episode frame (24 in the quick demo)
+    squat = load_recording(demo_recordings()[0])  # the GIF: the real squat with its legs lost
+    assert gif.shape[0] == squat.num_frames  # one GIF frame per episode frame
     assert gif.shape[2] > 2 * gif.shape[1]  # three panels side by side
     assert "time:" in printed
     if rerun_available():  # the 3D view (fpg-gym[view]) comes with the demo when installed
@@ -59,5 +79,6 @@ def test_demo_methods_are_valid_names() -> None:
     from fpg_gym.methods import parse_method
 
     assert "fpg:local-search" in DEMO_METHODS
-    for name in DEMO_METHODS + QUICK_METHODS:
+    assert len(demo_recordings()) == 4  # shipped in the package, subject s08
+    for name in DEMO_METHODS + QUICK_METHODS + REAL_METHODS:
         assert parse_method(name).name == name
