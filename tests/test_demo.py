@@ -11,8 +11,8 @@ import pytest
 from fpg_gym.cli import main
 from fpg_gym.experiments import TABLE_COLUMNS
 from fpg_gym.experiments.demo import DEMO_METHODS, QUICK_METHODS, REAL_METHODS, demo_recordings
-from fpg_gym.io.recording import load_recording
 from fpg_gym.experiments.view import rerun_available
+from fpg_gym.io.recording import load_recording
 
 
 def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
