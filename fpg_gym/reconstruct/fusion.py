@@ -115,9 +115,9 @@ class FusionConfig:
         Time constant of the database's running agreement with the sensor, seconds (1).
     agreement_good, agreement_bad : float
         Distances between unit bone directions (about radians) where the database's share of
-        a lost bone is 1 and 0 (0.15 and 0.5).
+        a lost bone is 1 and 0 (0.08 and 0.25).
     hold_s : float
-        Time constant of the fade from the held bone to the database's, seconds (2).
+        Time constant of the fade from the held bone to the database's, seconds (0.5).
     output_filter : str
         Filter of the fused output (a :func:`fpg_gym.filters.make_filter` name; ``"kalman"``).
     lengths : {"retarget", "solve", "none"}
@@ -137,9 +137,9 @@ class FusionConfig:
     length_roof: float = 0.4
     sensor_filter: str = "kalman"
     agreement_s: float = 1.0
-    agreement_good: float = 0.15
-    agreement_bad: float = 0.5
-    hold_s: float = 2.0
+    agreement_good: float = 0.08
+    agreement_bad: float = 0.25
+    hold_s: float = 0.5
     output_filter: str = "kalman"
     lengths: str = "retarget"
 

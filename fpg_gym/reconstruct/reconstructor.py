@@ -681,6 +681,7 @@ class Reconstructor:
         self.reliability.reset()
         self.selector.reset()
         self._history: list[tuple[np.ndarray, float]] = []  # camera-space outputs, newest last
+        self._fused_history: list[tuple[np.ndarray, float]] = []  # the fusion's outputs
         self._placement: pose_utils.Placement | None = None
         self._pending: _Pending | None = None
         self._index = 0
@@ -779,6 +780,7 @@ class Reconstructor:
         # Stream (re)start: first frame, or a long gap since the last reconstruction.
         if self._history and (timestamp - self._history[-1][1] > cfg.max_gap_s):
             self._history.clear()
+            self._fused_history.clear()
             self.selector.reset()
             self.reliability.forget_motion()
             self._ragdoll_needs_reset = True
@@ -787,20 +789,26 @@ class Reconstructor:
         dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
 
         # Left/right confusions (a Kinect assumes the user faces it): keep the labelling that
-        # continues the previous reconstructions best.
+        # continues the previous outputs best (with the fusion, the fused outputs, compared with
+        # the sensor in their definitions: the database's own pose may be another activity's).
         labelling = 0
-        if cfg.left_right_fix and not first and not no_body:
-            last = self._history[-1][0]
+        history, compared = self._history, positions
+        if self._fusion is not None:
+            history = self._fused_history
+            if self._sensor_output_map is not None:
+                compared = self._sensor_output_map.apply(sensor)
+        if cfg.left_right_fix and history and not no_body:
+            last = history[-1][0]
             guess = last
-            if len(self._history) >= 2:
-                before = self._history[-2][0]
+            if len(history) >= 2:
+                before = history[-2][0]
                 guess = motion_target(
                     last - last[skeleton.ROOT],
                     before - before[skeleton.ROOT],
                     dt,
-                    self._history[-1][1] - self._history[-2][1],
+                    history[-1][1] - history[-2][1],
                 )
-            costs = left_right_costs(positions, states, guess)
+            costs = left_right_costs(compared, states, guess)
             best = int(np.argmin(costs))
             if (
                 best != 0
@@ -1040,6 +1048,8 @@ class Reconstructor:
                 else (self._sensor_output_map.apply(sensor))
             )
             pose = self._fusion.update(pose, mapped, pending.trust, pending.timestamp)
+            self._fused_history.append((np.asarray(pose, dtype=np.float64), pending.timestamp))
+            del self._fused_history[:-2]
             spent = 1e3 * (time.perf_counter() - t5)
             record.ms["finish"] += spent
             record.ms["total"] += spent
