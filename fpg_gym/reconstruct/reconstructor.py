@@ -818,6 +818,7 @@ class Reconstructor:
                 labelling = best
                 positions = positions[_LABEL_PERMUTATIONS[best]]
                 states = states[_LABEL_PERMUTATIONS[best]]
+                compared = compared[_LABEL_PERMUTATIONS[best]]
 
         # Normalise (root to origin, facing +Z); without a body keep the last placement.
         kinect, placement = pose_utils.normalise(positions)
@@ -840,7 +841,9 @@ class Reconstructor:
         terms = self.reliability.update(positions, states)
         trust = None
         if self._trust is not None:  # the fusion's trust scales R (not in the papers)
-            trust = self._trust.update(positions, states, timestamp)
+            # In the output's definitions, as the fusion sees the sensor (a database's own
+            # definitions may make a bone short enough for its noise to look like a jump).
+            trust = self._trust.update(compared, states, timestamp)
             terms = replace(terms, reliability=terms.reliability * trust)
         was_settled = self.bones.settled
         lengths = self.bones.update(terms.reference_lengths, timestamp)
