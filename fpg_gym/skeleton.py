@@ -115,6 +115,17 @@ BONE_OF_JOINT: Final[npt.NDArray[np.intp]] = np.full(NUM_JOINTS, -1, dtype=np.in
 BONE_OF_JOINT[BONES[:, 1]] = np.arange(NUM_BONES)
 BONE_OF_JOINT.flags.writeable = False
 
+def _depth_levels() -> tuple[npt.NDArray[np.intp], ...]:
+    depth = np.zeros(NUM_JOINTS, dtype=np.intp)
+    for joint in range(1, NUM_JOINTS):  # parents have smaller indices
+        depth[joint] = depth[PARENTS[joint]] + 1
+    return tuple(np.flatnonzero(depth == d) for d in range(1, int(depth.max()) + 1))
+
+
+#: The non-root joints grouped by depth in the tree, parents' level before children's: a
+#: computation down the chains runs one vectorised step per level.
+JOINT_LEVELS: Final[tuple[npt.NDArray[np.intp], ...]] = _depth_levels()
+
 #: Left/right joint pairs as (left, right) indices.
 MIRROR_PAIRS: Final[npt.NDArray[np.intp]] = np.array(
     [

@@ -102,13 +102,16 @@ def repetitions(paths: list[Path], reps: int) -> list[Path]:
     return chosen
 
 
-def uiprmd_graph(imported: Path, exclude: set[str], thres1: float) -> FilteredPoseGraph:
+def uiprmd_graph(
+    imported: Path, exclude: set[str], thres1: float, movement: str | None = None
+) -> FilteredPoseGraph:
     """The UI-PRMD database: a graph of the Vicon joint centres of every subject but
-    ``exclude`` (``imported`` is an ``import-uiprmd`` folder)."""
+    ``exclude`` (``imported`` is an ``import-uiprmd`` folder), without ``movement``'s clips
+    when given."""
     clips = [
         read_positions(p)
         for p in sorted((imported / "clips").glob("*.npz"))
-        if p.stem.split("_")[1] not in exclude
+        if p.stem.split("_")[1] not in exclude and p.stem.split("_")[0] != movement
     ]
     return FilteredPoseGraph.build(clips, thres1=thres1, progress=False)
 
@@ -148,16 +151,23 @@ def fold_maps(
 
 
 def fold_resources(
-    train: list[Recording], imported: Path, held_out: str, thres1: float
+    train: list[Recording],
+    imported: Path,
+    held_out: str,
+    thres1: float,
+    movement: str | None = None,
 ) -> tuple[SensorResources, FilteredPoseGraph]:
     """The Kinect v2 resources fitted without ``held_out`` (map, bone model, reference poses)
-    and the UI-PRMD database of the other subjects."""
+    and the UI-PRMD database of the other subjects; without ``movement`` (``m01``...) too when
+    given (a person and a movement never seen)."""
+    if movement is not None:
+        train = [r for r in train if not str(r.metadata["repetition"]).startswith(movement)]
     sensor = np.concatenate([r.positions for r in train])
     truth = np.concatenate([r.ground_truth for r in train if r.ground_truth is not None])
     groups = np.concatenate([[r.metadata["subject"]] * r.num_frames for r in train])
     to_vicon = DefinitionMap.fit(sensor, truth, source="kinect-v2", target="vicon")
     bones = LinearBoneModel.fit(to_vicon.apply(sensor), truth, groups, source="k2", target="v")
-    graph = uiprmd_graph(imported, {held_out}, thres1)
+    graph = uiprmd_graph(imported, {held_out}, thres1, movement)
     graph.params["definitions"] = "vicon"
     return SensorResources(to_vicon, bones, graph.poses), graph
 
@@ -198,25 +208,38 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
     held_out = task["subject"]
     train = [load_recording(p) for s, ps in subjects.items() if s != held_out for p in ps]
     t0 = time.process_time()
-    resources, uiprmd = fold_resources(train, imported, held_out, task["uiprmd_thres1"])
     database = task["database"]
-    if database == "uiprmd":
-        graph = uiprmd
-    elif database == "embedded":
-        graph = default_graph()
-    else:
-        graph = _bandai_graph(work, data)
-    chosen = {
-        "auto": pipeline("auto", "kinect-v2", graph, resources=resources),
-        "papers": pipeline("papers", "kinect-v2", graph),
-    }
+    setups: dict[str | None, tuple[Any, dict[str, MethodRunner]]] = {}
+
+    def setup(movement: str | None) -> tuple[Any, dict[str, MethodRunner]]:
+        """The fold's resources, database and runners (without ``movement`` when given)."""
+        if movement not in setups:
+            resources, uiprmd = fold_resources(
+                train, imported, held_out, task["uiprmd_thres1"], movement
+            )
+            if database == "uiprmd":
+                graph = uiprmd
+            elif database == "embedded":
+                graph = default_graph()
+            else:
+                graph = _bandai_graph(work, data)
+            chosen = {
+                "auto": pipeline("auto", "kinect-v2", graph, resources=resources),
+                "papers": pipeline("papers", "kinect-v2", graph),
+            }
+            runners = {
+                name: MethodRunner(graph, budget=task["budget"], reconstructor_options=p.options)
+                for name, p in chosen.items()
+            }
+            setups[movement] = ((resources, graph, chosen), runners)
+        return setups[movement]
+
+    (resources, graph, chosen), _ = setup(None)
     setup_s = time.process_time() - t0
-    runners = {
-        name: MethodRunner(graph, budget=task["budget"], reconstructor_options=p.options)
-        for name, p in chosen.items()
-    }
     rows = []
     for path in repetitions(subjects[held_out], task["reps"]):
+        movement = path.stem.split("_")[0] if task["leave_exercise_out"] else None
+        runners = setup(movement)[1]
         clean = load_recording(path)
         for case in task["occlusions"]:
             recording = (
@@ -242,8 +265,9 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
                         **_scores(recording, result.poses),
                     }
                 )
-    for runner in runners.values():
-        runner.close()
+    for _, fold_runners in setups.values():
+        for runner in fold_runners.values():
+            runner.close()
     return {
         "database": database,
         "subject": held_out,
@@ -314,6 +338,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--budget", type=int, default=2000, help="evaluations per frame")
     parser.add_argument("--uiprmd-thres1", type=float, default=0.1)
     parser.add_argument("--seed", type=int, default=0, help="occlusions' and optimisers' seed")
+    parser.add_argument(
+        "--leave-exercise-out",
+        action="store_true",
+        help="fit the map, the bone model and the UI-PRMD database without the scored "
+        "episode's exercise too (a person and a movement never seen)",
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write every row here")
     args = parser.parse_args(argv)
@@ -342,6 +372,7 @@ def main(argv: list[str] | None = None) -> int:
             "budget": args.budget,
             "uiprmd_thres1": args.uiprmd_thres1,
             "seed": args.seed,
+            "leave_exercise_out": args.leave_exercise_out,
         }
         for database in args.databases.split(",")
         for subject in args.subjects.split(",")
@@ -359,7 +390,9 @@ def main(argv: list[str] | None = None) -> int:
     rows = [row for result in results for row in result["rows"]]
     print(
         f"UI-PRMD leave-subjects-out, subjects {args.subjects}, {args.reps} repetition(s) per "
-        f"exercise, occlusions {args.occlusions}, seed {args.seed}; "
+        f"exercise, occlusions {args.occlusions}, seed {args.seed}"
+        + (", exercises left out too" if args.leave_exercise_out else "")
+        + "; "
         f"wall {time.perf_counter() - start_wall:.0f} s\n"
     )
     for database in args.databases.split(","):

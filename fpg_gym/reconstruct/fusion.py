@@ -71,15 +71,6 @@ _INCIDENCE.flags.writeable = False
 _LAPLACIAN = _INCIDENCE.T @ _INCIDENCE
 
 
-def _depth_levels() -> list[np.ndarray]:
-    depth = np.zeros(skeleton.NUM_JOINTS, dtype=np.intp)
-    for joint in range(1, skeleton.NUM_JOINTS):  # parents have smaller indices
-        depth[joint] = depth[skeleton.PARENTS[joint]] + 1
-    return [np.flatnonzero(depth == d) for d in range(1, int(depth.max()) + 1)]
-
-
-_LEVELS = _depth_levels()
-
 
 class BoneModel(Protocol):
     """A model of the sensor's bone vectors (e.g. a learned correction of a sensor's bias)."""
@@ -202,7 +193,7 @@ class SensorTrust:
         span = cfg.length_roof - cfg.length_tolerance
         bone_trust = 1.0 - np.clip((deviation - cfg.length_tolerance) / span, 0.0, 1.0)
         trust[_CHILD_BONE] = np.minimum(trust[_CHILD_BONE], bone_trust)
-        for level in _LEVELS:  # an inferred joint hangs off its parent
+        for level in skeleton.JOINT_LEVELS:  # an inferred joint hangs off its parent
             parents = skeleton.PARENTS[level]
             trust[level] = np.where(
                 inferred[level], np.minimum(trust[level], trust[parents]), trust[level]

@@ -332,15 +332,7 @@ def simulate(
 # --------------------------------------------------------------------------- effects
 
 
-def _depth_levels() -> list[np.ndarray]:
-    """Non-root joints grouped by depth in the tree (parents before children)."""
-    depth = np.zeros(skeleton.NUM_JOINTS, dtype=np.intp)
-    for joint in range(1, skeleton.NUM_JOINTS):  # parents have smaller indices
-        depth[joint] = depth[skeleton.PARENTS[joint]] + 1
-    return [np.flatnonzero(depth == d) for d in range(1, int(depth.max()) + 1)]
-
-
-_LEVELS = _depth_levels()
+_LEVELS = skeleton.JOINT_LEVELS
 _LEVEL_PARENTS = [skeleton.PARENTS[level] for level in _LEVELS]
 
 
