@@ -20,6 +20,7 @@ __all__ = ["COMPILED_MODULES", "compiled_module", "numba_available", "numpy_only
 COMPILED_MODULES: tuple[str, ...] = (
     "fpg_gym.compiled_poses",
     "fpg_gym.filters.compiled_filters",
+    "fpg_gym.physics.compiled_ragdoll",
     "fpg_gym.reconstruct.compiled_frame",
     "fpg_gym.reconstruct.compiled_kernels",
     "fpg_gym.reconstruct.compiled_search",

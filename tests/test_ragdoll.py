@@ -2,22 +2,27 @@
 
 from __future__ import annotations
 
+import contextlib
 import warnings
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 from conftest import shared_path
 
 from fpg_gym import poses, skeleton
+from fpg_gym.compiled import numba_available, numpy_only
 from fpg_gym.io import BANDAI_NAMCO_MAP, load_default_clips, read_bvh
-from fpg_gym.physics.ragdoll import PhysicsError, PhysicsWarning, Ragdoll
+from fpg_gym.physics.ragdoll import FloorShift, PhysicsError, PhysicsWarning, Ragdoll
 from fpg_gym.physics.ragdoll_model import (
     MASS_FRACTIONS,
     REFERENCE_BODY_MASS_KG,
     build_body_model,
     default_body_mass,
 )
+from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.simulate import simulate_clips
 
 BONE_LENGTH_TOLERANCE_M = 0.005  # acceptance: output bone lengths within 5 mm of the model's
 TRACKING_TOLERANCE_M = 0.03  # acceptance: mean FPG Eq. 13 error under 3 cm on clean mocap
@@ -187,7 +192,6 @@ def test_teleporting_target_keeps_forces_bounded_and_recovers(clips: dict[str, n
             errors.append(_eq13_per_frame(target, out))
         info = body.info
     assert max(ratios) <= 1.0 + 1e-6  # bounded every frame
-    assert max(ratios) > 0.99  # the jump did push a force to its bound
     assert root_errors[15] > 0.5  # the body did not teleport with the target
     assert max(root_errors[45:]) < TRACKING_TOLERANCE_M  # recovered within a second
     assert max(errors[45:]) < TRACKING_TOLERANCE_M
@@ -199,8 +203,12 @@ def test_weak_body_cannot_hold_a_lifted_target() -> None:
     with Ragdoll(strength=0.5) as body:
         pose = body.standing_pose() + np.array([0.0, 0.5, 0.0])
         body.reset(pose)
+        ratios = []
         for _ in range(30):
             out = body.track(pose)
+            ratios.append(np.max(np.abs(body.tracking_forces).max(axis=1) / body.force_bounds))
+    # The tracking forces push at their bound and never beyond it.
+    assert min(ratios) > 0.99 and max(ratios) <= 1.0 + 1e-6
     assert out[skeleton.ROOT, 1] < pose[skeleton.ROOT, 1] - 0.3
     assert out[:, 1].min() > -0.01  # ... and lands on the floor, not through it
 
@@ -275,7 +283,7 @@ def test_info_api_and_errors() -> None:
     body = Ragdoll()
     try:
         info = body.info
-        assert info["substeps"] >= 8 and info["physics_rate"] >= 240.0
+        assert info["substeps"] == 4 and info["physics_rate"] == 120.0
         assert info["frames"] == 0 and info["divergences"] == 0
         assert body.joint_names == skeleton.JOINT_NAMES
         assert body.joint_positions.shape == (skeleton.NUM_JOINTS, 3)
@@ -298,3 +306,59 @@ def test_info_api_and_errors() -> None:
     ):
         with pytest.raises(ValueError):
             Ragdoll(**kwargs)  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- fast path
+
+
+@pytest.mark.skipif(not numba_available(), reason="needs numba (fpg-gym[fast])")
+def test_compiled_frame_arithmetic_gives_the_numpy_outputs(clips: dict[str, np.ndarray]) -> None:
+    # A clip, a teleport, degenerate bones (every joint on one point) and a lost hip line.
+    walk = clips["walk"]
+    collapsed = np.tile(walk[20, :1], (skeleton.NUM_JOINTS, 1))
+    no_hips = walk[22].copy()
+    no_hips[[skeleton.joint_index("HipLeft"), skeleton.joint_index("HipRight")]] = walk[22, 0]
+    targets = np.concatenate([walk[:20], collapsed[None], walk[21:22] + 0.5, no_hips[None]])
+
+    def run(hidden: bool) -> tuple[np.ndarray, list[float], dict[str, Any]]:
+        with numpy_only() if hidden else contextlib.nullcontext(), Ragdoll() as body:
+            body.reset(targets[0])
+            out, gaps = [], []
+            for target in targets:
+                out.append(body.track(target))
+                gaps.append(body.info["joint_gap"])
+            return np.array(out), gaps, body.info
+
+    compiled, compiled_gaps, compiled_info = run(False)
+    reference, reference_gaps, reference_info = run(True)
+    np.testing.assert_allclose(compiled, reference, atol=1e-5)
+    np.testing.assert_allclose(compiled_gaps, reference_gaps, rtol=1e-6, atol=1e-9)
+    assert compiled_info == pytest.approx(reference_info)
+
+
+def test_fewer_physics_steps_keep_the_accuracy(graph: Any) -> None:
+    """Issue 38: the default physics (120 Hz, erp 0.6, 15 solver iterations) against the
+    previous one (240 Hz, erp 0.4, 10 iterations) on what the ragdoll gets in the pipeline: the
+    reconstructions (local search, no ragdoll) of simulated Kinect streams of held-out clips.
+    FPG Eq. 13 against the ground truth within 1 %, the bones the model's in both."""
+    clips = load_default_clips(["walk", "punch", "kick", "dance_b"])
+    streams = simulate_clips(clips, ["front-many"], [0], max_frames=60)
+    errors: dict[str, list[np.ndarray]] = {"default": [], "previous": []}
+    for i, recording in enumerate(streams):
+        with Reconstructor(graph) as reconstructor:
+            targets = reconstructor.reconstruct(recording, "local-search", rng=i).poses
+        floor = FloorShift()
+        world = np.array([floor.down(target) for target in targets])
+        lengths = poses.bone_lengths(world).mean(axis=0)
+        for name, settings in (
+            ("default", {}),
+            ("previous", {"physics_rate": 240.0, "erp": 0.4, "solver_iterations": 10}),
+        ):
+            with Ragdoll(lengths, **settings) as body:
+                out = _run(body, world)
+                assert body.info["divergences"] == 0, name
+            assert np.max(np.abs(poses.bone_lengths(out) - lengths)) < 1e-4, name
+            assert recording.ground_truth is not None
+            errors[name].append(_eq13_per_frame(recording.ground_truth, out))
+    default, previous = (float(np.concatenate(errors[n]).mean()) for n in ("default", "previous"))
+    assert abs(default / previous - 1.0) < 0.01, (default, previous)

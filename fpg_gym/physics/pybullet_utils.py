@@ -38,10 +38,23 @@ with quiet_stdout():  # pybullet prints its build time on import
     import pybullet
 
 
-def connect_direct() -> int:
-    """Open a new pybullet client in DIRECT mode (no display) and return its id."""
+def connect_direct(*, renderer: bool = True) -> int:
+    """Open a new pybullet client in DIRECT mode (no display) and return its id.
+
+    Parameters
+    ----------
+    renderer : bool
+        Keep pybullet's software renderer (``getCameraImage``). Without it (``False``) the
+        client cannot take pictures, but creating a body costs about half as much: the renderer
+        converts every new body's shapes into meshes. The physics are the same.
+    """
     with quiet_stdout():
         client = pybullet.connect(pybullet.DIRECT)
     if client < 0:
         raise RuntimeError("pybullet could not open a DIRECT client")
+    if not renderer:
+        # Loading a plugin that is already loaded returns its id (the renderer is built in).
+        plugin = pybullet.loadPlugin("tinyRendererPlugin", physicsClientId=client)
+        if plugin >= 0:
+            pybullet.unloadPlugin(plugin, physicsClientId=client)
     return int(client)

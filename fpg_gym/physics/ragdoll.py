@@ -4,8 +4,8 @@ A :class:`Ragdoll` simulates one body of 19 rigid capsules, one per Kinect bone 
 :data:`fpg_gym.skeleton.BONES`, joined by ball joints (point-to-point constraints) at the Kinect
 joints, with masses and sizes from :mod:`fpg_gym.physics.ragdoll_model` (de Leva 1996), on a
 floor plane under gravity. Each :meth:`Ragdoll.track` call advances one Kinect frame: the targets
-are interpolated between the previous and the new frame over ``substeps`` physics steps (8 at 30 Hz:
-240 Hz physics) and the simulated pose is returned.
+are interpolated between the previous and the new frame over ``substeps`` physics steps (4 at 30 Hz:
+120 Hz physics) and the simulated pose is returned.
 
 Frame of the poses
 ------------------
@@ -24,7 +24,7 @@ Control, against the papers
 ---------------------------
 Shum §VII / FPG §7 pull each body part toward its target with a bounded PD force
 ``F = Ke (p_t − p) + Kd (ṗ_t − ṗ)`` and add a bounded PD torque about the segment's axis toward a
-target twist. Computing and applying 19 forces from Python at every 240 Hz step would exceed the
+target twist. Computing and applying 19 forces from Python at every physics step would exceed the
 frame budget and is unstable with stiff gains, so each body part is driven by pybullet's own
 implicit (constraint-based) PD instead: a 6-DOF "fixed" constraint between the capsule's centre
 of mass and a target frame that moves every physics step, whose solver impulse on every row is
@@ -47,8 +47,17 @@ clipped to ``maxForce × dt``:
 ``erp`` is pybullet's global error-reduction parameter (pybullet ignores it per constraint), so
 it also sets how firmly the joints hold together. Lower values track with more lag and smooth
 more (a first-order lag of time constant ``dt / erp`` per body part), higher values follow the
-target more tightly; the default 0.4 tracks clean mocap to a few millimetres and lowers the
-jitter of noisy targets.
+target more tightly. The defaults, 120 Hz, ``erp`` 0.6 and 15 solver iterations, track clean
+mocap to a few millimetres and lower the jitter of noisy targets; they replaced 240 Hz, 0.4 and
+10 iterations (issue 38: half the physics steps, the same error against the ground truth to
+0.3 %, see ``docs/performance.md``), which ``physics_rate=240, erp=0.4, solver_iterations=10``
+still give.
+
+The per-frame arithmetic around pybullet (the target's bone frames, the capsules' goals at
+each step, the forward kinematics of the simulated capsules) runs compiled with numba when
+``fpg-gym[fast]`` is installed (:mod:`fpg_gym.physics.compiled_ragdoll`), else in numpy, with
+the same results. The physics client has no renderer (bodies are built in half the time);
+:meth:`Ragdoll.render` draws in a client of its own.
 
 Targets are interpolated between frames on the skeleton — root linearly, bone frames by
 normalised quaternion interpolation, then forward kinematics to the capsules — and moved at
@@ -88,6 +97,7 @@ from typing import Any, Literal
 import numpy as np
 
 from fpg_gym import poses, skeleton
+from fpg_gym.compiled import compiled_module
 from fpg_gym.errors import FpgGymError
 from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
 from fpg_gym.physics.ragdoll_model import GRAVITY, BodyModel, build_body_model
@@ -142,6 +152,8 @@ def _levels() -> list[np.ndarray]:
 _LEVELS = _levels()
 _PATH = np.array(skeleton.PATH_MATRIX)  # joint = root + PATH @ bone vectors
 _STARTS = np.array(skeleton.BONES[:, 0])
+_BONES = np.ascontiguousarray(skeleton.BONES, dtype=np.intp)
+_LINES = np.array([[_HIP_LEFT, _HIP_RIGHT], [_SHOULDER_LEFT, _SHOULDER_RIGHT]], dtype=np.intp)
 
 
 # --------------------------------------------------------------------------- quaternions (x y z w)
@@ -240,7 +252,7 @@ class Ragdoll:
         Target (Kinect) frames per second; one :meth:`track` call advances ``1 / frame_rate`` s.
     physics_rate : float
         Minimum physics steps per second; the step is ``1 / (frame_rate × substeps)`` with
-        ``substeps = ceil(physics_rate / frame_rate)`` (8 at the defaults: 240 Hz).
+        ``substeps = ceil(physics_rate / frame_rate)`` (4 at the defaults: 120 Hz).
     strength : float
         Bound of each body part's tracking force, per axis, in multiples of its weight
         (``strength × m g`` N; the tracking torque has the same bound in N m).
@@ -295,12 +307,12 @@ class Ragdoll:
         *,
         body_mass: float | None = None,
         frame_rate: float = 30.0,
-        physics_rate: float = 240.0,
+        physics_rate: float = 120.0,
         strength: float = 10.0,
-        erp: float = 0.4,
+        erp: float = 0.6,
         floor_height: float | None = 0.0,
         friction: float = 0.9,
-        solver_iterations: int = 10,
+        solver_iterations: int = 15,
         on_divergence: Literal["reset", "raise"] = "reset",
         max_speed: float = 50.0,
         max_distance: float = 5.0,
@@ -351,13 +363,19 @@ class Ragdoll:
         self._solver_iterations = int(solver_iterations)
 
         self._rest_directions = np.array(poses.REST_DIRECTIONS, dtype=np.float64)
+        self._root_arc = shortest_arc(np.array([0.0, 1.0, 0.0]), self._rest_directions[0])
+        # The per-frame arithmetic compiled, when numba is installed (the same formulas).
+        self._kernels = compiled_module("fpg_gym.physics.compiled_ragdoll")
         # Each capsule body's frame at rest: centre of mass, Z along the bone (pybullet
         # capsules lie along Z), so its inertia is diagonal in it.
         self._capsule_frames = shortest_arc(
             np.tile([0.0, 0.0, 1.0], (_NB, 1)), self._rest_directions
         )
-        self.client = connect_direct()
+        # The physics client draws nothing (building bodies costs half as much without the
+        # renderer); render() draws the body in a client of its own, built on first use.
+        self.client = connect_direct(renderer=False)
         self._closed = False
+        self._scene: _Scene | None = None
         try:
             self.rebuild(bone_lengths, body_mass=body_mass)
         except BaseException:
@@ -428,17 +446,9 @@ class Ragdoll:
             plane = pb.createCollisionShape(
                 pb.GEOM_PLANE, planeNormal=[0.0, 1.0, 0.0], physicsClientId=cid
             )
-            tile = pb.createVisualShape(
-                pb.GEOM_BOX,
-                halfExtents=[5.0, 0.005, 5.0],
-                visualFramePosition=[0.0, -0.005, 0.0],
-                rgbaColor=[0.78, 0.78, 0.74, 1.0],
-                physicsClientId=cid,
-            )
             self.floor = pb.createMultiBody(
                 baseMass=0.0,
                 baseCollisionShapeIndex=plane,
-                baseVisualShapeIndex=tile,
                 basePosition=[0.0, self.floor_height, 0.0],
                 physicsClientId=cid,
             )
@@ -452,7 +462,6 @@ class Ragdoll:
         model = self.model
         rest = poses.rest_pose(model.bone_lengths).astype(np.float64)
         centres = rest[_STARTS] + 0.5 * self._rest_vectors
-        colours = _bone_colours()
         self.bodies: list[int] = []
         self._tracking: list[int] = []
         for bone in range(_NB):  # one-off construction, not a hot path
@@ -460,17 +469,9 @@ class Ragdoll:
             shape = pb.createCollisionShape(
                 pb.GEOM_CAPSULE, radius=radius, height=length, physicsClientId=cid
             )
-            visual = pb.createVisualShape(
-                pb.GEOM_CAPSULE,
-                radius=radius,
-                length=length,
-                rgbaColor=colours[bone],
-                physicsClientId=cid,
-            )
             body = pb.createMultiBody(
                 baseMass=float(model.masses[bone]),
                 baseCollisionShapeIndex=shape,
-                baseVisualShapeIndex=visual,
                 basePosition=centres[bone].tolist(),
                 baseOrientation=self._capsule_frames[bone].tolist(),
                 physicsClientId=cid,
@@ -535,6 +536,19 @@ class Ragdoll:
         rest pose, that put every bone along the target's bone direction; twist by the
         zero-twist rule (module docstring)."""
         pose64 = np.asarray(pose, dtype=np.float64)
+        if self._kernels is not None:
+            world, self._directions = self._kernels.bone_frames(
+                pose64,
+                self._directions,
+                self._root_frame,
+                self._rest_directions,
+                self._root_arc,
+                _BONES,
+                _PARENT_BONE,
+                _LINES,
+            )
+            self._root_frame = world[0]
+            return pose64[skeleton.ROOT], world
         vectors = poses.bone_vectors(pose64)
         norms = np.sqrt(np.sum(vectors * vectors, axis=-1, keepdims=True))
         ok = norms > _DEGENERATE_M
@@ -554,10 +568,7 @@ class Ragdoll:
         left = left / np.linalg.norm(left)
         frame = np.stack([left, up, cross_product(left, up)], axis=1)  # columns: rest X, Y, Z
         world = np.empty((_NB, 4))
-        world[0] = _quat_mul(
-            _matrix_to_quat(frame),
-            shortest_arc(np.array([0.0, 1.0, 0.0]), self._rest_directions[0]),
-        )
+        world[0] = _quat_mul(_matrix_to_quat(frame), self._root_arc)
         for level in _LEVELS:  # at most 5 groups, vectorised within each
             parent = world[_PARENT_BONE[level]]
             in_parent = _quat_rotate(_quat_conj(parent), directions[level])
@@ -662,16 +673,21 @@ class Ragdoll:
         target_root, world1 = self._bone_frames(target)
         root1 = target_root + self._catch_up(target_root)
         n = self.substeps
-        fractions = (np.arange(1, n + 1) / n)[:, None]
         # Interpolate the skeleton, not the capsules: root linearly, bone frames by normalised
         # quaternion interpolation (short way round), then forward kinematics, so that every
         # intermediate target keeps the joints together.
-        sign = np.where(np.sum(world0 * world1, axis=-1, keepdims=True) < 0, -1.0, 1.0)
-        world1 = sign * world1
-        blend = (1 - fractions[:, :, None]) * world0 + fractions[:, :, None] * world1
-        blend /= np.sqrt(np.sum(blend * blend, axis=-1, keepdims=True))
-        roots = root0 + fractions * (root1 - root0)
-        centres_all, orientations_all = self._body_goals(roots, blend)
+        if self._kernels is not None:
+            centres_all, orientations_all, world1 = self._kernels.substep_goals(
+                root0, world0, root1, world1, n, self._rest_vectors, self._capsule_frames, _BONES
+            )
+        else:
+            fractions = (np.arange(1, n + 1) / n)[:, None]
+            sign = np.where(np.sum(world0 * world1, axis=-1, keepdims=True) < 0, -1.0, 1.0)
+            world1 = sign * world1
+            blend = (1 - fractions[:, :, None]) * world0 + fractions[:, :, None] * world1
+            blend /= np.sqrt(np.sum(blend * blend, axis=-1, keepdims=True))
+            roots = root0 + fractions * (root1 - root0)
+            centres_all, orientations_all = self._body_goals(roots, blend)
         centres = centres_all.tolist()
         orientations = orientations_all.tolist()
         goal = (root1, world1)
@@ -710,13 +726,20 @@ class Ragdoll:
         return output.copy()
 
     def _divergence(self, output: np.ndarray, target: np.ndarray) -> str:
-        if not (np.all(np.isfinite(output)) and math.isfinite(self._joint_gap)):
+        # Distances against the goal (the target shifted by a teleport glide's remaining
+        # offset) and the last output.
+        if self._kernels is not None:
+            finite, distance, moved = self._kernels.divergence_measures(
+                output, target, self._offset, self._output
+            )
+        else:
+            finite = bool(np.all(np.isfinite(output)))
+            distance = float(np.max(np.linalg.norm(output - (target + self._offset), axis=-1)))
+            moved = float(np.max(np.linalg.norm(output - self._output, axis=-1)))
+        if not (finite and math.isfinite(self._joint_gap)):
             return "non-finite joint positions"
-        # Against the goal (the target shifted by a teleport glide's remaining offset).
-        distance = float(np.max(np.linalg.norm(output - (target + self._offset), axis=-1)))
         if distance > self.max_distance:
             return f"a joint is {distance:.3g} m from its target (max_distance {self.max_distance})"
-        moved = float(np.max(np.linalg.norm(output - self._output, axis=-1)))
         if moved * self.frame_rate > self.max_speed:
             speed = moved * self.frame_rate
             return f"a joint moves at {speed:.3g} m/s (max_speed {self.max_speed})"
@@ -760,10 +783,16 @@ class Ragdoll:
 
     def _read_pose(self) -> np.ndarray:
         centres, orientations = self._body_states()
-        joints, vectors = self._pose_from(centres, orientations)
-        # How far each capsule's start end is from the joint it should share with its parent.
-        gaps = centres - 0.5 * vectors - joints[_STARTS]
-        self._joint_gap = float(np.sqrt(np.max(np.sum(gaps * gaps, axis=-1))))
+        if self._kernels is not None:
+            joints, gap = self._kernels.pose_from(
+                centres, orientations, self._capsule_frames, self._rest_vectors, _BONES
+            )
+            self._joint_gap = float(gap)
+        else:
+            joints, vectors = self._pose_from(centres, orientations)
+            # How far each capsule's start end is from the joint it should share with its parent.
+            gaps = centres - 0.5 * vectors - joints[_STARTS]
+            self._joint_gap = float(np.sqrt(np.max(np.sum(gaps * gaps, axis=-1))))
         if math.isfinite(self._joint_gap):
             self._max_joint_gap = max(self._max_joint_gap, self._joint_gap)
         return joints.astype(np.float32)
@@ -853,23 +882,11 @@ class Ragdoll:
         forward = np.array([math.sin(yaw), 0.0, math.cos(yaw)])
         side = np.array([math.cos(yaw), 0.0, -math.sin(yaw)])
         eye = centre + 2.6 * forward + 1.3 * side + np.array([0.0, 0.5, 0.0])
-        view = pybullet.computeViewMatrix(
-            eye.tolist(), centre.tolist(), [0.0, 1.0, 0.0], physicsClientId=self.client
-        )
-        projection = pybullet.computeProjectionMatrixFOV(
-            fov=50.0, aspect=width / height, nearVal=0.05, farVal=30.0, physicsClientId=self.client
-        )
-        _, _, rgba, _, _ = pybullet.getCameraImage(
-            int(width),
-            int(height),
-            view,
-            projection,
-            renderer=pybullet.ER_TINY_RENDERER,
-            flags=pybullet.ER_NO_SEGMENTATION_MASK,
-            physicsClientId=self.client,
-        )
-        image = np.asarray(rgba, dtype=np.uint8).reshape(int(height), int(width), 4)
-        return image[..., :3].copy()
+        if self._scene is None or self._scene.model is not self.model:
+            if self._scene is not None:
+                self._scene.close()
+            self._scene = _Scene(self.model, self.floor_height)
+        return self._scene.picture(*self._body_states(), eye, centre, int(width), int(height))
 
     # ----------------------------------------------------------------------- lifetime
 
@@ -881,6 +898,9 @@ class Ragdoll:
         """Disconnect the pybullet client (idempotent)."""
         if not self._closed:
             self._closed = True
+            if self._scene is not None:
+                self._scene.close()
+                self._scene = None
             try:
                 pybullet.disconnect(physicsClientId=self.client)
             except pybullet.error:
@@ -909,6 +929,81 @@ class Ragdoll:
             f"Ragdoll(mass={self.model.total_mass:.1f} kg, substeps={self.substeps}, "
             f"frames={self._frames}, {state})"
         )
+
+
+class _Scene:
+    """What :meth:`Ragdoll.render` draws: the capsules and the floor tile, without physics, in
+    a pybullet client of their own (the ragdoll's physics client has no renderer)."""
+
+    def __init__(self, model: BodyModel, floor_height: float | None) -> None:
+        self.model = model
+        self.client = connect_direct()
+        pb, cid = pybullet, self.client
+        if floor_height is not None:
+            tile = pb.createVisualShape(
+                pb.GEOM_BOX,
+                halfExtents=[5.0, 0.005, 5.0],
+                visualFramePosition=[0.0, -0.005, 0.0],
+                rgbaColor=[0.78, 0.78, 0.74, 1.0],
+                physicsClientId=cid,
+            )
+            pb.createMultiBody(
+                baseMass=0.0,
+                baseVisualShapeIndex=tile,
+                basePosition=[0.0, floor_height, 0.0],
+                physicsClientId=cid,
+            )
+        self.bodies = []
+        for bone, colour in enumerate(_bone_colours()):
+            visual = pb.createVisualShape(
+                pb.GEOM_CAPSULE,
+                radius=float(model.radii[bone]),
+                length=float(model.bone_lengths[bone]),
+                rgbaColor=colour,
+                physicsClientId=cid,
+            )
+            self.bodies.append(
+                pb.createMultiBody(baseMass=0.0, baseVisualShapeIndex=visual, physicsClientId=cid)
+            )
+
+    def picture(
+        self,
+        centres: np.ndarray,
+        orientations: np.ndarray,
+        eye: np.ndarray,
+        target: np.ndarray,
+        width: int,
+        height: int,
+    ) -> np.ndarray:
+        """The capsules placed at ``centres``/``orientations`` seen from ``eye``, RGB uint8."""
+        pb, cid = pybullet, self.client
+        for body, centre, orientation in zip(
+            self.bodies, centres.tolist(), orientations.tolist(), strict=True
+        ):
+            pb.resetBasePositionAndOrientation(body, centre, orientation, physicsClientId=cid)
+        view = pb.computeViewMatrix(
+            eye.tolist(), target.tolist(), [0.0, 1.0, 0.0], physicsClientId=cid
+        )
+        projection = pb.computeProjectionMatrixFOV(
+            fov=50.0, aspect=width / height, nearVal=0.05, farVal=30.0, physicsClientId=cid
+        )
+        _, _, rgba, _, _ = pb.getCameraImage(
+            width,
+            height,
+            view,
+            projection,
+            renderer=pb.ER_TINY_RENDERER,
+            flags=pb.ER_NO_SEGMENTATION_MASK,
+            physicsClientId=cid,
+        )
+        image = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)
+        return image[..., :3].copy()
+
+    def close(self) -> None:
+        try:
+            pybullet.disconnect(physicsClientId=self.client)
+        except pybullet.error:
+            pass
 
 
 def _bone_colours() -> list[list[float]]:

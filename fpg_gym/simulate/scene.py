@@ -266,7 +266,7 @@ class RayCaster:
             raise ValueError(f"rays_per_joint: expected 1 or 5, got {rays_per_joint}")
         self.rays_per_joint = rays_per_joint
         self.spread = float(spread)
-        self._client: int | None = connect_direct()
+        self._client: int | None = connect_direct(renderer=False)
         self._uids: list[int] = []
         self._shape_of_uid = np.zeros(0, dtype=np.intp)
 
