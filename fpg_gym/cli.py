@@ -42,6 +42,7 @@ COMMAND_MODULES: tuple[str, ...] = (
     "compare",
     "demo",
     "bench",
+    "warm_up",
     "train_sampler",
 )
 

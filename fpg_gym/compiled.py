@@ -10,11 +10,18 @@ from __future__ import annotations
 
 import functools
 import importlib
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from types import ModuleType
 
-__all__ = ["COMPILED_MODULES", "compiled_module", "numba_available", "numpy_only"]
+__all__ = [
+    "COMPILED_MODULES",
+    "compiled_module",
+    "kernels_cached",
+    "numba_available",
+    "numpy_only",
+    "only_compiled",
+]
 
 #: The modules of compiled kernels, each imported only when ``fpg-gym[fast]`` is installed.
 COMPILED_MODULES: tuple[str, ...] = (
@@ -28,19 +35,29 @@ COMPILED_MODULES: tuple[str, ...] = (
 )
 
 
-_numpy_only = False
+_shown: frozenset[str] | None = None  # None: every module
 
 
 @contextmanager
 def numpy_only() -> Iterator[None]:
     """Within this block :func:`compiled_module` gives None, so that everything built in it runs
     its numpy path, as without numba (for benchmarks and tests; not thread-safe)."""
-    global _numpy_only
-    previous, _numpy_only = _numpy_only, True
+    with only_compiled(()):
+        yield
+
+
+@contextmanager
+def only_compiled(names: Iterable[str]) -> Iterator[None]:
+    """Within this block :func:`compiled_module` gives None for every module not in ``names``
+    (and within an enclosing block's), so that only those modules' kernels run and compile
+    (a warm-up shares the modules between processes this way; not thread-safe)."""
+    global _shown
+    previous = _shown
+    _shown = frozenset(names) if previous is None else previous & frozenset(names)
     try:
         yield
     finally:
-        _numpy_only = previous
+        _shown = previous
 
 
 def compiled_module(name: str) -> ModuleType | None:
@@ -56,7 +73,7 @@ def compiled_module(name: str) -> ModuleType | None:
     """
     if name not in COMPILED_MODULES:
         raise ValueError(f"name: expected one of {', '.join(COMPILED_MODULES)}, got {name!r}")
-    return None if _numpy_only else _import(name)
+    return None if _shown is not None and name not in _shown else _import(name)
 
 
 @functools.cache
@@ -73,3 +90,20 @@ def _import(name: str) -> ModuleType | None:
 def numba_available() -> bool:
     """Whether numba can be imported (the compiled kernels can run)."""
     return _import("numba") is not None
+
+
+def kernels_cached(kernels: Iterable[tuple[str, str]]) -> bool:
+    """Whether numba's disk cache holds compiled code for every ``(module, function)`` of
+    ``kernels`` for this version of its source (False without numba, or when numba's cache
+    cannot be read)."""
+    try:
+        for module_name, function in kernels:
+            module = compiled_module(module_name)
+            if module is None:
+                return False
+            # numba's private cache index: {} when absent or written for another source.
+            if not getattr(module, function)._cache._cache_file._load_index():
+                return False
+    except (AttributeError, OSError):
+        return False
+    return True

@@ -16,7 +16,13 @@ import numpy as np
 import pytest
 
 from fpg_gym import poses, skeleton
-from fpg_gym.compiled import COMPILED_MODULES, compiled_module, numba_available, numpy_only
+from fpg_gym.compiled import (
+    COMPILED_MODULES,
+    compiled_module,
+    numba_available,
+    numpy_only,
+    only_compiled,
+)
 from fpg_gym.filters import INFERRED, NOT_TRACKED, TRACKED, KalmanFilter, OneEuroFilter
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights
 from fpg_gym.reconstruct.latent import LatentSpace
@@ -35,6 +41,23 @@ def test_numpy_only_hides_every_compiled_module_within_its_block() -> None:
         with numpy_only():
             pass
         assert compiled_module(COMPILED_MODULES[0]) is None  # still hidden after a nested block
+    assert all(compiled_module(name) is not None for name in COMPILED_MODULES)
+
+
+def test_only_compiled_shows_its_modules_and_nests_as_an_intersection() -> None:
+    first, second, third = COMPILED_MODULES[:3]
+    with only_compiled([first, second]):
+        assert compiled_module(first) is not None and compiled_module(third) is None
+        with only_compiled([second, third]):
+            assert [compiled_module(n) for n in (first, second, third)] == [
+                None,
+                compiled_module(second),
+                None,
+            ]
+            assert compiled_module(second) is not None
+        with numpy_only():
+            assert compiled_module(first) is None
+        assert compiled_module(second) is not None
     assert all(compiled_module(name) is not None for name in COMPILED_MODULES)
 
 

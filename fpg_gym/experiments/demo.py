@@ -44,6 +44,7 @@ from fpg_gym.experiments import CompareConfig, CompareOutcome, format_tests, plo
 from fpg_gym.experiments.report import markdown_table
 from fpg_gym.experiments.store import frames_path, load_frames
 from fpg_gym.experiments.view import rerun_available, write_view
+from fpg_gym.experiments.warm import warm_kernels, warm_kernels_cached
 from fpg_gym.io.recording import load_recording, write_recording
 from fpg_gym.simulate import episode_seed
 from fpg_gym.simulate.occlude import OCCLUSION_CASES, occlude
@@ -323,6 +324,10 @@ def run_demo(
         max_frames=24 if quick else None,
         workers=workers,
     )
+    if not warm_kernels_cached():
+        # A fresh installation: compile the kernels once, shared between the processes,
+        # rather than in every worker of the compare.
+        warm_kernels(workers)
     outcome = run_compare(config, progress=progress, fresh=True)
     # The real sections in folders of their own, inside the simulated comparison's (whose
     # manifest makes the folder compare's own).

@@ -23,7 +23,7 @@ import numpy as np
 __all__ = ["bone_frames", "divergence_measures", "pose_from", "substep_goals"]
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _mul(a, b):
     """Quaternion product ``a b`` of two 4-tuples (``ragdoll._quat_mul``)."""
     ax, ay, az, aw = a
@@ -36,7 +36,7 @@ def _mul(a, b):
     )
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _cross(u, v):
     return (
         u[1] * v[2] - u[2] * v[1],
@@ -45,7 +45,7 @@ def _cross(u, v):
     )
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _rotate(q, v):
     """``v`` rotated by the unit quaternion ``q`` (``ragdoll._quat_rotate``)."""
     u = (q[0], q[1], q[2])
@@ -55,7 +55,7 @@ def _rotate(q, v):
     return (v[0] + q[3] * t[0] + d[0], v[1] + q[3] * t[1] + d[1], v[2] + q[3] * t[2] + d[2])
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _arc(a, b):
     """Shortest-arc quaternion turning unit ``a`` onto unit ``b``
     (:func:`fpg_gym.rotations.shortest_arc`)."""
@@ -134,7 +134,8 @@ def bone_frames(pose, directions, root_frame, rest_directions, root_arc, bones, 
                 vz / norm,
             )
         else:
-            new_directions[b] = directions[b]
+            for c in range(3):
+                new_directions[b, c] = directions[b, c]
     up = (new_directions[0, 0], new_directions[0, 1], new_directions[0, 2])
     found = False
     left = (0.0, 0.0, 0.0)

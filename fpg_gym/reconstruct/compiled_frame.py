@@ -49,14 +49,16 @@ def whitened_axes(centred, values, vectors, dim, min_std, max_condition):
             weight = vectors[i, count - 1 - a]
             for c in range(size):
                 basis[a, c] += weight * centred[i, c]
-    for a in range(dim):
-        basis[a] /= singular[a]
+    for a in range(dim):  # element loops: array-wide ops compile numba's shape-error messages
+        for c in range(size):
+            basis[a, c] /= singular[a]
         best = 0  # sign: the largest-magnitude entry positive
         for c in range(1, size):
             if abs(basis[a, c]) > abs(basis[a, best]):
                 best = c
         if basis[a, best] < 0.0:
-            basis[a] *= -1.0
+            for c in range(size):
+                basis[a, c] *= -1.0
     std = np.empty(dim)
     degenerate = np.empty(dim, dtype=np.bool_)
     scale = np.sqrt(count - 1.0)

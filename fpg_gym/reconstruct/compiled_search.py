@@ -36,7 +36,9 @@ def _proposals(generator, table, center, step, samples):
     d = center.shape[0]
     if table.shape[0] == 0:
         z = generator.standard_normal((samples, d))
-        z *= step
+        for i in range(samples):
+            for j in range(d):
+                z[i, j] *= step
     else:
         uniform = generator.random(d + 1)  # the offset and a sign per axis
         start = int(uniform[0] * (table.shape[0] - samples + 1))
@@ -45,7 +47,11 @@ def _proposals(generator, table, center, step, samples):
             signed = np.copysign(step, uniform[1 + j] - 0.5)
             for i in range(samples):
                 z[i, j] = table[start + i, j] * signed
-    z += center
+    # Element loops here and below: array-wide assignments compile numba's shape-error
+    # messages (seconds of compilation on a fresh install).
+    for i in range(samples):
+        for j in range(d):
+            z[i, j] += center[j]
     return z
 
 
@@ -115,7 +121,8 @@ def local_search(
             break
         z = _proposals(generator, table, center, current_step, samples)
         if iteration == 0:
-            z[0] = center  # the start is scored
+            for j in range(center.shape[0]):  # the start is scored
+                z[0, j] = center[j]
         iteration += 1
         admitted = samples if left < 0 else min(samples, left)
         points = z[:admitted].astype(matrix.dtype)
@@ -133,11 +140,13 @@ def local_search(
         row = np.argmin(values[:admitted])  # the run's best point
         if values[row] < best:
             best = values[row]
-            best_x[:] = z[row]
+            for j in range(best_x.shape[0]):
+                best_x[j] = z[row, j]
         row = np.argmin(values)  # the optimiser's tell
         if values[row] < centre_energy:
             centre_energy = values[row]
-            center[:] = z[row]
+            for j in range(center.shape[0]):
+                center[j] = z[row, j]
         elif shrink <= 0.0:
             done = True
         else:

@@ -1,0 +1,133 @@
+"""Compile the numba kernels before the first frame, sharing the work between processes.
+
+With ``fpg-gym[fast]`` the kernels compile on first use and are cached on disk (numba's
+``cache=True``, in ``__pycache__`` beside their modules): a fresh installation compiles some
+twenty seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the demo's
+methods on a short simulated stream, so that every kernel compiles with the argument types the
+real runs use; with ``workers > 1`` each process runs them with only its share of the compiled
+modules switched on (:func:`fpg_gym.compiled.only_compiled`), so the modules compile in parallel
+and none twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the cache is
+cold (a compare's workers would otherwise each compile every kernel).
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+import time
+import warnings
+from collections.abc import Sequence
+from concurrent.futures import ProcessPoolExecutor
+
+from fpg_gym.compiled import COMPILED_MODULES, kernels_cached, numba_available, only_compiled
+from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.graph import default_graph
+from fpg_gym.io import load_default_clips
+from fpg_gym.methods import MethodRunner
+from fpg_gym.physics.ragdoll import PhysicsWarning
+from fpg_gym.simulate import simulate_clips
+
+__all__ = ["WARM_UP_METHODS", "warm_kernels", "warm_kernels_cached"]
+
+#: Methods whose code paths the warm-up runs (every compiled kernel of the demo).
+WARM_UP_METHODS: tuple[str, ...] = (
+    "holt",
+    "kalman",
+    "fpg:none",
+    "fpg:local-search+ragdoll",
+    "shum:local-search",
+    "fpg:random-search",
+    "fpg:closed-form",
+    "fpg:local-search+prior",
+)
+
+#: The compiled modules in units that compile together (the compiled local search and the
+#: compiled latent space run only with the compiled energy kernel), with the seconds each unit
+#: took to compile on the shared 2-core machine (to share the units out between processes).
+_UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
+    (
+        (
+            "fpg_gym.reconstruct.compiled_kernels",
+            "fpg_gym.reconstruct.compiled_search",
+            "fpg_gym.reconstruct.compiled_frame",
+        ),
+        14.0,
+    ),
+    (("fpg_gym.reconstruct.compiled_selection",), 7.5),
+    (("fpg_gym.physics.compiled_ragdoll",), 5.0),
+    (("fpg_gym.compiled_poses",), 2.5),
+    (("fpg_gym.filters.compiled_filters",), 2.0),
+)
+
+#: Kernels that the first frame of any reconstruction runs: cached means warm.
+_MARKERS: tuple[tuple[str, str], ...] = (
+    ("fpg_gym.reconstruct.compiled_search", "local_search"),
+    ("fpg_gym.reconstruct.compiled_kernels", "fused_kernel"),
+    ("fpg_gym.reconstruct.compiled_selection", "fpg_walk_best"),
+    ("fpg_gym.reconstruct.compiled_frame", "whitened_axes"),
+    ("fpg_gym.physics.compiled_ragdoll", "bone_frames"),
+    ("fpg_gym.filters.compiled_filters", "kalman_step"),
+)
+
+
+def warm_kernels_cached() -> bool:
+    """Whether the kernels a reconstruction's first frame runs are in numba's disk cache (True
+    without numba: there is nothing to compile)."""
+    return not numba_available() or kernels_cached(_MARKERS)
+
+
+def _shares(workers: int) -> list[tuple[str, ...]]:
+    """The compiled modules shared out between ``workers`` processes (the longest units first,
+    each to the least loaded process; a module in no unit counts 1 s)."""
+    listed = {name for unit, _ in _UNITS for name in unit}
+    units = [*_UNITS, *(((name,), 1.0) for name in COMPILED_MODULES if name not in listed)]
+    loads = [0.0] * workers
+    shares: list[list[str]] = [[] for _ in range(workers)]
+    for unit, seconds in sorted(units, key=lambda item: -item[1]):
+        least = loads.index(min(loads))
+        shares[least].extend(unit)
+        loads[least] += seconds
+    return [tuple(share) for share in shares if share]
+
+
+def _run_methods(modules: Sequence[str], frames: int) -> None:
+    """Every warm-up method on the first ``frames`` frames of a simulated held-out clip, with
+    only ``modules`` compiled."""
+    graph = default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)  # the demo's graph, from the cache
+    clip = load_default_clips([DEFAULT_HOLDOUT_CLIPS[0]])
+    recording = simulate_clips(clip, ["front-many"], [0], max_frames=frames)[0]
+    with only_compiled(modules), warnings.catch_warnings():
+        warnings.simplefilter("ignore", PhysicsWarning)
+        with MethodRunner(graph) as runner:
+            for method in WARM_UP_METHODS:
+                runner.run(method, recording, 0)
+
+
+def warm_kernels(workers: int = 1, *, frames: int = 40) -> float:
+    """Compile (or load from the disk cache) every kernel the demo's methods run.
+
+    Parameters
+    ----------
+    workers : int
+        Processes sharing the compilation (1: in this process).
+    frames : int
+        Frames of the stream the methods run (more than a second, so that the bones settle and
+        the ragdoll is rebuilt as in a real run).
+
+    Returns
+    -------
+    float
+        Seconds taken (0 without numba).
+    """
+    if not numba_available():
+        return 0.0
+    started = time.perf_counter()
+    default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)  # built and cached once, before any worker
+    shares = _shares(max(1, int(workers)))
+    if len(shares) == 1:
+        _run_methods(shares[0], frames)
+    else:
+        context = multiprocessing.get_context("spawn")
+        with ProcessPoolExecutor(len(shares), mp_context=context) as pool:
+            for done in [pool.submit(_run_methods, share, frames) for share in shares]:
+                done.result()
+    return time.perf_counter() - started

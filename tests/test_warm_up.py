@@ -1,0 +1,66 @@
+"""The ahead-of-time warm-up of the compiled kernels (fpg_gym.experiments.warm, fpg-gym warm-up)."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from fpg_gym.compiled import COMPILED_MODULES, numba_available
+from fpg_gym.experiments.warm import _shares, warm_kernels, warm_kernels_cached
+
+pytestmark = pytest.mark.skipif(not numba_available(), reason="needs numba (fpg-gym[fast])")
+
+
+@pytest.mark.parametrize("workers", [1, 2, 3, 20])
+def test_every_compiled_module_goes_to_exactly_one_process(workers: int) -> None:
+    shares = _shares(workers)
+    assert 1 <= len(shares) <= workers
+    names = [name for share in shares for name in share]
+    assert sorted(names) == sorted(COMPILED_MODULES)
+    # The compiled search and latent space run only with the compiled energy kernel.
+    together = {
+        "fpg_gym.reconstruct.compiled_kernels",
+        "fpg_gym.reconstruct.compiled_search",
+        "fpg_gym.reconstruct.compiled_frame",
+    }
+    assert any(together <= set(share) for share in shares)
+
+
+def test_warm_up_in_this_process_leaves_the_markers_cached() -> None:
+    warm_kernels(1, frames=4)
+    assert warm_kernels_cached()
+
+
+CHECK = """
+import importlib
+from numba.core.dispatcher import Dispatcher
+from fpg_gym.compiled import COMPILED_MODULES
+from fpg_gym.experiments.warm import _run_methods, warm_kernels_cached
+assert warm_kernels_cached()
+_run_methods(COMPILED_MODULES, 40)
+missed = [
+    f"{m}.{n}"
+    for m in COMPILED_MODULES
+    for n, d in vars(importlib.import_module(m)).items()
+    if isinstance(d, Dispatcher) and d.stats.cache_misses
+]
+print("compiled after the warm-up:", missed)
+assert not missed
+"""
+
+
+@pytest.mark.slow
+def test_parallel_warm_up_compiles_everything_the_methods_run(tmp_path: Path) -> None:
+    """A fresh numba cache: ``fpg-gym warm-up --workers 2`` (each process compiling its share),
+    then a new process running every warm-up method compiles nothing more."""
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
+    warm = [sys.executable, "-m", "fpg_gym.cli", "warm-up", "--workers", "2"]
+    subprocess.run(warm, env=env, check=True, capture_output=True, text=True)
+    done = subprocess.run(
+        [sys.executable, "-c", CHECK], env=env, capture_output=True, text=True, check=False
+    )
+    assert done.returncode == 0, done.stdout + done.stderr
