@@ -11,7 +11,12 @@ Pointing it at a cluster: start Ray on the machines (``ray start --head`` on one
 --address HEAD:6379`` on the others, each with ``pip install 'fpg-gym[distributed]'``), then
 ``fpg-gym compare ... --backend ray --address HEAD:6379`` (or set ``RAY_ADDRESS``). Without an
 address a local Ray instance is started for the run (``--workers`` CPUs) and stopped after it;
-an instance the caller already started (``ray.init``) is used as it is.
+an instance the caller already started (``ray.init``) is used as it is. Two nodes on one
+machine (``tests/test_ray_cluster.py``): ``ray start --head --node-ip-address 127.0.0.1 --port
+P --num-cpus 0`` and ``ray start --address 127.0.0.1:P --num-cpus 2`` with ports of its own
+(``--node-manager-port``, ``--object-manager-port``, the agents' and metrics ports); Ray 2.5x
+turns token authentication on when ``~/.ray/auth_token`` exists, so set ``RAY_AUTH_MODE`` the
+same (``disabled``, or ``token`` with the token) for the nodes and the driver.
 """
 
 from __future__ import annotations
