@@ -70,6 +70,8 @@ class OutputCorrection(Protocol):
 def output_correction_of(optimizer: object) -> OutputCorrection | None:
     """The correction an optimiser brings (its ``output_correction`` attribute), or None."""
     correction = getattr(optimizer, "output_correction", None)
+    if correction is None:  # most optimisers (and a Protocol's isinstance costs ~20 µs)
+        return None
     return correction if isinstance(correction, OutputCorrection) else None
 
 
