@@ -5,11 +5,13 @@ the driver) and a second node (``ray start --address``, two CPUs and a resource 
 as separate raylets with their own object stores, so every task runs on the second node: the
 pose graph and the recordings cross from the head's object store to the second node's, and the
 tasks run in that node's worker processes. ``compare --backend ray --address`` and the
-supervised sampler's training-data collection give the results of local worker processes.
+supervised sampler's training-data collection, each driven from a fresh process, give the
+results of local worker processes.
 """
 
 from __future__ import annotations
 
+import json
 import os
 import shutil
 import signal
@@ -17,21 +19,21 @@ import socket
 import subprocess
 import sys
 import tempfile
-import time
 from collections.abc import Iterator
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
+import numpy as np
 import pytest
 
 from fpg_gym.experiments import run_compare
-from fpg_gym.ray_session import restore_signals, signal_handlers
 from policies.imitation import collect_imitation_data
 from tests.test_compare import _config, result_rows
 from tests.test_imitation import _assert_same
 from tests.test_truth_target import SPEC
 
-ray = pytest.importorskip("ray", reason="Ray is not installed (pip install 'fpg-gym[distributed]')")
+pytest.importorskip("ray", reason="Ray is not installed (pip install 'fpg-gym[distributed]')")
 
 #: Ray 2.5x enables token authentication when ~/.ray/auth_token exists; a test cluster of its
 #: own runs without it, and every process of the cluster and the driver must agree.
@@ -95,10 +97,31 @@ def _stop_cluster(started: list[subprocess.Popen[bytes]], temp: Path) -> None:
             pass
 
 
+def _python(code: str, env: dict[str, str]) -> str:
+    """Run ``code`` in a fresh Python process (a driver of its own: Ray keeps per-process state,
+    e.g. the authentication mode of a local instance an earlier test started); its stdout."""
+    done = subprocess.run(
+        [sys.executable, "-c", code], env=env, capture_output=True, text=True, check=False
+    )
+    assert done.returncode == 0, done.stdout[-2000:] + done.stderr[-4000:]
+    return done.stdout
+
+
+NODES = """
+import json, sys, time, ray
+ray.init(address=sys.argv[1] if len(sys.argv) > 1 else "{address}", log_to_driver=False)
+deadline = time.monotonic() + 60
+while sum(n["Alive"] for n in ray.nodes()) < 2 and time.monotonic() < deadline:
+    time.sleep(0.5)
+print(json.dumps({{"alive": sum(n["Alive"] for n in ray.nodes()),
+                  "resources": ray.cluster_resources()}}))
+"""
+
+
 @pytest.fixture(scope="module")
-def two_nodes() -> Iterator[str]:
-    """The address of a running two-node cluster: a head without task CPUs and a second node
-    with two."""
+def two_nodes() -> Iterator[tuple[str, dict[str, str]]]:
+    """The address of a running two-node cluster (a head without task CPUs and a second node
+    with two) and the environment of its drivers."""
     ray_command = shutil.which("ray", path=str(Path(sys.executable).parent)) or "ray"
     temp = Path(tempfile.mkdtemp(prefix="fpgray", dir="/tmp"))  # short: Ray's socket paths
     env = dict(os.environ, **CLUSTER_ENV)
@@ -118,8 +141,6 @@ def two_nodes() -> Iterator[str]:
         '--resources={"second_node": 2}', *common, *_node_ports(ports[6:12]),
     ]  # fmt: skip
     started: list[subprocess.Popen[bytes]] = []
-    handlers = signal_handlers()
-    saved = {name: os.environ.get(name) for name in CLUSTER_ENV}
     try:
         for command in (head, second):
             process = subprocess.Popen(
@@ -130,56 +151,67 @@ def two_nodes() -> Iterator[str]:
             output, _ = process.communicate(timeout=120)
             if process.returncode != 0:
                 pytest.fail(f"{' '.join(command[:3])} failed:\n{output.decode()[-2000:]}")
-        os.environ.update(CLUSTER_ENV)
-        ray.init(address=address, log_to_driver=False)
-        deadline = time.monotonic() + 60
-        while sum(node["Alive"] for node in ray.nodes()) < 2 and time.monotonic() < deadline:
-            time.sleep(0.5)
-        alive = [node for node in ray.nodes() if node["Alive"]]
-        assert len(alive) == 2, alive
-        assert ray.cluster_resources().get("second_node") == 2.0
-        assert ray.cluster_resources().get("CPU") == 2.0  # all on the second node
-        ray.shutdown()
-        restore_signals(handlers)
-        yield address
+        state = json.loads(_python(NODES.format(address=address), env).splitlines()[-1])
+        assert state["alive"] == 2, state
+        assert state["resources"].get("second_node") == 2.0
+        assert state["resources"].get("CPU") == 2.0  # all on the second node
+        yield address, env
     finally:
-        if ray.is_initialized():
-            ray.shutdown()
-            restore_signals(handlers)
-        for name, value in saved.items():
-            if value is None:
-                os.environ.pop(name, None)
-            else:
-                os.environ[name] = value
         _stop_cluster(started, temp)
         shutil.rmtree(temp, ignore_errors=True)
 
 
 def test_compare_on_two_nodes_writes_the_rows_of_local_workers(
-    tmp_path: Path, two_nodes: str
+    tmp_path: Path, two_nodes: tuple[str, dict[str, str]]
 ) -> None:
+    address, env = two_nodes
     settings: dict[str, Any] = {"methods": ["raw", "fpg"], "seeds": [0, 1], "batch": 2}
-    cluster = _config(tmp_path / "ray", backend="ray", address=two_nodes, **settings)
-    on_ray = run_compare(cluster, progress=False, plots=False)
+    cluster = _config(tmp_path / "ray", backend="ray", address=address, **settings)
+    # fpg-gym compare --backend ray --address ... in a process of its own (the driver).
+    code = (
+        "from fpg_gym.experiments import CompareConfig, run_compare; "
+        f"run_compare(CompareConfig(**{vars(cluster)!r}), progress=False, plots=False)"
+    )
+    _python(code, env)
     local = run_compare(
         _config(tmp_path / "local", workers=2, **settings), progress=False, plots=False
     )
-    assert on_ray.tasks_run == local.tasks_run == 8 and not on_ray.interrupted
+    assert local.tasks_run == 8
     rows = result_rows(tmp_path / "ray")
     assert len(rows) == 8 and rows == result_rows(tmp_path / "local")
     assert all(float(r["mean_error_m"]) > 0 for r in rows.values())
-    assert not ray.is_initialized()  # the driver left the cluster; the cluster runs on
+
+
+COLLECT = """
+import sys
+import numpy as np
+sys.path.insert(0, {root!r})
+from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.graph import default_graph
+from fpg_gym.io import load_default_clips
+from policies.imitation import collect_imitation_data
+from policies.training import simulate_episodes
+from tests.test_truth_target import SPEC
+streams = simulate_episodes(load_default_clips(["walk", "punch"]), ["front-many"], [0, 1],
+                            max_frames=5)
+data = collect_imitation_data(default_graph(exclude=DEFAULT_HOLDOUT_CLIPS), streams, SPEC,
+                              target="best", seed=3, batch=1, backend="ray", address={address!r})
+np.savez({out!r}, episodes=data.episodes, actions=data.actions,
+         observations=data.observations, search_energies=data.search_energies)
+"""
 
 
 def test_training_data_on_two_nodes_equals_local_workers(
-    graph: Any, short_streams: list[Any], two_nodes: str
+    tmp_path: Path, graph: Any, short_streams: list[Any], two_nodes: tuple[str, dict[str, str]]
 ) -> None:
+    address, env = two_nodes
+    out = tmp_path / "pairs.npz"
+    root = str(Path(__file__).resolve().parents[1])
+    _python(COLLECT.format(root=root, address=address, out=str(out)), env)
+    with np.load(out, allow_pickle=False) as arrays:
+        on_ray = SimpleNamespace(**{name: arrays[name] for name in arrays.files})
     local = collect_imitation_data(
         graph, short_streams, SPEC, target="best", seed=3, batch=1, workers=2
     )
-    on_ray = collect_imitation_data(
-        graph, short_streams, SPEC, target="best", seed=3, batch=1, backend="ray",
-        address=two_nodes,
-    )  # fmt: skip
-    assert len(on_ray) == sum(r.num_frames for r in short_streams)
-    _assert_same(local, on_ray)
+    assert len(on_ray.episodes) == sum(r.num_frames for r in short_streams)
+    _assert_same(local, on_ray)  # type: ignore[arg-type]
