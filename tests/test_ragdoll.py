@@ -249,6 +249,22 @@ def test_instances_side_by_side_are_independent_and_deterministic(
         np.testing.assert_array_equal(np.array(interleaved), _run(alone, a_targets)[:, :, :])
 
 
+def test_a_rebuilt_body_tracks_as_a_new_one(clips: dict[str, np.ndarray]) -> None:
+    # rebuild() removes the previous body from the world instead of resetting the simulation:
+    # after any earlier stream (contacts, a teleport), the next one is a fresh body's, to the bit.
+    kick, walk = clips["kick"], clips["walk"]
+    with Ragdoll(poses.bone_lengths(kick[0])) as used:
+        for lengths, stream in ((poses.bone_lengths(kick[0]), kick), (None, walk[:20] + 1.0)):
+            used.rebuild(lengths)
+            _run(used, stream)
+        used.rebuild(poses.bone_lengths(walk[0]))
+        again = _run(used, walk)
+        info = used.info
+    with Ragdoll(poses.bone_lengths(walk[0])) as fresh:
+        np.testing.assert_array_equal(again, _run(fresh, walk))
+        assert info == fresh.info
+
+
 def test_no_floor_and_degenerate_targets() -> None:
     with Ragdoll(floor_height=None) as body:
         body.reset(body.standing_pose())

@@ -376,6 +376,10 @@ class Ragdoll:
         self.client = connect_direct(renderer=False)
         self._closed = False
         self._scene: _Scene | None = None
+        self.bodies: list[int] = []
+        self._tracking: list[int] = []
+        self._joints: list[int] = []
+        self._shapes: list[int] = []
         try:
             self.rebuild(bone_lengths, body_mass=body_mass)
         except BaseException:
@@ -387,9 +391,11 @@ class Ragdoll:
     ) -> None:
         """Rebuild the body for new bone lengths in the same pybullet client, from scratch.
 
-        Cheaper than a new :class:`Ragdoll` (no new client) and just as deterministic:
-        ``resetSimulation`` clears every body, constraint and solver cache. The counters in
-        :attr:`info` restart and the body stands in :meth:`standing_pose`.
+        Cheaper than a new :class:`Ragdoll` (no new client) and just as deterministic: the
+        previous body's capsules, shapes and constraints are removed (the world keeps only its
+        floor, which holds no state) and new ones built, so that the body tracks as a new
+        ragdoll's does, to the bit (tested). The counters in :attr:`info` restart and the body
+        stands in :meth:`standing_pose`.
         """
         self._check_open()
         self.model: BodyModel = build_body_model(bone_lengths, body_mass)
@@ -408,7 +414,11 @@ class Ragdoll:
         self._offset = np.zeros(3)
         self._offset_velocity = np.zeros(3)
         self._jumps = 0
-        self._build(self._friction, self._solver_iterations)
+        if self.bodies:
+            self._remove_body()
+        else:
+            self._build_world(self._friction, self._solver_iterations)
+        self._build_body(self._friction)
         self.reset(self.standing_pose())
 
     # ----------------------------------------------------------------------- construction
@@ -429,7 +439,8 @@ class Ragdoll:
         lift = floor - rest[:, 1].min() + self.foot_clearance
         return (rest + np.array([0.0, lift, 0.0])).astype(np.float32)
 
-    def _build(self, friction: float, solver_iterations: int) -> None:
+    def _build_world(self, friction: float, solver_iterations: int) -> None:
+        """The physics settings and the floor."""
         pb, cid = pybullet, self.client
         pb.resetSimulation(physicsClientId=cid)
         pb.setGravity(0.0, -GRAVITY, 0.0, physicsClientId=cid)
@@ -459,16 +470,18 @@ class Ragdoll:
                 self.floor, -1, _FLOOR_GROUP, _BODY_GROUP, physicsClientId=cid
             )
 
+    def _build_body(self, friction: float) -> None:
+        """The capsules of :attr:`model`, their tracking constraints and their joints."""
+        pb, cid = pybullet, self.client
         model = self.model
         rest = poses.rest_pose(model.bone_lengths).astype(np.float64)
         centres = rest[_STARTS] + 0.5 * self._rest_vectors
-        self.bodies: list[int] = []
-        self._tracking: list[int] = []
         for bone in range(_NB):  # one-off construction, not a hot path
             radius, length = float(model.radii[bone]), float(model.bone_lengths[bone])
             shape = pb.createCollisionShape(
                 pb.GEOM_CAPSULE, radius=radius, height=length, physicsClientId=cid
             )
+            self._shapes.append(shape)
             body = pb.createMultiBody(
                 baseMass=float(model.masses[bone]),
                 baseCollisionShapeIndex=shape,
@@ -507,7 +520,6 @@ class Ragdoll:
             self._tracking.append(tracking)
         # Ball joints: each bone's start to its parent at the shared Kinect joint.
         joint_force = _JOINT_FORCE_BODY_WEIGHTS * model.total_mass * GRAVITY
-        self._joints: list[int] = []
         for bone in range(1, _NB):
             parent = int(_PARENT_BONE[bone])
             joint = rest[_STARTS[bone]]
@@ -524,6 +536,17 @@ class Ragdoll:
             )
             pb.changeConstraint(constraint, maxForce=joint_force, physicsClientId=cid)
             self._joints.append(constraint)
+
+    def _remove_body(self) -> None:
+        """Remove the body's constraints, capsules and shapes (the floor stays)."""
+        pb, cid = pybullet, self.client
+        for constraint in self._joints + self._tracking:
+            pb.removeConstraint(constraint, physicsClientId=cid)
+        for body in self.bodies:
+            pb.removeBody(body, physicsClientId=cid)
+        for shape in self._shapes:
+            pb.removeCollisionShape(shape, physicsClientId=cid)
+        self.bodies, self._tracking, self._joints, self._shapes = [], [], [], []
 
     def _in_body(self, bone: int, vector: np.ndarray) -> np.ndarray:
         """A rest-pose world vector in the bone's body frame."""
