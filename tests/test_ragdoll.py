@@ -14,6 +14,7 @@ from conftest import shared_path
 from fpg_gym import poses, skeleton
 from fpg_gym.compiled import numba_available, numpy_only
 from fpg_gym.io import BANDAI_NAMCO_MAP, load_default_clips, read_bvh
+from fpg_gym.physics import ragdoll as ragdoll_module
 from fpg_gym.physics.ragdoll import FloorShift, PhysicsError, PhysicsWarning, Ragdoll
 from fpg_gym.physics.ragdoll_model import (
     MASS_FRACTIONS,
@@ -249,9 +250,14 @@ def test_instances_side_by_side_are_independent_and_deterministic(
         np.testing.assert_array_equal(np.array(interleaved), _run(alone, a_targets)[:, :, :])
 
 
-def test_a_rebuilt_body_tracks_as_a_new_one(clips: dict[str, np.ndarray]) -> None:
-    # rebuild() removes the previous body from the world instead of resetting the simulation:
-    # after any earlier stream (contacts, a teleport), the next one is a fresh body's, to the bit.
+@pytest.mark.parametrize("removals", [1, 64])
+def test_a_rebuilt_body_tracks_as_a_new_one(
+    clips: dict[str, np.ndarray], removals: int, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # rebuild() removes the previous body from the world (and resets the simulation every
+    # _REBUILDS_PER_RESET rebuilds): after any earlier stream (contacts, a teleport), the next
+    # one is a fresh body's, to the bit, whichever way the body was rebuilt.
+    monkeypatch.setattr(ragdoll_module, "_REBUILDS_PER_RESET", removals)
     kick, walk = clips["kick"], clips["walk"]
     with Ragdoll(poses.bone_lengths(kick[0])) as used:
         for lengths, stream in ((poses.bone_lengths(kick[0]), kick), (None, walk[:20] + 1.0)):

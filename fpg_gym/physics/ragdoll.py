@@ -113,6 +113,9 @@ _SHOULDER_RIGHT = skeleton.joint_index("ShoulderRight")
 _DEGENERATE_M = 1e-6
 _JOINT_FORCE_BODY_WEIGHTS = 100.0
 _BODY_GROUP, _FLOOR_GROUP = 1, 2
+#: Rebuilds that remove the body before one resets the whole simulation (which frees the
+#: collision shapes pybullet keeps after a body is removed).
+_REBUILDS_PER_RESET = 64
 
 
 class PhysicsError(FpgGymError, RuntimeError):
@@ -379,7 +382,7 @@ class Ragdoll:
         self.bodies: list[int] = []
         self._tracking: list[int] = []
         self._joints: list[int] = []
-        self._shapes: list[int] = []
+        self._removals = 0
         try:
             self.rebuild(bone_lengths, body_mass=body_mass)
         except BaseException:
@@ -392,10 +395,12 @@ class Ragdoll:
         """Rebuild the body for new bone lengths in the same pybullet client, from scratch.
 
         Cheaper than a new :class:`Ragdoll` (no new client) and just as deterministic: the
-        previous body's capsules, shapes and constraints are removed (the world keeps only its
-        floor, which holds no state) and new ones built, so that the body tracks as a new
-        ragdoll's does, to the bit (tested). The counters in :attr:`info` restart and the body
-        stands in :meth:`standing_pose`.
+        previous body's capsules and constraints are removed (the world keeps only its floor,
+        which holds no state) and new ones built, so that the body tracks as a new ragdoll's
+        does, to the bit (tested). pybullet keeps a removed body's collision shapes, so every
+        :data:`_REBUILDS_PER_RESET` rebuilds the whole simulation is reset instead (the same
+        results). The counters in :attr:`info` restart and the body stands in
+        :meth:`standing_pose`.
         """
         self._check_open()
         self.model: BodyModel = build_body_model(bone_lengths, body_mass)
@@ -414,10 +419,12 @@ class Ragdoll:
         self._offset = np.zeros(3)
         self._offset_velocity = np.zeros(3)
         self._jumps = 0
-        if self.bodies:
+        if self.bodies and self._removals < _REBUILDS_PER_RESET:
             self._remove_body()
+            self._removals += 1
         else:
             self._build_world(self._friction, self._solver_iterations)
+            self._removals = 0
         self._build_body(self._friction)
         self.reset(self.standing_pose())
 
@@ -440,9 +447,10 @@ class Ragdoll:
         return (rest + np.array([0.0, lift, 0.0])).astype(np.float32)
 
     def _build_world(self, friction: float, solver_iterations: int) -> None:
-        """The physics settings and the floor."""
+        """The physics settings and the floor, in an empty world."""
         pb, cid = pybullet, self.client
         pb.resetSimulation(physicsClientId=cid)
+        self.bodies, self._tracking, self._joints = [], [], []
         pb.setGravity(0.0, -GRAVITY, 0.0, physicsClientId=cid)
         pb.setPhysicsEngineParameter(
             fixedTimeStep=self.time_step,
@@ -481,7 +489,6 @@ class Ragdoll:
             shape = pb.createCollisionShape(
                 pb.GEOM_CAPSULE, radius=radius, height=length, physicsClientId=cid
             )
-            self._shapes.append(shape)
             body = pb.createMultiBody(
                 baseMass=float(model.masses[bone]),
                 baseCollisionShapeIndex=shape,
@@ -538,15 +545,13 @@ class Ragdoll:
             self._joints.append(constraint)
 
     def _remove_body(self) -> None:
-        """Remove the body's constraints, capsules and shapes (the floor stays)."""
+        """Remove the body's constraints and capsules (the floor stays)."""
         pb, cid = pybullet, self.client
         for constraint in self._joints + self._tracking:
             pb.removeConstraint(constraint, physicsClientId=cid)
         for body in self.bodies:
             pb.removeBody(body, physicsClientId=cid)
-        for shape in self._shapes:
-            pb.removeCollisionShape(shape, physicsClientId=cid)
-        self.bodies, self._tracking, self._joints, self._shapes = [], [], [], []
+        self.bodies, self._tracking, self._joints = [], [], []
 
     def _in_body(self, bone: int, vector: np.ndarray) -> np.ndarray:
         """A rest-pose world vector in the bone's body frame."""
