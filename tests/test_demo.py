@@ -42,12 +42,12 @@ def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
         assert list(part) == quick_real
     assert printed.index("real Kinect v2 streams") < printed.index("simulated episodes")
     occluded = real["occluded"]
-    assert occluded["fpg:local-search"]["occluded_mpjpe_m"] < occluded["raw"]["occluded_mpjpe_m"]
-    assert real["clean"]["fpg:local-search"]["mpjpe_m"] < real["clean"]["raw"]["mpjpe_m"]
+    assert occluded["fpg:closed-form"]["occluded_mpjpe_m"] < occluded["raw"]["occluded_mpjpe_m"]
+    assert real["clean"]["fpg:closed-form"]["mpjpe_m"] < real["clean"]["raw"]["mpjpe_m"]
     report = (out / "report.md").read_text()
     assert report.index("## Real Kinect v2 streams") < report.index("## Simulated streams")
     headline = (out / "headline.md").read_text()
-    assert "`fpg:local-search`" in headline and "occluded joints' MPJPE" in headline
+    assert "`fpg:closed-form`" in headline and "occluded joints' MPJPE" in headline
     for name in ("clean", "occluded"):
         assert (out / "real" / name / "results.csv").is_file()
     expected = {

@@ -33,10 +33,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--method",
-        default="fpg:local-search",
+        default=None,
         metavar="NAME",
         help="a reconstruction method (fpg[:OPTIMIZER], shum[:OPTIMIZER], optionally +ragdoll; "
-        "default fpg:local-search) or a reference filter (raw, holt, kalman, one-euro, each "
+        "default: fpg with the sensor pipeline's optimiser, closed-form for a Kinect v2, else "
+        "local-search) or a reference filter (raw, holt, kalman, one-euro, each "
         "optionally +map)",
     )
     add_calibration_arguments(parser)
@@ -95,7 +96,7 @@ def run(args: argparse.Namespace) -> int:
         raise ValueError(f"--budget: expected >= 0, got {args.budget}")
     if args.max_frames is not None and args.max_frames < 1:
         raise ValueError(f"--max-frames: expected >= 1, got {args.max_frames}")
-    method = parse_method(args.method)
+    method = parse_method(args.method or "fpg")
     if method.is_filter and method.ragdoll:
         raise ValueError(f"--method {method.name}: live runs the filters without the ragdoll")
     if args.input != "-":
@@ -130,6 +131,8 @@ def run(args: argparse.Namespace) -> int:
         reader = live.LiveReader(lines, args.queue)
         graph = resolve_graph(args.graph, None, args.sensor)
         chosen = choose_pipeline(args, None, graph, say)
+        if args.method is None and chosen.optimizer:
+            method = parse_method(f"fpg:{chosen.optimizer}")
         step: Any
         if method.is_filter:
             step = live.FilterStep(method, chosen.options)

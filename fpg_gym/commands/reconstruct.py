@@ -66,7 +66,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--out", required=True, metavar="OUT.npz", help="output .npz")
     parser.add_argument(
-        "--optimizer", default=None, help="registered optimiser (default local-search)"
+        "--optimizer",
+        default=None,
+        help="registered optimiser (default: the sensor pipeline's, closed-form for a Kinect v2, "
+        "else local-search)",
     )
     parser.add_argument(
         "--selector", default=None, choices=["graph", "brute-force"], help="(default graph)"
@@ -404,7 +407,8 @@ def run(args: argparse.Namespace) -> int:
             f"--method {args.method} and {', '.join(given)}: give one (a method name says the "
             "optimiser, selector and ragdoll, e.g. fpg:cma-es or shum:local-search+ragdoll)"
         )
-    args.optimizer = args.optimizer or "local-search"
+    if args.optimizer:
+        make(args.optimizer)  # an unknown name fails before any work
     args.selector = args.selector or "graph"
     args.out = _check_out(args)
     if args.method:
@@ -418,11 +422,12 @@ def run(args: argparse.Namespace) -> int:
         args.no_ragdoll = not method.ragdoll
     if not args.graph:
         raise ValueError("--graph: a pose graph is needed (a .npz file or 'default')")
-    optimizer = make(args.optimizer)
     recording = read_input(args)
     graph = resolve_graph(args.graph, recording, args.sensor)
     chosen = choose_pipeline(args, recording, graph)
     args.pipeline = chosen.summary()
+    args.optimizer = args.optimizer or chosen.optimizer or "local-search"
+    optimizer = make(args.optimizer)
     reconstructor = Reconstructor(
         graph,
         ragdoll=not args.no_ragdoll,

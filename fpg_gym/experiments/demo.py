@@ -5,7 +5,7 @@
    squat, a hurdle step, a sit to stand and a shoulder abduction) with their Vicon joint centres,
    as they are and with each occlusion case of :mod:`fpg_gym.simulate.occlude` put into them:
    the raw sensor, the Kinect SDK's Holt filter, the mapped sensor with Holt and the default
-   pipeline (``fpg:local-search``, the ``auto`` preset of a Kinect v2:
+   pipeline (``fpg:closed-form``, the ``auto`` preset of a Kinect v2:
    :mod:`fpg_gym.reconstruct.presets`), scored against Vicon with Eq. 13, MPJPE and the rest
    (``real/clean`` and ``real/occluded``, compare folders of their own; ``headline.md``, the
    README's headline table). The GIF shows a real squat whose lower legs are lost.
@@ -74,7 +74,7 @@ DEMO_METHODS: tuple[str, ...] = (
 #: Methods of ``quick=True``.
 QUICK_METHODS: tuple[str, ...] = ("raw", "holt", "fpg:none", "fpg:local-search")
 #: Methods of the real sections (the baseline of their tests: what a Kinect user already has).
-REAL_METHODS: tuple[str, ...] = ("raw", "holt", "holt+map", "fpg:local-search")
+REAL_METHODS: tuple[str, ...] = ("raw", "holt", "holt+map", "fpg:closed-form")
 REAL_BASELINE = "holt+map"
 #: The real episode of the GIF: a squat whose lower legs are lost.
 GIF_REAL_EPISODE = "m01_s08_e05-legs"

@@ -176,6 +176,9 @@ class Pipeline:
         One line for the user.
     note : str
         A caveat to print (empty when none).
+    optimizer : str or None
+        The optimiser that measured best with these settings, for commands where the user names
+        none (None: the papers' ``local-search``).
     """
 
     preset: str
@@ -183,6 +186,7 @@ class Pipeline:
     options: dict[str, Any]
     description: str
     note: str = ""
+    optimizer: str | None = None
 
     def summary(self) -> dict[str, Any]:
         """JSON-ready facts (stored in outputs' metadata and ``compare``'s config)."""
@@ -191,6 +195,7 @@ class Pipeline:
             "sensor": self.sensor,
             "description": self.description,
             **({"note": self.note} if self.note else {}),
+            **({"optimizer": self.optimizer} if self.optimizer else {}),
         }
 
 
@@ -265,6 +270,8 @@ def pipeline(
             options,
             f"{sensor}: mapped to marker joint centres, bone model, database in {where}, "
             "fusion of sensor and reconstruction",
+            # The closed form carries lost limbs better on UI-PRMD (docs/real-data.md).
+            optimizer="closed-form",
         )
     if not profile.fusion:
         return Pipeline("auto", sensor, {}, f"{sensor}: the reconstruction (no map, no fusion)")
