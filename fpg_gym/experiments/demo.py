@@ -76,6 +76,8 @@ QUICK_METHODS: tuple[str, ...] = ("raw", "holt", "fpg:none", "fpg:local-search")
 #: Methods of the real sections (the baseline of their tests: what a Kinect user already has).
 REAL_METHODS: tuple[str, ...] = ("raw", "holt", "holt+map", "fpg:closed-form")
 REAL_BASELINE = "holt+map"
+#: ``quick=True`` draws every third frame of the GIF (the drawing is most of its time).
+QUICK_GIF_STEP = 3
 #: The real episode of the GIF: a squat whose lower legs are lost.
 GIF_REAL_EPISODE = "m01_s08_e05-legs"
 _DEMO_DATA = Path(__file__).resolve().parents[1] / "data" / "demo"
@@ -226,9 +228,11 @@ def write_animation(
     target: Path | None = None,
     source: str = "simulated",
     truth_label: str = "ground truth",
+    step: int = 1,
 ) -> tuple[Path, Path]:
     """GIF and one-frame PNG of an episode of the compare folder ``out``: Kinect input,
-    ``method``'s output, ground truth (written to ``target``, ``out`` by default)."""
+    ``method``'s output, ground truth (written to ``target``, ``out`` by default; every
+    ``step``-th frame, at ``fps / step``)."""
 
     recording = load_recording(out / "episodes" / f"{episode}.npz")
     poses = load_frames(frames_path(out, episode, method))["poses"]
@@ -236,21 +240,22 @@ def write_animation(
     truth = recording.ground_truth
     assert truth is not None
     label = f"Kinect input ({source})"
+    shown = slice(0, count, step)
     panels = {
-        label: recording.positions[:count],
-        f"reconstruction ({method})": poses[:count],
-        truth_label: truth[:count],
+        label: recording.positions[shown],
+        f"reconstruction ({method})": poses[shown],
+        truth_label: truth[shown],
     }
     frames = plots.skeleton_animation(
         panels,
-        states=recording.states[:count],
+        states=recording.states[shown],
         states_panel=label,
-        fps=fps,
+        fps=fps / step,
         title=f"{episode}: joints green tracked, orange inferred, red not tracked",
     )
     folder = out if target is None else target
-    gif = plots.save_gif(folder / "demo.gif", frames, fps=fps)
-    png = plots.save_png(folder / "demo_frame.png", frames[count // 2])
+    gif = plots.save_gif(folder / "demo.gif", frames, fps=fps / step)
+    png = plots.save_png(folder / "demo_frame.png", frames[len(frames) // 2])
     return gif, png
 
 
@@ -350,6 +355,7 @@ def run_demo(
                 target=out,
                 source="real, lower legs lost",
                 truth_label="Vicon truth",
+                step=QUICK_GIF_STEP if quick else 1,
             )
         except FileNotFoundError:  # interrupted before that run finished
             gif_path = png_path = None
