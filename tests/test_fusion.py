@@ -255,3 +255,44 @@ def test_kinect_v2_pipeline_runs_and_keeps_a_tracked_stream_near_the_sensor(
     raw = metrics.mpjpe(occluded.ground_truth, occluded.positions, mask=occluded.occluded)
     fused = metrics.mpjpe(occluded.ground_truth, lost, mask=occluded.occluded)
     assert fused < raw
+
+
+def test_cli_gives_a_kinect_v2_recording_its_pipeline(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """Issue 34: no tuning flag on a Kinect v2 recording runs its pipeline (printed, stored);
+    --preset papers and explicit maps replace it; maps are usable by name."""
+    import json
+
+    from fpg_gym.cli import main
+    from fpg_gym.experiments.demo import demo_recordings
+
+    recording = demo_recordings()[0]  # UI-PRMD s08, in no packaged model
+    out = tmp_path / "auto.npz"
+    argv = ["reconstruct", "--input", str(recording), "--graph", "default", "--no-ragdoll"]
+    assert main([*argv, "--out", str(out), "--no-progress"]) == 0
+    printed = capsys.readouterr().out
+    assert "configuration    auto: kinect-v2" in printed and "closed-form" in printed
+    with np.load(out, allow_pickle=False) as archive:
+        metadata = json.loads(str(archive["metadata"]))
+        auto_error = float(archive["frame_error"].mean())
+        raw_error = float(archive["frame_error_raw"].mean())
+    assert metadata["pipeline"]["preset"] == "auto"
+    assert metadata["pipeline"]["sensor"] == "kinect-v2"
+    assert auto_error < 0.8 * raw_error
+    papers = tmp_path / "papers.npz"
+    assert main([*argv, "--out", str(papers), "--preset", "papers", "--no-progress"]) == 0
+    assert "configuration    papers" in capsys.readouterr().out
+    manual = tmp_path / "manual.npz"
+    flags = ["--sensor-map", "kinect-v2-to-vicon", "--sensor-blend", "0.5", "--no-progress"]
+    assert main([*argv, "--out", str(manual), *flags]) == 0
+    assert "configuration    manual" in capsys.readouterr().out
+    compare = tmp_path / "compare"
+    argv = ["compare", "--inputs", str(recording), "--methods", "raw,holt+map,fpg:closed-form"]
+    assert main([*argv, "--out", str(compare), "--quiet", "--no-plots", "--workers", "1"]) == 0
+    config = json.loads((compare / "config.json").read_text())
+    assert config["graph_resolved"] == "uiprmd"
+    assert config["pipeline"]["preset"] == "auto"
+    summary = json.loads((compare / "summary.json").read_text())["methods"]
+    assert summary["fpg:closed-form"]["mpjpe_m"] < summary["holt+map"]["mpjpe_m"]
+    assert summary["holt+map"]["mpjpe_m"] < summary["raw"]["mpjpe_m"]
