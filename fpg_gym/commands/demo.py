@@ -12,8 +12,8 @@ NAME = "demo"
 HELP = (
     "the whole job on the packaged data (no files needed): real Kinect v2 repetitions against "
     "Vicon, with and without occlusions, then simulated Kinect episodes of the embedded clips; "
-    "filters vs reconstruction, tables, plots and a GIF (54 s, 35 CPU s, on a shared 2-core "
-    "machine at load 5; 126 s the first time, which compiles the numba kernels)"
+    "filters vs reconstruction, tables, plots and a GIF (34 s, 33 CPU s, on a shared 2-core "
+    "machine at load 3.3; 126 s the first time, which compiles the numba kernels)"
 )
 
 
