@@ -20,15 +20,20 @@ Built-in optimisers (``make(name, **kwargs)``):
 ``random-search``  samples from the whitened latent prior N(0, I): the floor to beat
 ``cma-es``         CMA-ES warm-started at x0 (needs ``pip install 'fpg-gym[cma]'``)
 ``none``           no search: x0 (the previous reconstruction projected, or the best candidate)
-``closed-form``    beyond the papers: one point, the exact minimiser of the energy's quadratic
-                   terms (Ec, Em, a ridge for Es) in the latent space (1 evaluation)
 =================  =====================================================================
 
-Parametrised names ``PREFIX:ARGUMENT`` call a prefix factory with the argument (see
-:func:`register_prefix`): ``learned:PATH`` and ``learned+search:PATH`` draw candidates from a
-learned sampler saved at ``PATH`` (:mod:`policies.learned_optimizers`, needs ``fpg-gym[learn]``).
-Those and ``closed-form`` (:mod:`fpg_gym.reconstruct.closed_form`) are registered as
-``"module:attr"`` strings and imported on first use.
+Plug-ins above this layer register themselves (and are found by name without being imported
+first: the registry imports the modules of the ``optimizers.plugins`` entry-point group when a
+name is missing):
+
+* ``closed-form`` (:mod:`fpg_gym.reconstruct.closed_form`), beyond the papers: one point, the
+  exact minimiser of the energy's quadratic terms (Ec, Em, a ridge for Es) in the latent space
+  (1 evaluation). It reads the per-frame problem (:class:`fpg_gym.reconstruct.SearchProblem`)
+  and refuses a plain :class:`Problem` with an :class:`OptimizerError` saying so.
+* Parametrised names ``PREFIX:ARGUMENT`` call a prefix factory with the argument (see
+  :func:`register_prefix`): ``learned:PATH`` and ``learned+search:PATH`` draw candidates from a
+  learned sampler saved at ``PATH`` (:mod:`policies.learned_optimizers`, needs
+  ``fpg-gym[learn]``).
 
 Third-party optimisers register a factory (usually the class) under a name::
 
@@ -40,6 +45,10 @@ Third-party optimisers register a factory (usually the class) under a name::
 
     opt = optimizers.make("my-search", samples=50)
     optimizers.register("their-search", "their_package.search:TheirSearch")  # imported on use
+
+A package whose module registers at import can declare it in its ``pyproject.toml``
+(``[project.entry-points."optimizers.plugins"]``, ``their-search = "their_package.search"``)
+so that its names work in programs that never import it.
 
 The registry is a module-level mapping (like Gymnasium's env registry): registering is the only
 way it changes.

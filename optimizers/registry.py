@@ -1,20 +1,27 @@
 """The optimiser registry: names (and ``PREFIX:ARGUMENT`` names) to factories.
 
-Built-in entries are ``"module:attr"`` strings, imported on first use, so that optimisers that
-live above this layer (``closed-form`` beside the reconstruction problem it reads, ``learned:``
-beside the torch policies) register without this layer importing them.
+This layer registers its own optimisers (as ``"module:attr"`` strings, imported on first use).
+Optimisers that live above it register themselves in the modules that define them
+(``closed-form`` beside the per-frame problem it reads, the ``learned:`` samplers beside their
+models); this layer names none of them. Importing such a module registers its optimisers; a
+program that has not imported it still finds them by name, because the modules are declared as
+plug-ins (the ``optimizers.plugins`` entry-point group of the distribution's metadata,
+:data:`PLUGIN_GROUP`), which :func:`make`, :func:`available` and :func:`prefixes` import the
+first time a name is not registered or the whole list is asked for.
 """
 
 from __future__ import annotations
 
 import functools
 import importlib
+import warnings
 from collections.abc import Callable
+from importlib import metadata
 from typing import Any, TypeVar
 
 from optimizers.base import BaseOptimizer, Optimizer, OptimizerNotFound
 
-__all__ = ["available", "make", "prefixes", "register", "register_prefix"]
+__all__ = ["PLUGIN_GROUP", "available", "make", "prefixes", "register", "register_prefix"]
 
 OptimizerFactory = Callable[..., Optimizer]
 F = TypeVar("F", bound=Callable[..., Any])
@@ -25,13 +32,45 @@ _REGISTRY: dict[str, OptimizerFactory | str] = {
     "random-search": "optimizers.random_search:RandomSearch",
     "cma-es": "optimizers.cma_es:CMAES",
     "none": "optimizers.none:NoSearch",
-    "closed-form": "fpg_gym.reconstruct.closed_form:ClosedForm",
 }
 # Parametrised names "PREFIX:ARGUMENT": the factory is called with ARGUMENT first.
-_PREFIX_REGISTRY: dict[str, OptimizerFactory | str] = {
-    "learned": "policies.learned_optimizers:LearnedSampler",
-    "learned+search": "policies.learned_optimizers:LearnedSearch",
-}
+_PREFIX_REGISTRY: dict[str, OptimizerFactory | str] = {}
+
+#: Entry-point group of the modules that register optimisers when imported (plug-ins).
+PLUGIN_GROUP = "optimizers.plugins"
+_plugins_loaded = False
+
+
+def _load_plugins() -> None:
+    """Import the modules of :data:`PLUGIN_GROUP` once (they register their optimisers).
+
+    A plug-in that fails to import is reported by a warning naming it, and skipped.
+    """
+    global _plugins_loaded
+    if _plugins_loaded:
+        return
+    _plugins_loaded = True
+    for entry in metadata.entry_points(group=PLUGIN_GROUP):
+        try:
+            entry.load()
+        except Exception as error:  # a broken plug-in must not break the registry
+            warnings.warn(
+                f"optimizer plug-in {entry.name!r} ({entry.value}) failed to load: {error}",
+                RuntimeWarning,
+                stacklevel=3,
+            )
+
+
+def _store(
+    table: dict[str, OptimizerFactory | str],
+    key: str,
+    factory: OptimizerFactory | str,
+    overwrite: bool,
+    what: str,
+) -> None:
+    if not overwrite and key in table:
+        raise ValueError(f"{what} {key!r} is already registered (pass overwrite=True)")
+    table[key] = factory
 
 
 def _check_factory(label: str, factory: Any) -> None:
@@ -72,18 +111,14 @@ def register(
 
     def decorate(f: F) -> F:
         _check_factory(repr(name), f)
-        if not overwrite and name in _REGISTRY:
-            raise ValueError(f"optimizer {name!r} is already registered (pass overwrite=True)")
-        _REGISTRY[name] = f
+        _store(_REGISTRY, name, f, overwrite, "optimizer")
         return f
 
     if factory is None:
         return decorate
     if isinstance(factory, str):
         _check_factory(repr(name), factory)
-        if not overwrite and name in _REGISTRY:
-            raise ValueError(f"optimizer {name!r} is already registered (pass overwrite=True)")
-        _REGISTRY[name] = factory
+        _store(_REGISTRY, name, factory, overwrite, "optimizer")
         return factory
     return decorate(factory)
 
@@ -105,19 +140,22 @@ def register_prefix(
     if not isinstance(prefix, str) or not prefix or ":" in prefix:
         raise ValueError(f"prefix: expected a non-empty string without ':', got {prefix!r}")
     _check_factory(repr(prefix), factory)
-    if not overwrite and prefix in _PREFIX_REGISTRY:
-        raise ValueError(f"optimizer prefix {prefix!r} is already registered")
-    _PREFIX_REGISTRY[prefix] = factory
+    _store(_PREFIX_REGISTRY, prefix, factory, overwrite, "optimizer prefix")
     return factory
 
 
 def prefixes() -> list[str]:
-    """Prefixes of parametrised names (``learned``, ``learned+search``, ...), sorted."""
+    """Prefixes of parametrised names (``learned``, ``learned+search``, ...), sorted; plug-ins
+    included."""
+    _load_plugins()
     return sorted(_PREFIX_REGISTRY)
 
 
 def available() -> list[str]:
-    """Names :func:`make` accepts, sorted."""
+    """Names :func:`make` accepts, sorted; plug-ins included. Some need more than a plain
+    :class:`~optimizers.Problem` and say so when reset on one (``closed-form`` reads the
+    per-frame reconstruction problem)."""
+    _load_plugins()
     return sorted(_REGISTRY)
 
 
@@ -129,12 +167,22 @@ def _resolve(entry: OptimizerFactory | str) -> OptimizerFactory:
     return factory
 
 
-def _factory(name: str) -> OptimizerFactory:
+def _lookup(name: str) -> OptimizerFactory | None:
     if name in _REGISTRY:
         return _resolve(_REGISTRY[name])
     prefix, colon, argument = name.partition(":")
     if colon and prefix in _PREFIX_REGISTRY:
         return functools.partial(_resolve(_PREFIX_REGISTRY[prefix]), argument)
+    return None
+
+
+def _factory(name: str) -> OptimizerFactory:
+    found = _lookup(name)
+    if found is None and not _plugins_loaded:
+        _load_plugins()
+        found = _lookup(name)
+    if found is not None:
+        return found
     parametrised = ", ".join(f"{p}:ARG" for p in prefixes())
     raise OptimizerNotFound(
         f"unknown optimizer {name!r}; available: {', '.join(available())}; parametrised: "

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from optimizers import BaseOptimizer
+from optimizers import BaseOptimizer, register_prefix
 from policies.loading import load_sampler
 
 __all__ = ["LearnedSampler", "LearnedSearch"]
@@ -282,3 +282,9 @@ class LearnedSearch(LearnedSampler):
         super().tell(z, energies)
         if self.iteration > 0 and not self._progress() < before:
             self.current_step *= 0.5
+
+
+# The learned samplers register themselves as the parametrised optimisers learned:PATH and
+# learned+search:PATH (pyproject's optimizers.plugins entry point imports this module on demand).
+register_prefix("learned", LearnedSampler)
+register_prefix("learned+search", LearnedSearch)

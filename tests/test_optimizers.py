@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -304,6 +308,34 @@ def test_registry_takes_module_attr_strings_without_importing() -> None:
         optimizers.make("missing-for-test")
     with pytest.raises(ValueError, match="module:attr"):
         optimizers.register("bad-for-test", "no-colon")
+
+
+def test_plug_ins_register_themselves_and_the_registry_names_none_of_them() -> None:
+    """The optimiser layer names no module above it: ``closed-form`` and the ``learned``
+    prefixes come from the modules that define them (declared as ``optimizers.plugins`` entry
+    points, so a fresh program finds them by name alone)."""
+    source = Path(optimizers.registry.__file__).read_text()
+    assert "fpg_gym" not in source and "policies" not in source
+    code = (
+        "import sys, optimizers\n"
+        "assert 'fpg_gym' not in sys.modules and 'policies' not in sys.modules\n"
+        "print(type(optimizers.make('closed-form')).__module__)\n"
+        "print(' '.join(optimizers.prefixes()))"
+    )
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True
+    ).stdout.split("\n")
+    assert out[0] == "fpg_gym.reconstruct.closed_form"
+    assert out[1].split() == ["learned", "learned+search"]
+
+
+def test_closed_form_refuses_a_plain_problem_naming_the_problem_it_needs() -> None:
+    """``available()`` lists ``closed-form``; on a problem with only dim, x0 and evaluate it
+    stops with an error that names the per-frame problem, not an AttributeError."""
+    assert "closed-form" in optimizers.available()
+    with pytest.raises(optimizers.OptimizerError, match=r"SearchProblem.*without kinect_pose"):
+        optimizers.run_optimizer(Sphere(), "closed-form", rng=0)
+    optimizers.run_optimizer(make_problem(), "closed-form", rng=0)  # the per-frame problem: fine
 
 
 def _quadratic_energy(problem: SearchProblem, points: np.ndarray, style: float) -> np.ndarray:

@@ -2,12 +2,14 @@
 energy, the per-frame search problem and the :class:`Reconstructor` pipeline.
 
 See :mod:`fpg_gym.reconstruct.reconstructor` for the data flow of one frame and
-``../shared/DESIGN.md`` for the equations.
+``../shared/DESIGN.md`` for the equations. Importing the package registers the optimiser
+``closed-form`` (:class:`ClosedForm`, which reads the per-frame problem).
 """
 
 from __future__ import annotations
 
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
+from fpg_gym.reconstruct.closed_form import ClosedForm
 from fpg_gym.reconstruct.energy import (
     ENERGY_KERNELS,
     POSE_TERM_NAMES,
@@ -67,6 +69,7 @@ __all__ = [
     "BoneSettlingConfig",
     "BruteForceSelector",
     "CandidateSelector",
+    "ClosedForm",
     "EnergyModel",
     "EnergyWeights",
     "FrameContext",

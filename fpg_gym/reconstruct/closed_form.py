@@ -11,8 +11,9 @@ the style term ``Es`` (Eq. 12, "stay near the candidates") is replaced by a ridg
 is one ``(d, d)`` linear solve (``eps`` only keeps axes of tiny spread finite). It is a
 reliability-weighted, regularised least-squares fit of the sensor pose (and the continuity
 prediction) in the PCA space: beyond the papers, and on the held-out data of the README more
-accurate than their stochastic search, at one energy evaluation (optimiser ``closed-form``; the
-learned samplers of :mod:`policies` centre their Gaussians on it).
+accurate than their stochastic search, at one energy evaluation (optimiser ``closed-form``,
+registered here because it reads the per-frame problem, :class:`~fpg_gym.reconstruct.problem.
+SearchProblem`; the learned samplers of :mod:`policies` centre their Gaussians on it).
 """
 
 from __future__ import annotations
@@ -23,7 +24,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.reconstruct.energy import EnergyWeights
-from optimizers import BaseOptimizer
+from optimizers import BaseOptimizer, OptimizerError, register
 
 __all__ = ["DEFAULT_STYLE", "ClosedForm", "quadratic_minimiser"]
 
@@ -31,6 +32,8 @@ __all__ = ["DEFAULT_STYLE", "ClosedForm", "quadratic_minimiser"]
 DEFAULT_STYLE = 2.0
 #: Weight of the faint prior in whitened units (keeps degenerate axes finite).
 _WHITENED_PRIOR = 1e-5
+#: What :class:`ClosedForm` reads of its problem beyond ``dim`` and ``x0``.
+_READS = ("kinect_pose", "reliability", "latent", "prediction", "weights")
 
 
 def quadratic_minimiser(
@@ -106,6 +109,7 @@ def quadratic_minimiser(
     return np.where(mask, u / np.maximum(std, 1e-9), 0.0)
 
 
+@register("closed-form")
 class ClosedForm(BaseOptimizer):
     """Asks one point: the exact minimiser of ``w_c Ec + w_m Em`` plus a ridge toward the
     candidates' mean standing in for ``Es`` (above).
@@ -136,7 +140,21 @@ class ClosedForm(BaseOptimizer):
         return {"style": self.style}
 
     def reset(self, problem: Any, rng: np.random.Generator) -> None:
-        """Start on a new frame's problem."""
+        """Start on a new frame's problem.
+
+        Raises
+        ------
+        OptimizerError
+            If ``problem`` is not the per-frame reconstruction problem (a plain
+            :class:`optimizers.Problem` has no sensor pose or latent space to fit).
+        """
+        missing = [name for name in _READS if not hasattr(problem, name)]
+        if missing:
+            raise OptimizerError(
+                "closed-form: needs the per-frame reconstruction problem "
+                f"(fpg_gym.reconstruct.SearchProblem), got {type(problem).__name__} without "
+                f"{', '.join(missing)}"
+            )
         super().reset(problem, rng)
         self._asked = False
 
