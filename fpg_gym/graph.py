@@ -51,6 +51,7 @@ from fpg_gym import __version__, graph_build, skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 from fpg_gym.io.clip import Clip
+from fpg_gym.io.deepmimic import HUMANOID_TABLE
 from fpg_gym.io.files import check_input_file
 from fpg_gym.io.npz import check_npz
 from fpg_gym.io.plausibility import check_plausible
@@ -514,7 +515,6 @@ _DEFAULT_GRAPH_CODE = (
     "fpg_gym.graph_build",
     "fpg_gym.io.clip",
     "fpg_gym.io.deepmimic",
-    "fpg_gym.physics.pybullet_utils",
     "fpg_gym.poses",
     "fpg_gym.rotations",
     "fpg_gym.skeleton",
@@ -523,12 +523,13 @@ _DEFAULT_GRAPH_CODE = (
 
 @functools.cache
 def _code_digest() -> str:
-    """SHA-256 of the source of :data:`_DEFAULT_GRAPH_CODE`: an edited builder never gets a
-    graph cached by the code before it."""
+    """SHA-256 of the source of :data:`_DEFAULT_GRAPH_CODE` and of the DeepMimic reader's
+    humanoid table: an edited builder never gets a graph cached by the code before it."""
     digest = hashlib.sha256()
     for name in _DEFAULT_GRAPH_CODE:
         module = importlib.import_module(name)
         digest.update(Path(str(module.__file__)).read_bytes())
+    digest.update(HUMANOID_TABLE.read_bytes())
     return digest.hexdigest()
 
 

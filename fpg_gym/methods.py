@@ -68,10 +68,11 @@ from fpg_gym import skeleton
 from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.filters import PRESETS, make_filter
 from fpg_gym.metrics import bones_tracked
-from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
-from fpg_gym.poses import RecordingLike, bone_lengths
+from fpg_gym.physics.ragdoll import Ragdoll
+from fpg_gym.poses import FloorShift, RecordingLike, bone_lengths
 from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
 from fpg_gym.reconstruct.batched import run_streams
+from fpg_gym.reconstruct.reconstructor import RagdollFactory
 from optimizers import make
 
 __all__ = [
@@ -87,6 +88,7 @@ __all__ = [
     "expand_methods",
     "parse_method",
     "parse_methods",
+    "ragdoll_factory",
 ]
 
 FILTER_BASES: tuple[str, ...] = ("raw", "holt", "kalman", "one-euro")
@@ -339,6 +341,21 @@ class MethodResult:
         return len(self.poses)
 
 
+def ragdoll_factory(ragdoll: bool | RagdollFactory | None) -> RagdollFactory | None:
+    """The reconstructor's ``ragdoll=`` from a flag: ``True`` is the pybullet
+    :class:`~fpg_gym.physics.ragdoll.Ragdoll` (built from the user's bone lengths), False/None
+    no ragdoll, a factory itself (:class:`~fpg_gym.reconstruct.Reconstructor` imports no
+    physics: the ragdoll is injected from here).
+
+    Examples
+    --------
+    >>> Reconstructor(graph, ragdoll=ragdoll_factory(True))               # doctest: +SKIP
+    """
+    if ragdoll is True:
+        return Ragdoll
+    return ragdoll if callable(ragdoll) else None
+
+
 def reference_bone_lengths(positions: np.ndarray, states: np.ndarray) -> np.ndarray:
     """Median length of each bone over the frames where both its joints are tracked, ``(19,)``.
 
@@ -467,7 +484,7 @@ class MethodRunner:
                 options["weights"] = EnergyWeights.with_prior()
             self._reconstructors[key] = Reconstructor(
                 self.graph,
-                ragdoll=ragdoll,
+                ragdoll=ragdoll_factory(ragdoll),
                 selector=selector,
                 max_evaluations=self.budget,
                 **options,
@@ -566,7 +583,9 @@ class MethodRunner:
         key = (spec.selector, spec.ragdoll, spec.prior)
         pool = self._pools.setdefault(key, [first])
         while len(pool) < len(recordings):
-            pool.append(Reconstructor(self.graph, first.config, ragdoll=spec.ragdoll))
+            pool.append(
+                Reconstructor(self.graph, first.config, ragdoll=ragdoll_factory(spec.ragdoll))
+            )
         results = run_streams(pool[: len(recordings)], recordings, spec.optimizer, list(seeds))
         return [_method_result(result) for result in results]
 

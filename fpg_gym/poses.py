@@ -501,3 +501,36 @@ def bone_directions(poses: FloatArray) -> np.ndarray:
     safe = norms > 1e-9
     directions: np.ndarray = np.where(safe, vectors / np.where(safe, norms, 1.0), REST_DIRECTIONS)
     return directions
+
+
+class FloorShift:
+    """Camera space has no floor: a stream of camera-space poses is shifted down by the lowest
+    joint seen so far (a running minimum, the best floor estimate without a calibrated camera)
+    before the ragdoll, and back up after it.
+
+    Examples
+    --------
+    >>> floor = FloorShift()                                   # doctest: +SKIP
+    >>> out = floor.up(body.track(floor.down(target)))         # doctest: +SKIP
+    """
+
+    def __init__(self) -> None:
+        self.floor_y: float | None = None
+
+    def reset(self) -> None:
+        """A new stream: forget the floor."""
+        self.floor_y = None
+
+    def down(self, target: np.ndarray) -> np.ndarray:
+        """``target`` (20, 3) in the simulation world (float64); updates the floor estimate."""
+        target = np.asarray(target, dtype=np.float64)
+        lowest = float(target[:, 1].min())
+        self.floor_y = lowest if self.floor_y is None else min(self.floor_y, lowest)
+        return target - np.array([0.0, self.floor_y, 0.0])
+
+    def up(self, pose: np.ndarray) -> np.ndarray:
+        """A simulated pose back in camera space, float32."""
+        assert self.floor_y is not None, "down() first"
+        return (np.asarray(pose, dtype=np.float64) + np.array([0.0, self.floor_y, 0.0])).astype(
+            np.float32
+        )

@@ -14,7 +14,7 @@ use only APIs both checkouts have:
     to 90 frames, the embedded graph), local search, no ragdoll: CPU ms per frame (mean of the
     ``--repeats``), CPU ms per stage, FPG Eq. 13 error.
 ``ragdoll``
-    The same episodes with the ragdoll (``Reconstructor(ragdoll=True)``): CPU ms of each stage,
+    The same episodes with the ragdoll (``Reconstructor(ragdoll=Ragdoll)``): CPU ms of each stage,
     the ragdoll's included, and the error; and the ragdoll alone on the no-ragdoll run's outputs
     (floor shifted, one body per episode built from its mean bone lengths): CPU ms per frame
     with the builds, and the error of its output against the ground truth.
@@ -72,10 +72,11 @@ def _stage_cpu_clock() -> None:
 
 def _reconstruct(graph: Any, recordings: list[Any], ragdoll: bool, repeats: int) -> dict[str, Any]:
     from fpg_gym import metrics
+    from fpg_gym.physics.ragdoll import Ragdoll
     from fpg_gym.reconstruct import STAGES, Reconstructor
 
     frames = sum(r.num_frames for r in recordings)
-    with Reconstructor(graph, ragdoll=ragdoll) as reconstructor:
+    with Reconstructor(graph, ragdoll=Ragdoll if ragdoll else None) as reconstructor:
         reconstructor.warm_up()
         for i, recording in enumerate(recordings):  # first pass: loads, caches, not timed
             reconstructor.reconstruct(recording, "local-search", rng=i)

@@ -36,6 +36,7 @@ if str(REPO) not in sys.path:  # run from a checkout without installing
 
 from fpg_gym import metrics  # noqa: E402
 from fpg_gym.experiments import markdown_table, plan_episodes  # noqa: E402
+from fpg_gym.methods import ragdoll_factory  # noqa: E402
 from fpg_gym.reconstruct import (  # noqa: E402
     BoneSettlingConfig,
     Reconstructor,
@@ -203,7 +204,10 @@ def main(argv: list[str] | None = None) -> int:
     for setting in chosen:
         started = time.perf_counter()
         with Reconstructor(
-            graph, temporal=setting.temporal, bones=setting.bones, ragdoll=setting.ragdoll
+            graph,
+            temporal=setting.temporal,
+            bones=setting.bones,
+            ragdoll=ragdoll_factory(setting.ragdoll),
         ) as rec:
             outputs = [
                 rec.reconstruct(r, "local-search", rng=seed).poses for _, r, seed in episodes

@@ -259,6 +259,19 @@ def test_deepmimic_forward_kinematics_matches_pybullet() -> None:
     assert humanoid_model().links[0] == "root"
 
 
+def test_the_deepmimic_reader_s_humanoid_table_is_pybullet_s_humanoid_to_the_bit() -> None:
+    """The reader reads the humanoid from a table (no physics engine below io); the table is
+    what pybullet loads, every offset and point equal to the last bit."""
+    from fpg_gym.physics.humanoid import humanoid_model_from_pybullet
+
+    table, loaded = humanoid_model(), humanoid_model_from_pybullet()
+    assert table.links == loaded.links and table.parents == loaded.parents
+    assert np.array_equal(table.offsets, loaded.offsets) and table.offsets.dtype == np.float64
+    assert table.points.keys() == loaded.points.keys()
+    for key, point in loaded.points.items():
+        assert np.array_equal(table.points[key], point), key
+
+
 @pytest.mark.parametrize(
     ("content", "message"),
     [

@@ -14,6 +14,8 @@ import pytest
 from fpg_gym import metrics, poses, skeleton
 from fpg_gym.cli import main
 from fpg_gym.io import Recording, load_default_clips, write_recording
+from fpg_gym.methods import ragdoll_factory
+from fpg_gym.physics.ragdoll import Ragdoll
 from fpg_gym.reconstruct import (
     STAGES,
     TERM_NAMES,
@@ -373,13 +375,23 @@ def test_reset_makes_a_stream_independent_of_earlier_ones() -> None:
     graph = FilteredPoseGraph.build(clips[2:], thres1=0.05, progress=False)
     first = simulate(clips[0], "front-many", seed=1)
     second = simulate(clips[1], "front-many", seed=2)
-    used = Reconstructor(graph, ragdoll=True)
+    used = Reconstructor(graph, ragdoll=Ragdoll)
     used.reconstruct(first, "local-search", rng=0, progress=False)
     again = used.reconstruct(second, "local-search", rng=0, progress=False)
-    fresh = Reconstructor(graph, ragdoll=True).reconstruct(
+    fresh = Reconstructor(graph, ragdoll=Ragdoll).reconstruct(
         second, "local-search", rng=0, progress=False
     )
     np.testing.assert_array_equal(again.poses, fresh.poses)
+
+
+def test_the_ragdoll_is_injected_not_imported() -> None:
+    """The reconstruction layer takes a ragdoll factory; a bare ``True`` (which it could only
+    resolve by importing physics) is refused with the fix, which the layer above provides."""
+    with pytest.raises(TypeError, match=r"ragdoll: expected a factory.*ragdoll_factory\(True\)"):
+        Reconstructor(graph(), ragdoll=True)
+    assert ragdoll_factory(True) is Ragdoll
+    assert ragdoll_factory(False) is None and ragdoll_factory(None) is None
+    assert ragdoll_factory(SimpleNamespace) is SimpleNamespace
 
 
 class BareStream:

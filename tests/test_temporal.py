@@ -11,6 +11,7 @@ from test_reconstructor import graph, recording, to_camera
 
 from fpg_gym import metrics, poses, skeleton
 from fpg_gym.filters import make_filter
+from fpg_gym.methods import ragdoll_factory
 from fpg_gym.reconstruct import (
     BoneSettler,
     BoneSettlingConfig,
@@ -209,7 +210,7 @@ def test_constant_velocity_motion_comes_out_without_lag() -> None:
 def test_bone_lengths_settle_with_and_without_the_ragdoll(ragdoll: bool) -> None:
 
     rec = recording("punch", noise=0.02, occlude=True, seed=4)
-    with Reconstructor(graph(), ragdoll=ragdoll) as r:
+    with Reconstructor(graph(), ragdoll=ragdoll_factory(ragdoll)) as r:
         result = r.reconstruct(rec, "local-search", rng=0)
     spread = metrics.settled_bone_spread(result.poses, timestamps=rec.timestamps)
     assert np.nanmax(spread) <= 0.005
@@ -217,7 +218,9 @@ def test_bone_lengths_settle_with_and_without_the_ragdoll(ragdoll: bool) -> None
     lengths = result.arrays()["bone_lengths"]
     assert lengths.shape == (len(rec.positions), skeleton.NUM_BONES)
     # The papers' reference lengths move with every calibration frame (no settling rule).
-    with Reconstructor(graph(), ragdoll=ragdoll, bones=BoneSettlingConfig(enabled=False)) as r:
+    with Reconstructor(
+        graph(), ragdoll=ragdoll_factory(ragdoll), bones=BoneSettlingConfig(enabled=False)
+    ) as r:
         loose = r.reconstruct(rec, "local-search", rng=0).arrays()["bone_lengths"]
     assert np.ptp(loose[30:], axis=0).max() > np.ptp(lengths[30:], axis=0).max()
 

@@ -81,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     import threading
 
     from fpg_gym import live
-    from fpg_gym.methods import parse_method
+    from fpg_gym.methods import parse_method, ragdoll_factory
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
 
     if args.queue < 1:
@@ -140,7 +140,7 @@ def run(args: argparse.Namespace) -> int:
             assert method.optimizer is not None and method.selector is not None
             reconstructor = Reconstructor(
                 graph,
-                ragdoll=method.ragdoll,
+                ragdoll=ragdoll_factory(method.ragdoll),
                 selector=method.selector,
                 max_evaluations=args.budget,
                 weights=EnergyWeights().with_prior() if method.prior else EnergyWeights(),

@@ -381,6 +381,7 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fpg_gym.commands.output import emit_json
+    from fpg_gym.methods import ragdoll_factory
     from fpg_gym.outputs import interrupts_deferred
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
@@ -430,7 +431,7 @@ def run(args: argparse.Namespace) -> int:
     optimizer = make(args.optimizer)
     reconstructor = Reconstructor(
         graph,
-        ragdoll=not args.no_ragdoll,
+        ragdoll=ragdoll_factory(not args.no_ragdoll),
         selector=args.selector,
         k=args.k,
         max_evaluations=args.budget,

@@ -71,6 +71,7 @@ from fpg_gym.experiments.bench_kernels import (
 from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1, FilteredPoseGraph
 from fpg_gym.holdout import holdout_indices
 from fpg_gym.io import load_clips, load_default_clips
+from fpg_gym.physics.ragdoll import Ragdoll
 from fpg_gym.reconstruct import STAGES, Reconstructor
 from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.kernels import compile_kernels
@@ -237,7 +238,7 @@ def _stages(
         totals: list[np.ndarray] = []
         outputs: list[np.ndarray] = []
         cpu = 0.0
-        with Reconstructor(graph, selector=selector, ragdoll=True) as reconstructor:
+        with Reconstructor(graph, selector=selector, ragdoll=Ragdoll) as reconstructor:
             reconstructor.warm_up()  # kernels loaded, ragdoll client open: not timed
             for i, recording in enumerate(recordings):
                 start = time.process_time()

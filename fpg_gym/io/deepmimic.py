@@ -7,7 +7,8 @@ left ankle, left shoulder and left elbow, in that order. Knees and elbows turn a
 Z axis, every other joint is spherical (quaternion w, x, y, z).
 
 Forward kinematics uses the joint offsets of ``pybullet_data/humanoid/humanoid.urdf`` as pybullet
-loads it with ``globalScaling=0.25`` (how pybullet's DeepMimic environment loads it): metres,
+loads it with ``globalScaling=0.25`` (kept in :data:`HUMANOID_TABLE`: this reader needs no physics
+engine) (how pybullet's DeepMimic environment loads it): metres,
 Y up, the character facing +X with its right side at +Z. Points the humanoid has no joint for
 come from its link geometry:
 
@@ -24,8 +25,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from functools import lru_cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
+import pybullet_data
 
 from fpg_gym import skeleton
 from fpg_gym.errors import DataFormatError
@@ -37,7 +40,6 @@ from fpg_gym.io.plausibility import (
     check_plausible,
     unusual_accepted,
 )
-from fpg_gym.physics.pybullet_utils import connect_direct, data_path, pybullet, quiet_stdout
 from fpg_gym.rotations import axis_rotation, quaternion_to_matrix, slerp
 
 #: The 15 DeepMimic humanoid clips shipped inside the pybullet wheel (the embedded default).
@@ -126,65 +128,49 @@ class HumanoidModel:
     points: dict[tuple[str, str], np.ndarray]
 
 
+#: The humanoid's kinematic tree as pybullet loads it (:func:`humanoid_model`), read once from
+#: pybullet by :func:`fpg_gym.physics.humanoid.humanoid_model_from_pybullet` and checked
+#: against it by the tests, so that reading a clip needs no physics engine.
+HUMANOID_TABLE = Path(__file__).resolve().parents[1] / "data" / "deepmimic-humanoid.json"
+
+
+def model_table(model: HumanoidModel) -> dict[str, Any]:
+    """``model`` as the JSON document of :data:`HUMANOID_TABLE` (floats written exactly)."""
+    return {
+        "description": "pybullet_data/humanoid/humanoid.urdf loaded with globalScaling="
+        f"{URDF_SCALE}: links (parents first), parent indices, joint offsets in the parent's "
+        "frame (m) and the Kinect-20 points taken from the link geometry "
+        "(fpg_gym.physics.humanoid.humanoid_model_from_pybullet)",
+        "links": list(model.links),
+        "parents": list(model.parents),
+        "offsets": np.asarray(model.offsets, dtype=np.float64).tolist(),
+        "points": [
+            {"link": link, "kind": kind, "offset": np.asarray(offset, np.float64).tolist()}
+            for (link, kind), offset in model.points.items()
+            if kind != "joint"
+        ],
+    }
+
+
+def model_from_table(document: dict[str, Any]) -> HumanoidModel:
+    """The :class:`HumanoidModel` of a :func:`model_table` document (every link's ``"joint"``
+    point is its frame origin)."""
+    links = tuple(str(link) for link in document["links"])
+    points = {(link, "joint"): np.zeros(3) for link in links}
+    for point in document["points"]:
+        points[(str(point["link"]), str(point["kind"]))] = np.array(point["offset"], np.float64)
+    return HumanoidModel(
+        links,
+        tuple(int(parent) for parent in document["parents"]),
+        np.array(document["offsets"], dtype=np.float64),
+        points,
+    )
+
+
 @lru_cache(maxsize=1)
 def humanoid_model() -> HumanoidModel:
-    """Read the humanoid's joint offsets and link geometry from pybullet (cached)."""
-    client = connect_direct()
-    try:
-        with quiet_stdout():
-            body = pybullet.loadURDF(
-                str(data_path() / "humanoid" / "humanoid.urdf"),
-                globalScaling=URDF_SCALE,
-                useFixedBase=True,
-                physicsClientId=client,
-            )
-        count = pybullet.getNumJoints(body, physicsClientId=client)
-        names = ["root"]
-        parents = [-1]
-        world = [np.zeros(3)]  # link frame origins at the rest pose (all rotations identity)
-        inertial: dict[str, np.ndarray] = {}
-        dims: dict[str, np.ndarray] = {}
-        for joint in range(count):
-            info = pybullet.getJointInfo(body, joint, physicsClientId=client)
-            name = info[12].decode()
-            state = pybullet.getLinkState(body, joint, physicsClientId=client)
-            world_position = np.array(state[4])
-            parent_link = info[16]
-            if name == "root":  # the fixed joint base -> root: same origin as the base
-                world[0] = world_position
-                inertial[name] = np.array(
-                    pybullet.getDynamicsInfo(body, joint, physicsClientId=client)[3]
-                )
-                continue
-            parent_name = pybullet.getJointInfo(body, parent_link, physicsClientId=client)[
-                12
-            ].decode()
-            names.append(name)
-            parents.append(names.index(parent_name))
-            world.append(world_position)
-            inertial[name] = np.array(
-                pybullet.getDynamicsInfo(body, joint, physicsClientId=client)[3]
-            )
-            shapes = pybullet.getCollisionShapeData(body, joint, physicsClientId=client)
-            dims[name] = np.array(shapes[0][3]) if shapes else np.zeros(3)
-    finally:
-        pybullet.disconnect(physicsClientId=client)
-
-    world_array = np.array(world)
-    offsets = np.array(
-        [world_array[i] - (world_array[p] if p >= 0 else 0.0) for i, p in enumerate(parents)]
-    )
-    wrist_radius = float(dims["right_wrist"][0])
-    foot_box_length = float(dims["right_ankle"][0])
-    points: dict[tuple[str, str], np.ndarray] = {}
-    for link in names:
-        points[(link, "joint")] = np.zeros(3)
-    points[("neck", "head")] = inertial["neck"]
-    for side in ("left", "right"):
-        points[(f"{side}_wrist", "hand")] = np.array([0.0, -2.0 * wrist_radius, 0.0])
-        box_centre = inertial[f"{side}_ankle"]
-        points[(f"{side}_ankle", "foot")] = box_centre + np.array([foot_box_length / 4, 0.0, 0.0])
-    return HumanoidModel(tuple(names), tuple(parents), offsets, points)
+    """The humanoid's joint offsets and link geometry (:data:`HUMANOID_TABLE`, cached)."""
+    return model_from_table(read_json(HUMANOID_TABLE))
 
 
 #: Longest clip (seconds) read; a longer one is a corrupt file (its resampling would not fit
@@ -359,7 +345,7 @@ def default_clip_path(name: str) -> Path:
         raise ValueError(
             f"unknown default clip {name!r}; expected one of {', '.join(DEFAULT_CLIP_NAMES)}"
         )
-    return data_path() / "data" / "motions" / f"humanoid3d_{name}.txt"
+    return Path(pybullet_data.getDataPath()) / "data" / "motions" / f"humanoid3d_{name}.txt"
 
 
 def load_default_clips(names: tuple[str, ...] | list[str] | None = None) -> list[Clip]:

@@ -49,8 +49,10 @@ anchored on the previous reconstruction with a larger weight, a Kalman stage fil
 
 Ragdoll
 -------
-With ``ragdoll=`` (a factory ``lengths -> Ragdoll`` or ``True`` for :class:`fpg_gym.physics.ragdoll.
-Ragdoll`), the camera-space target is tracked by the ragdoll and its simulated pose is the output.
+With ``ragdoll=`` (a factory ``lengths -> ragdoll``, such as :class:`fpg_gym.physics.ragdoll.
+Ragdoll` itself: the ragdoll is injected, this layer imports no physics; the layers above turn a
+flag into the factory with :func:`fpg_gym.methods.ragdoll_factory`), the camera-space target is
+tracked by the ragdoll and its simulated pose is the output.
 The ragdoll runs in camera space shifted down by the floor height, estimated as the lowest joint
 of the targets so far (camera space has no floor); it is rebuilt when the user's reference bone
 lengths move by more than ``ragdoll_rebuild_m``. It runs after denormalisation, not in the
@@ -72,7 +74,7 @@ from __future__ import annotations
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, fields, replace
-from typing import Any, Protocol
+from typing import Any, Literal, Protocol
 
 import numpy as np
 from tqdm import tqdm
@@ -81,8 +83,7 @@ from fpg_gym import poses as pose_utils
 from fpg_gym import skeleton
 from fpg_gym.compiled import compiled_module
 from fpg_gym.definitions import OnlineDefinitionFit, PoseMap, sensor_to_output_map
-from fpg_gym.physics.ragdoll import FloorShift, Ragdoll
-from fpg_gym.poses import RecordingLike
+from fpg_gym.poses import FloorShift, RecordingLike
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import (
     ENERGY_KERNELS,
@@ -199,7 +200,8 @@ def left_right_costs(
 
 
 class RagdollLike(Protocol):
-    """What the reconstructor needs of a ragdoll (:class:`fpg_gym.physics.ragdoll.Ragdoll`)."""
+    """What the reconstructor needs of a ragdoll (:class:`fpg_gym.physics.ragdoll.Ragdoll`,
+    injected by a factory: this layer imports no physics)."""
 
     def reset(self, pose: np.ndarray) -> np.ndarray:
         """Place the body on ``pose``."""
@@ -547,10 +549,12 @@ class Reconstructor:
     graph : FilteredPoseGraph-like
         ``poses`` (N, 20, 3) normalised and the CSR adjacency (``neighbors_of``).
     config : ReconstructorConfig, optional
-    ragdoll : bool or callable, optional
-        ``True`` uses :class:`fpg_gym.physics.ragdoll.Ragdoll`; a callable ``lengths -> ragdoll``
-        builds any object with ``reset(pose)``, ``track(target) -> pose`` and ``close()``;
-        None/False: no ragdoll.
+    ragdoll : callable, optional
+        A factory ``lengths -> ragdoll`` of any object with ``reset(pose)``,
+        ``track(target) -> pose`` and ``close()`` (:class:`RagdollLike`), e.g.
+        :class:`fpg_gym.physics.ragdoll.Ragdoll`; None/False: no ragdoll. ``True`` is refused
+        (this layer does not import physics): :func:`fpg_gym.methods.ragdoll_factory` turns a
+        flag into the factory.
     **overrides
         Fields of :class:`ReconstructorConfig` (e.g. ``selector="brute-force"``).
 
@@ -567,7 +571,7 @@ class Reconstructor:
         graph: Any,
         config: ReconstructorConfig | None = None,
         *,
-        ragdoll: bool | RagdollFactory | None = None,
+        ragdoll: RagdollFactory | Literal[False] | None = None,
         **overrides: Any,
     ) -> None:
         config = config or ReconstructorConfig()
@@ -610,12 +614,12 @@ class Reconstructor:
                 else None
             ),
         )
-        if ragdoll is True:
-            self._ragdoll_factory: RagdollFactory | None = Ragdoll  # Ragdoll(bone_lengths)
-        elif callable(ragdoll):
-            self._ragdoll_factory = ragdoll
-        else:
-            self._ragdoll_factory = None
+        if ragdoll is True:  # this layer does not import physics: the layer above resolves it
+            raise TypeError(
+                "ragdoll: expected a factory lengths -> ragdoll (fpg_gym.physics.ragdoll.Ragdoll, "
+                "or fpg_gym.methods.ragdoll_factory(True)), None or False; got True"
+            )
+        self._ragdoll_factory: RagdollFactory | None = ragdoll if callable(ragdoll) else None
         self._ragdoll: RagdollLike | None = None
         self._ragdoll_lengths: np.ndarray | None = None
         self.ragdoll_rebuilds = 0
