@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from fpg_gym import __version__, graph_build, skeleton
+from fpg_gym import graph_build, skeleton
 from fpg_gym.errors import DataFormatError
 from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 from fpg_gym.io.clip import Clip
@@ -533,20 +533,25 @@ def _code_digest() -> str:
     return digest.hexdigest()
 
 
+def _installed_version(distribution: str) -> str:
+    try:
+        return metadata.version(distribution)
+    except metadata.PackageNotFoundError:  # pragma: no cover - installed with the package
+        return "unknown"
+
+
 def _default_cache_key(
     exclude: Sequence[str], thres1: float, thres2: float | None, mirror: bool
 ) -> str:
 
-    try:
-        pybullet_version = metadata.version("pybullet")
-    except metadata.PackageNotFoundError:  # pragma: no cover - pybullet is a dependency
-        pybullet_version = "unknown"
     key = json.dumps(
         {
             "format_version": FORMAT_VERSION,
-            "fpg_gym": __version__,
+            # The distribution's version (not the root package's __version__, whose import
+            # registers the env with Gymnasium: this layer imports no Gymnasium).
+            "fpg_gym": _installed_version("fpg-gym"),
             "code": _code_digest(),
-            "pybullet": pybullet_version,
+            "pybullet": _installed_version("pybullet"),
             "thres1": float(thres1),
             "thres2": None if thres2 is None else float(thres2),
             "mirror": bool(mirror),
