@@ -45,6 +45,7 @@ import optimizers
 from fpg_gym import metrics
 from fpg_gym.env import KinectPoseEnv
 from fpg_gym.methods import METHOD_BASES, MethodRunner, parse_method
+from fpg_gym.seeding import as_generator
 
 __all__ = ["EpisodeResult", "measure_env_throughput", "run_episode"]
 
@@ -227,11 +228,7 @@ def run_episode(
 
     base: Any = env.unwrapped
     kind, actor, label = _agent_kind(agent, base)
-    generator = (
-        rng
-        if isinstance(rng, np.random.Generator)
-        else np.random.default_rng(seed if rng is None else rng)
-    )
+    generator = as_generator(seed if rng is None else rng)
     obs, reset_info = env.reset(seed=seed, options=dict(options) if options else None)
     total = int(reset_info.get("num_frames", 0)) or None
     if max_steps is not None:

@@ -73,6 +73,7 @@ from fpg_gym.poses import FloorShift, RecordingLike, bone_lengths
 from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
 from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.reconstructor import RagdollFactory
+from fpg_gym.seeding import as_generator
 from optimizers import make
 
 __all__ = [
@@ -553,7 +554,7 @@ class MethodRunner:
 
         assert spec.selector is not None and spec.optimizer is not None
         reconstructor = self._reconstructor(spec.selector, spec.ragdoll, spec.prior)
-        rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+        rng = as_generator(seed)
         result = reconstructor.reconstruct(
             recording, make(spec.optimizer), rng=rng, stop_on_interrupt=stop_on_interrupt
         )

@@ -50,6 +50,7 @@ import numpy as np
 import numpy.typing as npt
 
 from fpg_gym import poses, skeleton
+from fpg_gym.seeding import as_generator
 
 __all__ = [
     "ERROR_BAND_EDGES",
@@ -185,7 +186,7 @@ def bootstrap_mean_ci(
     b = None if base is None else np.asarray(base, dtype=np.float64).reshape(-1)
     if len(w) != len(v) or (b is not None and len(b) != len(v)):
         raise ValueError(f"weights, base: expected {len(v)} values (one per episode)")
-    generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+    generator = as_generator(rng)
     idx = generator.integers(0, len(v), size=(draws, len(v)))
     total = w[idx].sum(axis=1)
     means = (w * v)[idx].sum(axis=1) / total

@@ -46,7 +46,7 @@ from fpg_gym.experiments.store import frames_path, load_frames
 from fpg_gym.experiments.view import rerun_available, write_view
 from fpg_gym.experiments.warm import warm_kernels, warm_kernels_cached
 from fpg_gym.io.recording import load_recording, write_recording
-from fpg_gym.simulate import episode_seed
+from fpg_gym.seeding import derive_seed
 from fpg_gym.simulate.occlude import OCCLUSION_CASES, occlude
 
 __all__ = [
@@ -121,7 +121,7 @@ def real_inputs(
         recording = load_recording(path)
         for case in ("legs",) if quick else tuple(OCCLUSION_CASES):
             target = folder / f"{path.stem}-{case}.npz"
-            seeded = episode_seed(seed, path.stem, case)
+            seeded = derive_seed(seed, path.stem, case)
             occluded.append(write_recording(target, occlude(recording, case, seeded)))
     return clean, occluded
 

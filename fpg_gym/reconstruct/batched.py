@@ -39,6 +39,7 @@ from fpg_gym.reconstruct.reconstructor import (
     ReconstructorConfig,
 )
 from fpg_gym.reconstruct.search import complete_compiled
+from fpg_gym.seeding import as_generator
 from optimizers import Optimizer, OptimizerRun, make
 
 __all__ = [
@@ -113,7 +114,7 @@ def make_generators(rngs: Any, count: int) -> list[np.random.Generator]:
     items = list(rngs)
     if len(items) != count:
         raise ValueError(f"rngs: expected {count} seeds or generators, got {len(items)}")
-    return [r if isinstance(r, np.random.Generator) else np.random.default_rng(r) for r in items]
+    return [as_generator(r) for r in items]
 
 
 def _stream_arrays(recording: Any, index: int, frame_dt: float) -> tuple[np.ndarray, ...]:

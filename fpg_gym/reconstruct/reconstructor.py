@@ -120,6 +120,7 @@ from fpg_gym.reconstruct.temporal import (
     TemporalConfig,
     align_basis,
 )
+from fpg_gym.seeding import as_generator
 from fpg_gym.validation import check_choice, check_integer, check_number
 from optimizers import Optimizer, SearchResult, make
 
@@ -1144,7 +1145,7 @@ class Reconstructor:
         """``prepare``, :meth:`search` with ``optimizer`` (a registered name or an object),
         ``finish``."""
         opt = make(optimizer)
-        generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        generator = as_generator(rng)
         self.prepare(positions, states, timestamp)
         try:
             found = self.search(opt, generator)
@@ -1232,7 +1233,7 @@ class Reconstructor:
             else np.asarray(stamps, dtype=np.float64)
         )
         opt = make(optimizer)
-        generator = rng if isinstance(rng, np.random.Generator) else np.random.default_rng(rng)
+        generator = as_generator(rng)
         self.reset()
         for i in range(len(positions)):
             yield self.reconstruct_frame(positions[i], states[i], timestamps[i], opt, generator)

@@ -9,10 +9,11 @@ and by sampler training (:mod:`policies.training`).
 
     sim_seed = SeedSequence([n, crc32(clip), crc32(scenario)]).generate_state(1)[0]
 
-(:func:`episode_seed`). It depends on the three values only, not on the order or the length of
-the lists the episode was planned from, and different clips or scenarios with the same ``n``
-get unrelated noise. So ``walk`` in ``front-many`` with seed 0 is the same stream in the env,
-in a comparison and in training.
+(:func:`episode_seed`, the project's one seeding rule :func:`fpg_gym.seeding.derive_seed`). It
+depends on the three values only, not on the order or the length of the lists the episode was
+planned from, and different clips or scenarios with the same ``n`` get unrelated noise. So
+``walk`` in ``front-many`` with seed 0 is the same stream in the env, in a comparison and in
+training.
 
 Examples
 --------
@@ -27,18 +28,16 @@ True
 
 from __future__ import annotations
 
-import zlib
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-import numpy as np
 from tqdm.auto import tqdm
 
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
+from fpg_gym.seeding import derive_seed
 from fpg_gym.simulate.scenarios import Scenario, get_scenario
 from fpg_gym.simulate.simulator import KinectSimulator
-from fpg_gym.validation import check_integer
 
 __all__ = [
     "EpisodeSimulator",
@@ -55,6 +54,7 @@ __all__ = [
 def episode_seed(seed: int, *names: str) -> int:
     """The simulator (and optimiser) seed of an episode: the user's ``seed`` and the names.
 
+    The project's seeding rule, :func:`fpg_gym.seeding.derive_seed`:
     ``SeedSequence([seed, crc32(name_1), crc32(name_2), ...]).generate_state(1)[0]``, a
     non-negative 32-bit integer; for a simulated episode the names are the clip and the scenario
     (a comparison seeds the optimisers on a recording file with its stem alone).
@@ -74,10 +74,7 @@ def episode_seed(seed: int, *names: str) -> int:
     ValueError
         If ``seed`` is not a non-negative integer.
     """
-    words = [check_integer(seed, "seed", low=0)] + [
-        zlib.crc32(str(name).encode()) for name in names
-    ]
-    return int(np.random.SeedSequence(words).generate_state(1)[0])
+    return derive_seed(seed, *names)
 
 
 @dataclass(frozen=True)
