@@ -4,18 +4,24 @@ Each module of :data:`COMPILED_MODULES` imports numba at its top and exists for 
 extra ``fpg-gym[fast]``; the code that uses it asks :func:`compiled_module` for it and runs its
 numpy path when it gets None. The kernels compile on first use and are cached on disk
 (``cache=True``), so a new process loads them instead of compiling them again.
+
+With the environment variable ``FPG_GYM_NO_NUMBA=1`` (:data:`NO_NUMBA_VARIABLE`) the process
+runs as without numba: :func:`compiled_module` gives None and :func:`numba_available` False, so
+every kernel runs its numpy twin (CI runs the equation tests this way too).
 """
 
 from __future__ import annotations
 
 import functools
 import importlib
+import os
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from types import ModuleType
 
 __all__ = [
     "COMPILED_MODULES",
+    "NO_NUMBA_VARIABLE",
     "compiled_module",
     "kernels_cached",
     "numba_available",
@@ -34,6 +40,9 @@ COMPILED_MODULES: tuple[str, ...] = (
     "fpg_gym.reconstruct.compiled_selection",
 )
 
+
+#: Environment variable: ``1`` runs every kernel's numpy twin, as without numba.
+NO_NUMBA_VARIABLE = "FPG_GYM_NO_NUMBA"
 
 _shown: frozenset[str] | None = None  # None: every module
 
@@ -78,7 +87,10 @@ def compiled_module(name: str) -> ModuleType | None:
 
 @functools.cache
 def _import(name: str) -> ModuleType | None:
-    """``name`` imported, or None when numba (or its llvmlite) is missing; other errors raise."""
+    """``name`` imported, or None when numba (or its llvmlite) is missing or hidden by
+    :data:`NO_NUMBA_VARIABLE`; other errors raise."""
+    if os.environ.get(NO_NUMBA_VARIABLE, "") not in ("", "0"):
+        return None
     try:
         return importlib.import_module(name)
     except ModuleNotFoundError as error:

@@ -101,3 +101,14 @@ def test_an_extra_module_imports_its_extra_at_its_top(module: str, extra: str) -
     tree = ast.parse(path.read_text())
     top = [alias.name for node in tree.body if isinstance(node, ast.Import) for alias in node.names]
     assert extra in top, f"{module} should import {extra} at its top (it exists for that extra)"
+
+
+def test_ci_runs_the_equation_tests_without_numba_too() -> None:
+    """.ci/run runs the equation and kernel tests a second time with FPG_GYM_NO_NUMBA=1 (the
+    numpy twins); every file it names exists, and the twins' own tests are among them."""
+    script = (REPO / ".ci" / "run").read_text()
+    command = script[script.index("FPG_GYM_NO_NUMBA=1") :].split("\n.venv/bin/ruff")[0]
+    files = [word for word in command.split() if word.startswith("tests/")]
+    assert all((REPO / name).is_file() for name in files), files
+    for name in ("energy", "kernels", "reliability", "selection", "metrics", "poses", "filters"):
+        assert f"tests/test_{name}.py" in files, name

@@ -10,6 +10,9 @@ another arccos), so theirs must agree to rounding. Each numpy path runs within
 from __future__ import annotations
 
 import contextlib
+import os
+import subprocess
+import sys
 from typing import Any
 
 import numpy as np
@@ -18,6 +21,7 @@ import pytest
 from fpg_gym import poses, skeleton
 from fpg_gym.compiled import (
     COMPILED_MODULES,
+    NO_NUMBA_VARIABLE,
     compiled_module,
     numba_available,
     numpy_only,
@@ -42,6 +46,27 @@ def test_numpy_only_hides_every_compiled_module_within_its_block() -> None:
             pass
         assert compiled_module(COMPILED_MODULES[0]) is None  # still hidden after a nested block
     assert all(compiled_module(name) is not None for name in COMPILED_MODULES)
+
+
+def test_the_environment_variable_runs_a_process_as_without_numba() -> None:
+    """``FPG_GYM_NO_NUMBA=1`` (CI's second run of the equation tests): no compiled module and
+    ``numba_available()`` False for the whole process, numba itself never imported."""
+    code = (
+        "import sys\n"
+        "from fpg_gym.compiled import COMPILED_MODULES, compiled_module, numba_available\n"
+        "from fpg_gym.reconstruct import reliability\n"
+        "print(numba_available(), {compiled_module(n) for n in COMPILED_MODULES},"
+        " 'numba' in sys.modules)"
+    )
+    for value, expected in (("1", "False {None} False"), ("0", "True")):
+        out = subprocess.run(
+            [sys.executable, "-c", code],
+            env={**os.environ, NO_NUMBA_VARIABLE: value},
+            capture_output=True,
+            text=True,
+            check=True,
+        ).stdout.strip()
+        assert out.startswith(expected), (value, out)
 
 
 def test_only_compiled_shows_its_modules_and_nests_as_an_intersection() -> None:

@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import contextlib
+
 import numpy as np
 import pytest
 
 from fpg_gym import poses, skeleton
+from fpg_gym.compiled import numpy_only
 from fpg_gym.reconstruct.reliability import (
     ReliabilityConfig,
     ReliabilityEstimator,
@@ -109,6 +112,32 @@ def test_behaviour_angle_definition() -> None:
     assert behaviour_angles(np.array([0.0, 0.0, -0.03]), np.array([0.0, 0.0, 0.03]), 0.03) == (
         pytest.approx(np.pi)
     )
+
+
+@pytest.mark.parametrize("numpy_twin", [False, True])
+def test_behaviour_angles_at_their_edges_in_each_twin(numpy_twin: bool) -> None:
+    """Each twin (the compiled one when numba is installed, and the numpy one) gives 0 when
+    either vector is shorter than d_min (the newer or the older), the exact angle of two
+    nearly parallel vectors (the cosine is clipped at 1, not below), and 0, not NaN, for
+    parallel vectors whose computed cosine rounds above 1."""
+    parallel = np.array([0.328, -0.091, 0.05])  # cos(parallel, 2 parallel) rounds to 1 + 2e-16
+    small = np.radians(1.0)
+    with numpy_only() if numpy_twin else contextlib.nullcontext():
+        angles = behaviour_angles(
+            np.array([[0.1, 0.0, 0.0], [0.01, 0.0, 0.0], [0.1, 0.0, 0.0], parallel]),
+            np.array(
+                [
+                    [0.0, 0.01, 0.0],
+                    [-0.1, 0.0, 0.0],
+                    [0.1 * np.cos(small), 0.1 * np.sin(small), 0.0],
+                    2.0 * parallel,
+                ]
+            ),
+            0.03,
+        )
+    assert angles[0] == 0.0 and angles[1] == 0.0  # the older, then the newer vector is short
+    assert angles[2] == pytest.approx(small, abs=1e-9)
+    assert angles[3] == 0.0
 
 
 def test_vibrating_joint_loses_behaviour_reliability_while_walking() -> None:

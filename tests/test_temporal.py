@@ -70,6 +70,26 @@ def test_lag_is_robust_to_noise_and_checks_its_input() -> None:
     )
 
 
+def test_lag_leaves_out_every_pair_with_an_invalid_frame() -> None:
+    """``valid`` (e.g. frames with a body): a pair of frames counts only when both are valid.
+    Garbage in the invalid frames of either stream, at either end of a pair, leaves the lag
+    unchanged to the bit; without the mask it moves it."""
+    truth = moving_clip()
+    shift = 3
+    late = np.concatenate([np.repeat(truth[:1], shift, axis=0), truth[: len(truth) - shift]])
+    valid = np.ones(len(truth), dtype=bool)
+    valid[10::9] = False
+    clean = metrics.lag(late, truth, valid=valid)
+    assert clean == pytest.approx(shift, abs=0.05)
+    rng = np.random.default_rng(5)
+    far_late, far_truth = late.copy(), truth.copy()
+    far_late[~valid] += rng.uniform(-3.0, 3.0, (int((~valid).sum()), 1, 3))
+    far_truth[~valid] += rng.uniform(-3.0, 3.0, (int((~valid).sum()), 1, 3))
+    for estimate, reference in ((far_late, truth), (late, far_truth), (far_late, far_truth)):
+        assert metrics.lag(estimate, reference, valid=valid) == clean
+        assert metrics.lag(estimate, reference) != clean
+
+
 def test_settled_bone_spread_ignores_the_first_second() -> None:
     clip = moving_clip(frames=90)
     lengths = poses.bone_lengths(clip[0])
