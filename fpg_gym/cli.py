@@ -24,7 +24,7 @@ from types import FrameType
 from typing import Any, NoReturn
 
 from fpg_gym import __version__
-from fpg_gym.errors import FpgGymError
+from fpg_gym.core.errors import FpgGymError
 from fpg_gym.io.plausibility import accepting_unusual
 from optimizers import OptimizerError
 

@@ -28,7 +28,7 @@ Files are JSON (:meth:`DefinitionMap.save`, :meth:`DefinitionMap.load`).
 Examples
 --------
 >>> import numpy as np
->>> from fpg_gym import poses
+>>> from fpg_gym.core import poses
 >>> from fpg_gym.definitions import DefinitionMap
 >>> pose = poses.rest_pose()
 >>> offsets = np.zeros((20, 3)); offsets[3] = (0.0, 0.1, 0.0)   # head 10 cm further up
@@ -51,12 +51,12 @@ from typing import Any, Protocol
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import poses as pose_utils
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.outputs import write_text
+from fpg_gym.core.rotations import quaternion_to_matrix, shortest_arc
 from fpg_gym.io.files import read_json
-from fpg_gym.outputs import write_text
-from fpg_gym.rotations import quaternion_to_matrix, shortest_arc
 
 __all__ = [
     "FORMAT",

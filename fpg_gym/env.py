@@ -28,18 +28,18 @@ import numpy as np
 from gymnasium import spaces
 from gymnasium.utils import EzPickle
 
-from fpg_gym import skeleton
-from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core import skeleton
+from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.metrics import acceleration, frame_error
+from fpg_gym.core.validation import check_choice, check_integer, check_number
 from fpg_gym.env_episodes import RESET_OPTIONS, EpisodeSource
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
-from fpg_gym.metrics import acceleration, frame_error
 from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem, TemporalConfig
 from fpg_gym.rendering import HumanWindow, render_panels
-from fpg_gym.validation import check_choice, check_integer, check_number
 
 __all__ = [
     "ACTION_MODES",
@@ -247,7 +247,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     embedded episodes E is about 0.03 after the paper's search and 0.3 without, e about
     0.1-0.15 m). ``"smooth"``: ``-(e + smooth_weight * a)``, the error and the output's jitter:
     ``a`` is the mean over the joints of the output's acceleration (m/s²,
-    :func:`fpg_gym.metrics.acceleration` of this output and the two before it; 0 on an
+    :func:`fpg_gym.core.metrics.acceleration` of this output and the two before it; 0 on an
     episode's first two frames). ``smooth_weight`` 0.002 by default: a jitter of 10 m/s² (the
     papers' reconstruction of UI-PRMD's real streams shakes at 7-8 m/s²) then weighs as 2 cm of
     error. ``info`` holds the four negated
@@ -286,7 +286,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
 
     ``graph``: a pose graph file (``.npz`` from ``fpg-gym build-graph``), a
     :class:`~fpg_gym.graph.FilteredPoseGraph`, or None (or ``"default"``) for the embedded
-    default (the DeepMimic clips less :data:`~fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`, built
+    default (the DeepMimic clips less :data:`~fpg_gym.core.defaults.DEFAULT_HOLDOUT_CLIPS`, built
     once and cached, see ``cache_dir``; :func:`fpg_gym.graph.load_graph`). Episodes:
     ``recordings`` (paths in any Kinect format or :class:`~fpg_gym.io.Recording` objects) or
     ``clips`` (embedded clip names or :class:`~fpg_gym.io.Clip` objects; default the held-out

@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips, read_recording
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording

@@ -52,7 +52,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
 
 if TYPE_CHECKING:
     from fpg_gym.reconstruct.problem import SearchProblem

@@ -42,10 +42,10 @@ import numpy as np
 from tqdm import tqdm
 
 import optimizers
-from fpg_gym import metrics
+from fpg_gym.core import metrics
+from fpg_gym.core.seeding import as_generator
 from fpg_gym.env import KinectPoseEnv
 from fpg_gym.methods import METHOD_BASES, MethodRunner, parse_method
-from fpg_gym.seeding import as_generator
 
 __all__ = ["EpisodeResult", "measure_env_throughput", "run_episode"]
 

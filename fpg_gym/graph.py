@@ -1,6 +1,6 @@
 """The Filtered Pose Graph (Plantard, Shum & Multon 2016, §4.2, Algorithms 1–4).
 
-Nodes are normalised poses (root at the origin, facing +Z; :func:`fpg_gym.poses.normalise`)
+Nodes are normalised poses (root at the origin, facing +Z; :func:`fpg_gym.core.poses.normalise`)
 filtered from mocap clips; an undirected edge joins two nodes whose FPG Eq. 1 distance
 ``max_j ||a(j) - b(j)||`` is below ``thres2``. The same node set is the filtered database of
 Shum 2013 §V-A, so the brute-force and the graph selectors share one file.
@@ -47,18 +47,19 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from fpg_gym import graph_build, skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym import graph_build
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.jsonable import jsonable
+from fpg_gym.core.outputs import atomic_path
+from fpg_gym.core.poses import mirror as mirror_poses
+from fpg_gym.core.poses import normalise
 from fpg_gym.io import DEFAULT_CLIP_NAMES, load_default_clips
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.deepmimic import HUMANOID_TABLE
 from fpg_gym.io.files import check_input_file
 from fpg_gym.io.npz import check_npz
 from fpg_gym.io.plausibility import check_plausible
-from fpg_gym.jsonable import jsonable
-from fpg_gym.outputs import atomic_path
-from fpg_gym.poses import mirror as mirror_poses
-from fpg_gym.poses import normalise
 
 __all__ = [
     "DEFAULT_EMBEDDED_MIRROR",
@@ -515,9 +516,9 @@ _DEFAULT_GRAPH_CODE = (
     "fpg_gym.graph_build",
     "fpg_gym.io.clip",
     "fpg_gym.io.deepmimic",
-    "fpg_gym.poses",
-    "fpg_gym.rotations",
-    "fpg_gym.skeleton",
+    "fpg_gym.core.poses",
+    "fpg_gym.core.rotations",
+    "fpg_gym.core.skeleton",
 )
 
 

@@ -1,8 +1,8 @@
 """Private machinery behind :meth:`fpg_gym.graph.FilteredPoseGraph.build` (FPG §4.2, Alg. 1–4).
 
-Every decision uses the exact FPG Eq. 1 distance (:func:`fpg_gym.poses.pose_distance`, float64);
-the spatial index only proposes candidate pairs. ``cKDTree`` on the 60-vector with the Chebyshev
-norm (``p=inf``) is a conservative prefilter: ``max_j ||a(j) - b(j)|| <= r`` implies
+Every decision uses the exact FPG Eq. 1 distance (:func:`fpg_gym.core.poses.pose_distance`,
+float64); the spatial index only proposes candidate pairs. ``cKDTree`` on the 60-vector with the
+Chebyshev norm (``p=inf``) is a conservative prefilter: ``max_j ||a(j) - b(j)|| <= r`` implies
 ``max_{j,c} |a(j,c) - b(j,c)| <= r``, and the prefilter radius is widened by a relative 1e-6 so
 that rounding can never hide a pair. The results therefore equal the naive loop-based algorithms
 exactly (``tests/test_graph.py`` checks it).
@@ -15,8 +15,8 @@ from collections.abc import Callable
 import numpy as np
 from scipy.spatial import cKDTree
 
-from fpg_gym import skeleton
-from fpg_gym.poses import pose_distance
+from fpg_gym.core import skeleton
+from fpg_gym.core.poses import pose_distance
 
 #: Pairs whose exact distance is computed at once (bounds the float64 temporaries, ~32 MiB each).
 _PAIR_CHUNK = 1 << 16

@@ -6,7 +6,7 @@ The wire format (one JSON object per line, UTF-8; over UDP one or more lines per
 
 - ``timestamp``: seconds (any origin, non-decreasing; jumps are survived, below); optional, 30 Hz
   after the previous frame.
-- ``joints``: the 20 Kinect-20 joints in :data:`fpg_gym.skeleton.JOINT_NAMES` order, metres in
+- ``joints``: the 20 Kinect-20 joints in :data:`fpg_gym.core.skeleton.JOINT_NAMES` order, metres in
   camera space (Y up, Z away from the sensor); or an object ``{"HipCenter": [x, y, z], ...}``
   naming all 20.
 - ``states``: 2 tracked, 1 inferred, 0 not tracked, as a list of 20 or an object by joint name;
@@ -56,13 +56,13 @@ from typing import Any, BinaryIO
 
 import numpy as np
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import FpgGymError
+from fpg_gym.core.validation import check_integer, check_number
 from fpg_gym.definitions import sensor_to_output_map
-from fpg_gym.errors import FpgGymError
 from fpg_gym.filters import make_filter
 from fpg_gym.methods import Method
 from fpg_gym.reconstruct import Reconstructor
-from fpg_gym.validation import check_integer, check_number
 from optimizers import make
 
 __all__ = [

@@ -64,16 +64,16 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
+from fpg_gym.core.metrics import bones_tracked
+from fpg_gym.core.poses import FloorShift, RecordingLike, bone_lengths
+from fpg_gym.core.seeding import as_generator
 from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.filters import PRESETS, make_filter
-from fpg_gym.metrics import bones_tracked
 from fpg_gym.physics.ragdoll import Ragdoll
-from fpg_gym.poses import FloorShift, RecordingLike, bone_lengths
 from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
 from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.reconstructor import RagdollFactory
-from fpg_gym.seeding import as_generator
 from optimizers import make
 
 __all__ = [

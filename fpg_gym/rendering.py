@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 from PIL import Image, ImageDraw
 
-from fpg_gym import skeleton
-from fpg_gym.metrics import frame_error
+from fpg_gym.core import skeleton
+from fpg_gym.core.metrics import frame_error
 
 __all__ = ["PANEL", "STATE_COLOURS", "HumanWindow", "render_panels"]
 

@@ -33,6 +33,7 @@ import numpy.typing as npt
 from gymnasium import spaces
 from gymnasium.vector import AutoresetMode, SyncVectorEnv
 
+from fpg_gym.core.validation import check_integer
 from fpg_gym.env import ExactAction, KinectPoseEnv
 from fpg_gym.reconstruct import SearchProblem
 from fpg_gym.reconstruct.batched import (
@@ -41,7 +42,6 @@ from fpg_gym.reconstruct.batched import (
     make_optimizers,
     search_together,
 )
-from fpg_gym.validation import check_integer
 from optimizers import Optimizer, OptimizerRun
 
 __all__ = ["KinectPoseVectorEnv"]

@@ -35,11 +35,11 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym.errors import DataFormatError, OutputError
+from fpg_gym.core.errors import DataFormatError, OutputError
+from fpg_gym.core.jsonable import jsonable
+from fpg_gym.core.outputs import atomic_path, save_npz
 from fpg_gym.io.files import read_json
 from fpg_gym.io.npz import check_npz
-from fpg_gym.jsonable import jsonable
-from fpg_gym.outputs import atomic_path, save_npz
 from policies.imitation import ImitationData
 from policies.supervised import FitState
 

@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from fpg_gym import poses as pose_utils
-from fpg_gym.ray_session import ray_session, require_ray, task_result
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core.skeleton import ROOT
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.batched import search_together
 from fpg_gym.reconstruct.energy import EnergyWeights
-from fpg_gym.skeleton import ROOT
+from fpg_gym.runtime.ray_session import ray_session, require_ray, task_result
 from optimizers import OptimizerRun, make, run_optimizer
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
 from policies.sampler import AnchorSampler, SamplerSpec, problem_observation

@@ -20,7 +20,7 @@ with ``problem.evaluate``: the same budget accounting as every other optimiser.
 ``MODEL.json`` or ``.pt``). A model is data: its weights are tensors read with
 ``weights_only=True`` and its network is rebuilt from the JSON, so loading one never runs code
 from the files; anything else (stable-baselines3's pickling ``.zip`` included) is refused with a
-:class:`~fpg_gym.errors.DataFormatError`. torch (and stable-baselines3 for RL samplers) must be
+:class:`~fpg_gym.core.errors.DataFormatError`. torch (and stable-baselines3 for RL samplers) must be
 installed: ``pip install 'fpg-gym[learn]'``.
 
 Examples

@@ -11,7 +11,7 @@ import os
 from pathlib import Path
 from typing import Any
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io.files import file_digest
 from policies.pose_sampler import LINEAR_WEIGHTS_SUFFIX, LinearPoseSampler
 from policies.rl import RLSampler

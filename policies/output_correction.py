@@ -21,7 +21,7 @@ from typing import Any, NamedTuple
 import numpy as np
 from tqdm import tqdm
 
-from fpg_gym import poses as pose_utils
+from fpg_gym.core import poses as pose_utils
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct.output_correction import (
     CORRECTION_FEATURES,

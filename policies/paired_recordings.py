@@ -19,7 +19,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io import expand_inputs, read_recording
 from fpg_gym.io.files import file_digest
 

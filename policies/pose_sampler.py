@@ -65,11 +65,11 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import poses as pose_utils
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.outputs import atomic_path
 from fpg_gym.env_observation import CONTEXT_NAMES
-from fpg_gym.errors import DataFormatError
 from fpg_gym.io.npz import check_npz
-from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import quadratic_minimiser
 from policies.output_correction import CORRECTION_ARRAYS, RidgeOutputCorrection
 from policies.ridge import fit_ridge, predict_ridge, ridge_sums
@@ -147,7 +147,8 @@ def _encode_offset(
     """Actions ``(n, L)`` that move a point by pose offsets ``delta`` ``(n, 60)`` as closely as
     each frame's latent space allows, measured on the bone vectors (FPG Eq. 13 scores bone
     vectors, and the reconstructor keeps only the bones' directions): zero on unused axes.
-    ``design``: the frames' :func:`~fpg_gym.poses.latent_bone_design` when the caller has it."""
+    ``design``: the frames' :func:`~fpg_gym.core.poses.latent_bone_design` when the caller
+    has it."""
     design = pose_utils.latent_bone_design(fields["axes"]) if design is None else design
     return (
         pose_utils.fit_bone_vectors(design, pose_utils.flat_bone_vectors(delta)) / spec.action_scale
@@ -347,7 +348,7 @@ def _bone_errors(actions: np.ndarray, part: dict[str, Any], spec: SamplerSpec) -
 def _shake(actions: np.ndarray, part: dict[str, Any], spec: SamplerSpec) -> np.ndarray:
     """Per frame with two predecessors in its episode, the mean joint length of the second
     difference of the poses the anchor moved by mean ``actions`` decodes to (m per frame²; the
-    jitter of :func:`fpg_gym.metrics.jitter` before the output stage, in the frames' normalised
+    jitter of :func:`fpg_gym.core.metrics.jitter` before the output stage, in the frames' normalised
     poses)."""
     fields, episodes = part["fields"], part["episodes"]
     poses = _decode(fields, fields["anchor"] + actions, spec.action_scale)

@@ -35,9 +35,9 @@ import gymnasium as gym
 import numpy as np
 from tqdm.auto import tqdm
 
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.outputs import atomic_path
 from fpg_gym.env import KinectPoseEnv
-from fpg_gym.errors import DataFormatError
-from fpg_gym.outputs import atomic_path
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from policies.sampler import (
     DEFAULT_FEATURES,

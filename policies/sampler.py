@@ -45,7 +45,7 @@ features, action mode and scale, hyper-parameters, training summary). The weight
 ``torch.save`` and loaded with ``torch.load(..., weights_only=True)``
 (:func:`load_weights_file`); the network is rebuilt from the JSON. A model file is data that
 users share: loading one never runs code from it. Anything else is refused with a
-:class:`~fpg_gym.errors.DataFormatError`, stable-baselines3's ``.zip`` format (whose entries
+:class:`~fpg_gym.core.errors.DataFormatError`, stable-baselines3's ``.zip`` format (whose entries
 are unpickled on load, which earlier versions of fpg-gym wrote for RL samplers) included.
 :func:`policies.loading.load_sampler` takes ``MODEL``, ``MODEL.json`` or ``MODEL.pt``.
 
@@ -66,15 +66,15 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
+from fpg_gym.core.errors import DataFormatError, import_optional
+from fpg_gym.core.jsonable import jsonable
+from fpg_gym.core.outputs import write_text
+from fpg_gym.core.validation import check_number
 from fpg_gym.env_observation import CONTEXT_NAMES, LATENT_LIMIT, ObservationLayout
-from fpg_gym.errors import DataFormatError, import_optional
 from fpg_gym.io.files import read_json
 from fpg_gym.io.npz import check_zip
-from fpg_gym.jsonable import jsonable
-from fpg_gym.outputs import write_text
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE, quadratic_minimiser
 from fpg_gym.reconstruct.energy import EnergyWeights
-from fpg_gym.validation import check_number
 from optimizers import MissingDependency
 
 __all__ = [

@@ -43,12 +43,12 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.jsonable import jsonable
+from fpg_gym.core.outputs import atomic_path
+from fpg_gym.core.validation import check_number
 from fpg_gym.io.files import read_json
 from fpg_gym.io.npz import check_zip
-from fpg_gym.jsonable import jsonable
-from fpg_gym.outputs import atomic_path
-from fpg_gym.validation import check_number
 from policies.sampler import (
     WEIGHTS_SUFFIX,
     GaussianSampler,

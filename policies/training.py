@@ -3,7 +3,7 @@
 * :func:`training_clips` / :func:`split_clips`: the clips a sampler learns from and the held-out
   ones it is validated on (by whole clips, seeded). By default the embedded DeepMimic clips of
   the default graph (:data:`fpg_gym.io.DEFAULT_CLIP_NAMES` less
-  :data:`fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`): never the evaluation clips.
+  :data:`fpg_gym.core.defaults.DEFAULT_HOLDOUT_CLIPS`): never the evaluation clips.
 * :func:`simulate_episodes`: Kinect streams simulated from clips x scenarios x seeds.
 * :func:`collect_imitation_data`: (observation, target action) pairs for the supervised sampler,
   rolled through the :class:`~fpg_gym.reconstruct.Reconstructor` with the papers' local search.
@@ -24,20 +24,20 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import metrics
-from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core import metrics
+from fpg_gym.core.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.poses import mirror
+from fpg_gym.core.validation import check_integer, check_number
 from fpg_gym.definitions import DefinitionMap
 from fpg_gym.env import REWARD_MODES
 from fpg_gym.graph import load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, find_mocap_files, resolve_clips
 from fpg_gym.io.files import file_digest
-from fpg_gym.poses import mirror
-from fpg_gym.ray_session import check_address, require_ray
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
+from fpg_gym.runtime.ray_session import check_address, require_ray
 from fpg_gym.simulate import simulate_clips
-from fpg_gym.validation import check_integer, check_number
 from optimizers.random_search import RandomSearch
 from policies.checkpoints import RunCheckpoints
 from policies.imitation import (
@@ -182,9 +182,9 @@ def evaluate_agents(
 
     Returns, per agent: ``mean_energy``, ``mean_error`` (FPG Eq. 13, m) with
     ``error_ci_low``/``error_ci_high`` (its 95 % bootstrap interval over the recordings,
-    :func:`fpg_gym.metrics.bootstrap_mean_ci`: a few episodes give a wide one), ``err02`` (share of
-    frames with error >= 0.2 m), ``jitter`` (the output's mean joint acceleration, m/s²,
-    :func:`fpg_gym.metrics.jitter`, averaged over the recordings), ``evaluations`` and ``ms``
+    :func:`fpg_gym.core.metrics.bootstrap_mean_ci`: a few episodes give a wide one), ``err02``
+    (share of frames with error >= 0.2 m), ``jitter`` (the output's mean joint acceleration, m/s²,
+    :func:`fpg_gym.core.metrics.jitter`, averaged over the recordings), ``evaluations`` and ``ms``
     per frame, ``frames``. Errors need ground truth (NaN otherwise).
     """
 
@@ -598,7 +598,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         Bad settings, or training clips that are the default protocol's evaluation clips.
     optimizers.MissingDependency
         torch / stable-baselines3 missing (``pip install 'fpg-gym[learn]'``).
-    fpg_gym.ray_session.RayUnavailable
+    fpg_gym.runtime.ray_session.RayUnavailable
         ``backend="ray"`` without Ray (``pip install 'fpg-gym[distributed]'``).
     """
 

@@ -71,7 +71,7 @@ def _stage_cpu_clock() -> None:
 
 
 def _reconstruct(graph: Any, recordings: list[Any], ragdoll: bool, repeats: int) -> dict[str, Any]:
-    from fpg_gym import metrics
+    from fpg_gym.core import metrics
     from fpg_gym.physics.ragdoll import Ragdoll
     from fpg_gym.reconstruct import STAGES, Reconstructor
 
@@ -106,7 +106,7 @@ def _reconstruct(graph: Any, recordings: list[Any], ragdoll: bool, repeats: int)
 
 
 def _ragdoll_alone(targets: list[np.ndarray], recordings: list[Any]) -> dict[str, Any]:
-    from fpg_gym import metrics, poses
+    from fpg_gym.core import metrics, poses
     from fpg_gym.physics.ragdoll import FloorShift, PhysicsWarning, Ragdoll
 
     cpu = 0.0

@@ -55,15 +55,15 @@ from reference_energy import ReferenceEnergyModel  # noqa: E402
 from reference_selection import reference_best_k  # noqa: E402
 
 import optimizers  # noqa: E402
-from fpg_gym import metrics  # noqa: E402
-from fpg_gym.compiled import numpy_only  # noqa: E402
+from fpg_gym.core import metrics  # noqa: E402
+from fpg_gym.core.compiled import numpy_only  # noqa: E402
+from fpg_gym.core.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes  # noqa: E402
 from fpg_gym.experiments.bench_kernels import (  # noqa: E402
     interleaved_cpu_us,
     recorded_queries,
     search_rows,
 )
 from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
-from fpg_gym.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes  # noqa: E402
 from fpg_gym.io import load_clips  # noqa: E402
 from fpg_gym.reconstruct import Reconstructor  # noqa: E402
 from fpg_gym.reconstruct import reconstructor as reconstructor_module  # noqa: E402

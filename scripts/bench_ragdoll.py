@@ -26,7 +26,7 @@ from pathlib import Path
 import numpy as np
 from tqdm.auto import tqdm
 
-from fpg_gym import metrics, poses
+from fpg_gym.core import metrics, poses
 from fpg_gym.io import BANDAI_NAMCO_MAP, Clip, load_default_clips, read_bvh
 from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 

@@ -38,7 +38,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes
+from fpg_gym.core.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data"
@@ -73,7 +73,7 @@ def make_optimizer(name: str) -> Any:
 
 
 def summarise(truth: np.ndarray, estimate: np.ndarray) -> tuple[float, float]:
-    from fpg_gym import metrics
+    from fpg_gym.core import metrics
 
     errors = metrics.frame_error(truth, estimate)
     return float(errors.mean()), 100.0 * metrics.err_ratio(errors)
@@ -96,7 +96,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from tqdm import tqdm
 
-    from fpg_gym import metrics
+    from fpg_gym.core import metrics
     from fpg_gym.graph import FilteredPoseGraph
     from fpg_gym.io import load_clips
     from fpg_gym.reconstruct import Reconstructor

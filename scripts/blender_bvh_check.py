@@ -26,7 +26,7 @@ except ModuleNotFoundError:  # run outside Blender's Python: say how to run it
         "bpy in a separate environment (see this script's docstring)"
     )
 
-#: Kinect-20 joint names (fpg_gym.skeleton.JOINT_NAMES), repeated so that only bpy is needed.
+#: Kinect-20 joint names (fpg_gym.core.skeleton.JOINT_NAMES), repeated so that only bpy is needed.
 JOINTS = (
     "HipCenter Spine ShoulderCenter Head ShoulderLeft ElbowLeft WristLeft HandLeft ShoulderRight "
     "ElbowRight WristRight HandRight HipLeft KneeLeft AnkleLeft FootLeft HipRight KneeRight "

@@ -4,8 +4,8 @@ Accuracy is only meaningful on takes the pose graph was not built from (``../sha
 README.md``: "split by take (whole files), with a fixed, documented seed or list, never by
 frame"). For each dataset folder, the sorted take files are shuffled with ``--seed`` and the
 first ``--eval-share`` of them are held out for evaluation; the rest build the graph. The
-split is :func:`fpg_gym.holdout.split_takes` with its default seed (2016) and share (0.2), as in
-``scripts/bench_reconstruct.py``, so both use the same held-out takes of ``dataset-1``.
+split is :func:`fpg_gym.core.holdout.split_takes` with its default seed (2016) and share (0.2), as
+in ``scripts/bench_reconstruct.py``, so both use the same held-out takes of ``dataset-1``.
 
 Writes two lists, one path per line, usable as ``@file`` arguments of every ``fpg-gym`` command::
 
@@ -23,7 +23,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from fpg_gym.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes
+from fpg_gym.core.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_DATA = REPO.parent / "shared" / "data" / "bandai_namco"

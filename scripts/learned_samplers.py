@@ -63,9 +63,9 @@ import numpy as np
 import real_kinect  # scripts/real_kinect.py: the UI-PRMD leave-subjects-out machinery
 
 import optimizers
-from fpg_gym import metrics
+from fpg_gym.core import metrics
+from fpg_gym.core.holdout import split_takes
 from fpg_gym.graph import FilteredPoseGraph
-from fpg_gym.holdout import split_takes
 from fpg_gym.io import load_clips
 from fpg_gym.io.recording import load_recording
 from fpg_gym.methods import MethodRunner

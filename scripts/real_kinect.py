@@ -47,7 +47,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import metrics, skeleton
+from fpg_gym.core import metrics, skeleton
 from fpg_gym.definitions import DefinitionMap, fit_sensor_maps
 from fpg_gym.graph import FilteredPoseGraph, default_graph
 from fpg_gym.io import load_clips

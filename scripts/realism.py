@@ -37,13 +37,13 @@ from pathlib import Path
 
 import numpy as np
 
-from fpg_gym import metrics, skeleton
+from fpg_gym.core import metrics, skeleton
+from fpg_gym.core.skeleton import INFERRED, NOT_TRACKED, TRACKED
 from fpg_gym.io import Clip, load_default_clips, read_clip, read_recording
 from fpg_gym.io.kinect import SkippedLinesWarning
 from fpg_gym.io.recording import Recording
 from fpg_gym.simulate import KinectSimulator, scenario_names
 from fpg_gym.simulate.models import JOINT_GROUP
-from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
 
 REPO = Path(__file__).resolve().parents[1]
 BANDAI_CONTENTS = ("bow", "bye", "byebye", "guide", "call", "respond", "punch", "kick", "slash")

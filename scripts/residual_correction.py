@@ -11,7 +11,7 @@ closed form's output too, or to a sampler model's without its own correction.
 
 Protocols (``--protocol``):
 
-* ``sim``: Bandai Namco dataset-1, the seed-2016 take split (``fpg_gym.holdout.split_takes``).
+* ``sim``: Bandai Namco dataset-1, the seed-2016 take split (``fpg_gym.core.holdout.split_takes``).
   The graph takes are split in two halves (seeded); the training streams are one half's takes
   simulated in ``front-many`` and ``left45-many`` (first 150 frames) and reconstructed with a
   graph of the other half, so no truth is a candidate; the last tenth of those streams picks the
@@ -57,9 +57,9 @@ REPO = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(REPO))  # this checkout's fpg_gym
 sys.path.insert(0, str(REPO / "scripts"))  # real_kinect's UI-PRMD folds
 
-from fpg_gym import metrics  # noqa: E402
+from fpg_gym.core import metrics  # noqa: E402
+from fpg_gym.core.holdout import split_takes  # noqa: E402
 from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
-from fpg_gym.holdout import split_takes  # noqa: E402
 from fpg_gym.io import load_clips  # noqa: E402
 from fpg_gym.reconstruct import Reconstructor  # noqa: E402
 from fpg_gym.reconstruct.output_correction import (  # noqa: E402

@@ -34,7 +34,7 @@ REPO = Path(__file__).resolve().parents[1]
 if str(REPO) not in sys.path:  # run from a checkout without installing
     sys.path.insert(0, str(REPO))
 
-from fpg_gym import metrics  # noqa: E402
+from fpg_gym.core import metrics  # noqa: E402
 from fpg_gym.experiments import markdown_table, plan_episodes  # noqa: E402
 from fpg_gym.methods import ragdoll_factory  # noqa: E402
 from fpg_gym.reconstruct import (  # noqa: E402

@@ -104,7 +104,7 @@ def rng() -> np.random.Generator:
 def graph(_session_cache: None) -> Any:
     """The embedded default graph without the held-out clips (``DEFAULT_HOLDOUT_CLIPS``), built
     once per session into the session's cache; a module may define a ``graph`` of its own."""
-    from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
     from fpg_gym.graph import default_graph
 
     return default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)

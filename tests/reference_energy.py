@@ -9,7 +9,7 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
 from fpg_gym.reconstruct.energy import EnergyWeights
 from fpg_gym.reconstruct.latent import POSE_SIZE, LatentSpace
 

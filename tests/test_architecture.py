@@ -14,7 +14,7 @@ from pathlib import Path
 
 import pytest
 
-from fpg_gym.compiled import COMPILED_MODULES
+from fpg_gym.core.compiled import COMPILED_MODULES
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("fpg_gym", "optimizers", "policies")

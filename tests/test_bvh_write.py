@@ -8,12 +8,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fpg_gym import skeleton
 from fpg_gym.cli import main
+from fpg_gym.core import skeleton
+from fpg_gym.core.outputs import save_npz
 from fpg_gym.io import BVH_JOINT_MAP, load_default_clips, read_bvh, read_recording, write_bvh
 from fpg_gym.io.bvh import parse_bvh
 from fpg_gym.io.bvh_write import _REST, bvh_hierarchy
-from fpg_gym.outputs import save_npz
 
 
 def bones(poses: np.ndarray) -> np.ndarray:

@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym import metrics
+from fpg_gym.core import metrics
 from fpg_gym.experiments import (
     CSV_FIELDS,
     TABLE_COLUMNS,

@@ -4,7 +4,7 @@ The filters' steps, the pose retarget, one pose's bone lengths and the sorted wi
 operations in the same order, so their outputs must be equal to the bit; the local PCA, the
 energy's set-up, the candidates' assembly and the behaviour angles sum in another order (or call
 another arccos), so theirs must agree to rounding. Each numpy path runs within
-``fpg_gym.compiled.numpy_only()``.
+``fpg_gym.core.compiled.numpy_only()``.
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym import poses, skeleton
-from fpg_gym.compiled import (
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.compiled import (
     COMPILED_MODULES,
     NO_NUMBA_VARIABLE,
     compiled_module,
@@ -53,7 +53,7 @@ def test_the_environment_variable_runs_a_process_as_without_numba() -> None:
     ``numba_available()`` False for the whole process, numba itself never imported."""
     code = (
         "import sys\n"
-        "from fpg_gym.compiled import COMPILED_MODULES, compiled_module, numba_available\n"
+        "from fpg_gym.core.compiled import COMPILED_MODULES, compiled_module, numba_available\n"
         "from fpg_gym.reconstruct import reliability\n"
         "print(numba_available(), {compiled_module(n) for n in COMPILED_MODULES},"
         " 'numba' in sys.modules)"

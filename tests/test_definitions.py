@@ -8,7 +8,9 @@ import json
 import numpy as np
 import pytest
 
-from fpg_gym import metrics, poses, skeleton
+from fpg_gym.core import metrics, poses, skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.rotations import axis_rotation
 from fpg_gym.definitions import (
     TRUNK_JOINTS,
     DefinitionMap,
@@ -17,11 +19,9 @@ from fpg_gym.definitions import (
     fit_to_database,
     joint_frames,
 )
-from fpg_gym.errors import DataFormatError
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import Clip, Recording
 from fpg_gym.reconstruct import BoneSettlingConfig, Reconstructor
-from fpg_gym.rotations import axis_rotation
 
 J = skeleton.joint_index
 

@@ -10,7 +10,7 @@ from typing import Any
 
 import pytest
 
-from fpg_gym.errors import TaskError
+from fpg_gym.core.errors import TaskError
 from fpg_gym.experiments import run_compare
 from fpg_gym.experiments.distributed import restore_signals, run_on_ray, signal_handlers
 from tests.test_compare import _config, result_rows

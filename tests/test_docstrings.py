@@ -18,7 +18,7 @@ MODULES = sorted(
 
 
 def test_modules_with_examples_are_found() -> None:
-    assert "fpg_gym.metrics" in MODULES and "fpg_gym.definitions" in MODULES
+    assert "fpg_gym.core.metrics" in MODULES and "fpg_gym.definitions" in MODULES
 
 
 @pytest.mark.parametrize("name", MODULES)

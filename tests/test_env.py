@@ -16,10 +16,10 @@ import pytest
 from gymnasium.utils.env_checker import data_equivalence
 
 import fpg_gym  # registers the env
+from fpg_gym.core.metrics import frame_error
 from fpg_gym.env import ENV_ID, ExactAction, KinectPoseEnv, StageTimes
 from fpg_gym.env_observation import LATENT_LIMIT, ObservationLayout
 from fpg_gym.io import Recording, load_default_clips, write_recording
-from fpg_gym.metrics import frame_error
 from fpg_gym.reconstruct import SearchProblem
 from fpg_gym.simulate import plan_episode, simulate
 

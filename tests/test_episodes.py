@@ -162,7 +162,7 @@ def test_measure_env_throughput(cache_dir: Path) -> None:
 
 def test_method_names_as_agents(cache_dir: Path) -> None:
     """Issue 11: reference filters and pipeline method names run through run_episode."""
-    from fpg_gym import metrics
+    from fpg_gym.core import metrics
     from fpg_gym.filters import make_filter
 
     env = make(cache_dir)

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from reference_selection import reference_best_k, reference_walk
 
-from fpg_gym import poses, skeleton
+from fpg_gym.core import poses, skeleton
 from fpg_gym.reconstruct import selection as selection_module
 from fpg_gym.reconstruct.node_database import NodeDatabase
 from fpg_gym.reconstruct.selection import (

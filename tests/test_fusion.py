@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym import metrics, poses, skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import metrics, poses, skeleton
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.graph import default_graph, packaged_graph
 from fpg_gym.io import Recording, load_default_clips
 from fpg_gym.reconstruct import Reconstructor

@@ -1,6 +1,6 @@
 """Fuzzing the readers (issues 16 and 36): whatever the bytes, a reader returns its object or
-raises the project's error type (:class:`~fpg_gym.errors.FpgGymError`), never another exception,
-and soon.
+raises the project's error type (:class:`~fpg_gym.core.errors.FpgGymError`), never another
+exception, and soon.
 
 Inputs are valid files mutated (lines cut, dropped, repeated or swapped, numbers replaced by
 NaN, huge or non-numbers, bytes flipped, files truncated or gzipped) and arbitrary bytes; the
@@ -33,8 +33,8 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from fpg_gym import skeleton  # noqa: E402
-from fpg_gym.errors import DataFormatError, FpgGymError  # noqa: E402
+from fpg_gym.core import skeleton  # noqa: E402
+from fpg_gym.core.errors import DataFormatError, FpgGymError  # noqa: E402
 from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
 from fpg_gym.io import load_default_clips, read_bvh, read_positions, write_positions  # noqa: E402
 from fpg_gym.io.kinect import (  # noqa: E402
@@ -563,7 +563,7 @@ def test_training_checkpoints_resume_or_are_refused(tmp_path: Path, data: Any) -
 
 
 def test_training_checkpoints_of_other_settings_name_them(tmp_path: Path) -> None:
-    from fpg_gym.errors import OutputError
+    from fpg_gym.core.errors import OutputError
     from policies.checkpoints import RunCheckpoints
 
     RunCheckpoints(tmp_path / "c", {"seed": 0, "clips_sha256": ["a"]})

@@ -12,9 +12,10 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
-from fpg_gym import graph_build, poses
+from fpg_gym import graph_build
 from fpg_gym.cli import main as cli_main
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import poses
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.graph import FORMAT_VERSION, FilteredPoseGraph, default_graph
 from fpg_gym.io import Clip, find_mocap_files, load_default_clips, read_clip
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from fpg_gym.holdout import holdout_indices, split_takes
+from fpg_gym.core.holdout import holdout_indices, split_takes
 
 
 def test_split_is_disjoint_complete_and_seeded() -> None:

@@ -27,9 +27,10 @@ import numpy as np
 import pytest
 from conftest import exit_status, one_error_line, tiny_bvh
 
-from fpg_gym import skeleton
 from fpg_gym.cli import main
-from fpg_gym.errors import DataFormatError, FpgGymError, OutputError, TaskError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError, FpgGymError, OutputError, TaskError
+from fpg_gym.core.outputs import atomic_path, check_output, interrupts_deferred, save_npz
 from fpg_gym.experiments import CSV_FIELDS, MANIFEST_NAME, CompareConfig, plan_episodes, run_compare
 from fpg_gym.experiments import run as compare_run
 from fpg_gym.io import (
@@ -41,7 +42,6 @@ from fpg_gym.io import (
     write_recording,
 )
 from fpg_gym.io.kinect import SkippedLinesWarning, write_csv
-from fpg_gym.outputs import atomic_path, check_output, interrupts_deferred, save_npz
 from fpg_gym.simulate import simulate
 
 REPO = Path(__file__).resolve().parents[1]

@@ -31,10 +31,10 @@ import numpy as np
 import pytest
 from conftest import exit_status, one_error_line
 
-from fpg_gym import skeleton
 from fpg_gym.cli import main
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError, OutputError
 from fpg_gym.definitions import DefinitionMap
-from fpg_gym.errors import DataFormatError, OutputError
 from fpg_gym.experiments import MANIFEST_NAME, CompareConfig, run_compare
 from fpg_gym.experiments.store import Manifest
 from fpg_gym.graph import FilteredPoseGraph
@@ -296,7 +296,7 @@ def _closed_port() -> int:
 
 
 def test_a_dead_ray_address_is_refused_quickly(tmp_path: Path, recording: Any) -> None:
-    from fpg_gym.ray_session import RayAddressError, check_address
+    from fpg_gym.runtime.ray_session import RayAddressError, check_address
 
     address = f"127.0.0.1:{_closed_port()}"
     start = time.perf_counter()

@@ -9,8 +9,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym.ray_session import signal_handlers
 from fpg_gym.reconstruct.kernels import available_kernels
+from fpg_gym.runtime.ray_session import signal_handlers
 from policies.imitation import ImitationData, collect_imitation_data
 from tests.test_truth_target import SPEC
 

@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 from conftest import shared_path, tiny_bvh
 
-from fpg_gym import poses, skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io import (
     BANDAI_NAMCO_MAP,
     DEFAULT_CLIP_NAMES,

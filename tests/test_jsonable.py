@@ -7,7 +7,7 @@ from pathlib import Path
 
 import numpy as np
 
-from fpg_gym.jsonable import jsonable
+from fpg_gym.core.jsonable import jsonable
 
 
 def test_jsonable_converts_numpy_paths_and_non_finite_floats() -> None:

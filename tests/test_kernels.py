@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 from reference_energy import ReferenceEnergyModel
 
-from fpg_gym import poses, skeleton
-from fpg_gym.compiled import COMPILED_MODULES, compiled_module, numba_available
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.compiled import COMPILED_MODULES, compiled_module, numba_available
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights
 from fpg_gym.reconstruct.kernels import (
     available_kernels,

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
-from fpg_gym import poses, skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io import Recording, read_recording
 from fpg_gym.io.kinect import SkippedLinesWarning, detect_format, read_csv, write_csv
 

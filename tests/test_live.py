@@ -18,8 +18,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym import live, skeleton
+from fpg_gym import live
 from fpg_gym.cli import main
+from fpg_gym.core import skeleton
 from fpg_gym.graph import FilteredPoseGraph, default_graph
 from fpg_gym.io import Recording, load_default_clips, write_recording
 from fpg_gym.reconstruct import Reconstructor
@@ -427,7 +428,7 @@ def _cli(numba: bool) -> list[str]:
 
 
 def _numba_cases() -> list[Any]:
-    from fpg_gym.compiled import numba_available
+    from fpg_gym.core.compiled import numba_available
 
     needs = pytest.mark.skipif(not numba_available(), reason="numba is not installed")
     return [pytest.param(True, id="numba", marks=needs), pytest.param(False, id="numpy")]

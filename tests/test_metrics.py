@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fpg_gym import metrics, poses, skeleton
+from fpg_gym.core import metrics, poses, skeleton
 
 
 @pytest.fixture

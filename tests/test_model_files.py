@@ -18,7 +18,7 @@ import numpy as np
 import pytest
 
 import optimizers
-from fpg_gym.errors import DataFormatError, FpgGymError
+from fpg_gym.core.errors import DataFormatError, FpgGymError
 from policies.loading import load_sampler
 from policies.sampler import FORMAT, SamplerSpec
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import optimizers
-from fpg_gym import poses, skeleton
+from fpg_gym.core import poses, skeleton
 from fpg_gym.reconstruct.energy import EnergyModel
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem

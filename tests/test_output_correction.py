@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym import metrics, skeleton
-from fpg_gym import poses as pose_utils
+from fpg_gym.core import metrics, skeleton
+from fpg_gym.core import poses as pose_utils
 from fpg_gym.io import load_default_clips
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct.batched import run_streams

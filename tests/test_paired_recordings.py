@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io import load_default_clips, write_recording
 from fpg_gym.io.recording import Recording
 from fpg_gym.simulate import simulate

@@ -7,7 +7,7 @@ from pathlib import Path
 import imageio.v3 as iio
 import numpy as np
 
-from fpg_gym import poses
+from fpg_gym.core import poses
 from fpg_gym.experiments import plots
 from fpg_gym.io import load_default_clips
 

@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym import metrics, skeleton
-from fpg_gym import poses as pose_utils
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import metrics, skeleton
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io import load_default_clips
 from fpg_gym.io.recording import Recording
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from fpg_gym import poses, skeleton
+from fpg_gym.core import poses, skeleton
 from fpg_gym.io import load_default_clips
 
 

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
-from fpg_gym import poses, skeleton
-from fpg_gym.compiled import numba_available, numpy_only
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.compiled import numba_available, numpy_only
 from fpg_gym.io import BANDAI_NAMCO_MAP, load_default_clips, read_bvh
 from fpg_gym.physics import ragdoll as ragdoll_module
 from fpg_gym.physics.ragdoll import FloorShift, PhysicsError, PhysicsWarning, Ragdoll

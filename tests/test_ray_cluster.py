@@ -186,7 +186,7 @@ COLLECT = """
 import sys
 import numpy as np
 sys.path.insert(0, {root!r})
-from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.graph import default_graph
 from fpg_gym.io import load_default_clips
 from policies.imitation import collect_imitation_data

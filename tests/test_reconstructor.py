@@ -11,8 +11,8 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
-from fpg_gym import metrics, poses, skeleton
 from fpg_gym.cli import main
+from fpg_gym.core import metrics, poses, skeleton
 from fpg_gym.io import Recording, load_default_clips, write_recording
 from fpg_gym.methods import ragdoll_factory
 from fpg_gym.physics.ragdoll import Ragdoll
@@ -395,7 +395,7 @@ def test_the_ragdoll_is_injected_not_imported() -> None:
 
 
 class BareStream:
-    """The least a stream needs (:class:`fpg_gym.poses.RecordingLike`): no timestamps."""
+    """The least a stream needs (:class:`fpg_gym.core.poses.RecordingLike`): no timestamps."""
 
     def __init__(self, positions: np.ndarray, states: np.ndarray) -> None:
         self._positions, self._states = positions, states

@@ -8,8 +8,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fpg_gym import poses
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import poses
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io import Recording, read_recording, write_recording
 from fpg_gym.io.recording import RECORDING_KEYS, load_recording
 

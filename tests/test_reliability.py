@@ -7,8 +7,8 @@ import contextlib
 import numpy as np
 import pytest
 
-from fpg_gym import poses, skeleton
-from fpg_gym.compiled import numpy_only
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.compiled import numpy_only
 from fpg_gym.reconstruct.reliability import (
     ReliabilityConfig,
     ReliabilityEstimator,

@@ -1,10 +1,10 @@
-"""Batched rotation helpers of :mod:`fpg_gym.rotations` (x, y, z, w quaternions)."""
+"""Batched rotation helpers of :mod:`fpg_gym.core.rotations` (x, y, z, w quaternions)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from fpg_gym.rotations import (
+from fpg_gym.core.rotations import (
     axis_angle_matrix,
     axis_rotation,
     matrix_to_quaternion_xyzw,

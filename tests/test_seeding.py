@@ -1,4 +1,4 @@
-"""The one seeding rule (fpg_gym.seeding): a part of a run is seeded from the user's seed and
+"""The one seeding rule (fpg_gym.core.seeding): a part of a run is seeded from the user's seed and
 its names, and every derivation in the library goes through it."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fpg_gym.seeding import as_generator, derive_seed
+from fpg_gym.core.seeding import as_generator, derive_seed
 from fpg_gym.simulate import episode_seed, plan_episode
 
 REPO = Path(__file__).resolve().parents[1]

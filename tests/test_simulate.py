@@ -11,7 +11,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fpg_gym import cli, metrics, poses, skeleton
+from fpg_gym import cli
+from fpg_gym.core import metrics, poses, skeleton
 from fpg_gym.io import Clip, load_default_clips, read_recording
 from fpg_gym.simulate import (
     SCENARIOS,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
 
 
 def test_joint_and_bone_counts() -> None:

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
-from fpg_gym import metrics, poses
+from fpg_gym.core import metrics, poses
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import load_clips, load_default_clips
 from fpg_gym.physics.ragdoll import Ragdoll

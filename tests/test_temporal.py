@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from test_reconstructor import graph, recording, to_camera
 
-from fpg_gym import metrics, poses, skeleton
+from fpg_gym.core import metrics, poses, skeleton
 from fpg_gym.filters import make_filter
 from fpg_gym.methods import ragdoll_factory
 from fpg_gym.reconstruct import (

@@ -7,7 +7,7 @@ import pytest
 from threadpoolctl import threadpool_info, threadpool_limits
 
 from fpg_gym.reconstruct.latent import LatentSpace
-from fpg_gym.threads import one_blas_thread
+from fpg_gym.runtime.threads import one_blas_thread
 
 
 def blas_threads() -> list[int]:

@@ -10,9 +10,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fpg_gym import skeleton
 from fpg_gym.cli import main
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io import read_recording
 from fpg_gym.io.trackers import (
     AZURE_KINECT_JOINT_NAMES,
@@ -350,7 +350,7 @@ hypothesis = pytest.importorskip("hypothesis")
 from hypothesis import HealthCheck, given, settings  # noqa: E402
 from hypothesis import strategies as st  # noqa: E402
 
-from fpg_gym.errors import FpgGymError  # noqa: E402
+from fpg_gym.core.errors import FpgGymError  # noqa: E402
 
 _KEYS = [
     "frames",

@@ -12,9 +12,11 @@ import numpy as np
 import pytest
 from conftest import shared_path
 
-from fpg_gym import metrics, skeleton
 from fpg_gym.cli import main
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import metrics, skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.pairing import apply_rigid, best_lag, kabsch, pair_session
+from fpg_gym.core.rotations import axis_rotation
 from fpg_gym.io.positions import read_positions
 from fpg_gym.io.recording import load_recording
 from fpg_gym.io.ui_prmd import (
@@ -37,8 +39,6 @@ from fpg_gym.io.ui_prmd_import import (
     flag_alignment_outliers,
     pair_repetitions,
 )
-from fpg_gym.pairing import apply_rigid, best_lag, kabsch, pair_session
-from fpg_gym.rotations import axis_rotation
 
 J = skeleton.joint_index
 

@@ -7,8 +7,8 @@ import math
 import numpy as np
 import pytest
 
+from fpg_gym.core.validation import check_choice, check_integer, check_number
 from fpg_gym.reconstruct import ReconstructorConfig
-from fpg_gym.validation import check_choice, check_integer, check_number
 
 
 def test_check_number_bounds_open_and_closed() -> None:

@@ -8,10 +8,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from fpg_gym import metrics
 from fpg_gym.cli import main
+from fpg_gym.core import metrics
+from fpg_gym.core.outputs import save_npz
 from fpg_gym.io import load_default_clips, write_recording
-from fpg_gym.outputs import save_npz
 from fpg_gym.simulate import simulate
 
 

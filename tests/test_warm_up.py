@@ -9,7 +9,7 @@ from pathlib import Path
 
 import pytest
 
-from fpg_gym.compiled import COMPILED_MODULES, numba_available
+from fpg_gym.core.compiled import COMPILED_MODULES, numba_available
 from fpg_gym.experiments.warm import _shares, warm_kernels, warm_kernels_cached
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="needs numba (fpg-gym[fast])")
@@ -38,7 +38,7 @@ def test_warm_up_in_this_process_leaves_the_markers_cached() -> None:
 CHECK = """
 import importlib
 from numba.core.dispatcher import Dispatcher
-from fpg_gym.compiled import COMPILED_MODULES
+from fpg_gym.core.compiled import COMPILED_MODULES
 from fpg_gym.experiments.warm import _run_methods, warm_kernels_cached
 assert warm_kernels_cached()
 _run_methods(COMPILED_MODULES, 40)

@@ -48,9 +48,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Read the clips, build the graph, save it and print its statistics."""
     from fpg_gym.commands.output import emit_json
+    from fpg_gym.core.outputs import check_output
     from fpg_gym.graph import DEFAULT_THRES1, FilteredPoseGraph
     from fpg_gym.io import load_clips
-    from fpg_gym.outputs import check_output
 
     # Before any work: the output must not be an input, a folder or unwritable.
     check_output(args.out, [item for item in args.inputs if item != "default"])

@@ -49,7 +49,7 @@ def _timestamps(path: str, stamps: Any, count: int) -> tuple[Any, float, str]:
     """
     import numpy as np
 
-    from fpg_gym.errors import DataFormatError
+    from fpg_gym.core.errors import DataFormatError
     from fpg_gym.io.plausibility import check_frame_rate
 
     if stamps is None:
@@ -80,14 +80,14 @@ def run(args: argparse.Namespace) -> int:
     """Write the file; print what was written."""
     import numpy as np
 
-    from fpg_gym import skeleton
-    from fpg_gym.errors import DataFormatError
+    from fpg_gym.core import skeleton
+    from fpg_gym.core.errors import DataFormatError
+    from fpg_gym.core.outputs import atomic_path, check_output
     from fpg_gym.io import Recording
     from fpg_gym.io.bvh_write import write_bvh
     from fpg_gym.io.kinect import write_csv
     from fpg_gym.io.npz import load_npz
     from fpg_gym.io.plausibility import check_plausible
-    from fpg_gym.outputs import atomic_path, check_output
 
     kind = _format(args.out)
     out = check_output(args.out, [args.input])

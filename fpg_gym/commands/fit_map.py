@@ -42,11 +42,11 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fpg_gym.commands.output import emit_json
+    from fpg_gym.core.outputs import check_output
     from fpg_gym.definitions import fit_sensor_maps
     from fpg_gym.graph import load_graph
     from fpg_gym.io import expand_inputs
     from fpg_gym.io.recording import load_recording
-    from fpg_gym.outputs import check_output
 
     if args.graph and not args.output_map:
         raise ValueError("--output-map: needed with --graph (the map back to the truth's joints)")

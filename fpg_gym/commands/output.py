@@ -5,7 +5,7 @@ from __future__ import annotations
 import json
 from typing import Any
 
-from fpg_gym.jsonable import jsonable
+from fpg_gym.core.jsonable import jsonable
 
 
 def emit_json(summary: dict[str, Any]) -> None:

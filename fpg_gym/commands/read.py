@@ -24,8 +24,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fpg_gym.commands.output import emit_json
+    from fpg_gym.core.poses import bone_lengths, height
     from fpg_gym.io import load_clips
-    from fpg_gym.poses import bone_lengths, height
 
     start = time.perf_counter()
     clips = load_clips(args.inputs, workers=args.workers, units=args.units)

@@ -275,7 +275,7 @@ def read_input(args: argparse.Namespace) -> Any:
 
 
 def _histogram(errors: Any) -> list[int]:
-    from fpg_gym.metrics import error_histogram
+    from fpg_gym.core.metrics import error_histogram
 
     counts: list[int] = error_histogram(errors, (*HISTOGRAM_EDGES, float("inf"))).tolist()
     return counts
@@ -287,7 +287,7 @@ def _error_summary(recording: Any, poses: Any) -> tuple[dict[str, Any], dict[str
     Err0.2 of each)."""
     import numpy as np
 
-    from fpg_gym import metrics
+    from fpg_gym.core import metrics
 
     raw_errors = metrics.frame_error(recording.ground_truth, recording.positions)
     errors = metrics.frame_error(recording.ground_truth, poses)
@@ -314,7 +314,7 @@ def _mean_jitter(poses: Any) -> float:
     too short to have one (fewer than 3 frames)."""
     import numpy as np
 
-    from fpg_gym import metrics
+    from fpg_gym.core import metrics
 
     values = np.asarray(metrics.jitter(poses), dtype=np.float64)
     finite = values[np.isfinite(values)]
@@ -367,8 +367,8 @@ def _say(args: argparse.Namespace, text: str) -> None:
 
 def _check_out(args: argparse.Namespace) -> Path:
     """The output path, checked before any work (not an input, not a folder, writable)."""
+    from fpg_gym.core.outputs import check_output
     from fpg_gym.graph import GRAPH_NAMES
-    from fpg_gym.outputs import check_output
 
     inputs = [args.input]
     if args.graph and args.graph not in GRAPH_NAMES:
@@ -381,8 +381,8 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fpg_gym.commands.output import emit_json
+    from fpg_gym.core.outputs import interrupts_deferred
     from fpg_gym.methods import ragdoll_factory
-    from fpg_gym.outputs import interrupts_deferred
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
 
@@ -507,7 +507,7 @@ def _save_result(
     errors and metadata to ``args.out``; return the summary and the path written."""
     import numpy as np
 
-    from fpg_gym.outputs import save_npz
+    from fpg_gym.core.outputs import save_npz
 
     arrays = result.arrays()
     frames = result.num_frames
@@ -565,8 +565,8 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     import numpy as np
 
     from fpg_gym.commands.output import emit_json
+    from fpg_gym.core.outputs import save_npz
     from fpg_gym.methods import MethodRunner
-    from fpg_gym.outputs import save_npz
 
     recording = read_input(args)
     options: dict[str, Any] = {}

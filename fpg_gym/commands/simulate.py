@@ -47,10 +47,10 @@ def _read_input(text: str, units: str) -> object:
 
 def run(args: argparse.Namespace) -> int:
     """Simulate, write the recording and print its statistics."""
-    from fpg_gym import metrics
     from fpg_gym.commands.output import emit_json
+    from fpg_gym.core import metrics
+    from fpg_gym.core.outputs import check_output
     from fpg_gym.io import write_recording
-    from fpg_gym.outputs import check_output
     from fpg_gym.simulate import SCENARIOS, get_scenario, simulate
 
     if args.list:

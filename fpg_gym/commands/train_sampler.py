@@ -299,7 +299,7 @@ def input_summary(items: list[str] | None) -> dict[str, Any] | None:
 def run(args: argparse.Namespace) -> int:
     """Train, save and print the final evaluation."""
     from fpg_gym.commands.output import emit_json
-    from fpg_gym.outputs import check_output
+    from fpg_gym.core.outputs import check_output
     from policies.pose_sampler import LINEAR_WEIGHTS_SUFFIX
     from policies.sampler import FEATURE_SETS, WEIGHTS_SUFFIX, model_paths
     from policies.training import TrainConfig, config_dict, train_sampler

@@ -53,13 +53,13 @@ def run(args: argparse.Namespace) -> int:
 
     import numpy as np
 
-    from fpg_gym.errors import DataFormatError
+    from fpg_gym.core.errors import DataFormatError
+    from fpg_gym.core.outputs import check_output
     from fpg_gym.experiments.view import require_rerun, write_view
     from fpg_gym.graph import load_graph
     from fpg_gym.io import read_recording
     from fpg_gym.io.npz import load_npz
     from fpg_gym.methods import MethodRunner, parse_methods
-    from fpg_gym.outputs import check_output
 
     require_rerun()  # fail first, before any work, when the extra is missing
     out = check_output(args.out, [args.input, *args.result])

@@ -21,7 +21,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Compile (or load) every kernel and say how long it took."""
-    from fpg_gym.compiled import numba_available
+    from fpg_gym.core.compiled import numba_available
     from fpg_gym.experiments.warm import warm_kernels
 
     workers = (os.cpu_count() or 1) if args.workers is None else args.workers

@@ -35,7 +35,7 @@ Sections (each a list of rows, see :func:`run_bench`):
 By default everything uses the embedded DeepMimic clips (no files needed); ``mocap=`` paths
 (e.g. ``../shared/data/bandai_namco/dataset-1``) use those takes instead: 20 % of the files are
 held out for the episodes with the split of ``scripts/holdout_split.py``
-(:func:`fpg_gym.holdout.holdout_indices`, seed 2016), the others build the graphs.
+(:func:`fpg_gym.core.holdout.holdout_indices`, seed 2016), the others build the graphs.
 
 BLAS runs on one thread (``threadpoolctl``; the per-frame matrices are tiny and more threads only
 add contention). Stage timings are wall-clock medians with the CPU time per frame beside them;
@@ -57,8 +57,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 from tqdm.auto import tqdm
 
-from fpg_gym import metrics
-from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core import metrics
+from fpg_gym.core.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.holdout import holdout_indices
 from fpg_gym.episodes import measure_env_throughput
 from fpg_gym.experiments import markdown_table
 from fpg_gym.experiments.bench_kernels import (
@@ -69,7 +70,6 @@ from fpg_gym.experiments.bench_kernels import (
     selection_rows,
 )
 from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1, FilteredPoseGraph
-from fpg_gym.holdout import holdout_indices
 from fpg_gym.io import load_clips, load_default_clips
 from fpg_gym.physics.ragdoll import Ragdoll
 from fpg_gym.reconstruct import STAGES, Reconstructor

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 import optimizers
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct.kernels import available_kernels, fused_energy
 from fpg_gym.reconstruct.problem import SearchProblem

@@ -8,7 +8,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS
+from fpg_gym.core.defaults import DEFAULT_EPISODE_SCENARIOS
 from fpg_gym.definitions import DefinitionMap, packaged_map, packaged_map_names
 from fpg_gym.io.files import file_digest
 from fpg_gym.methods import BASELINE, parse_method
@@ -81,7 +81,7 @@ class CompareConfig:
         ``"default"`` (the embedded graph without the evaluated embedded clips) or a ``.npz``.
     clips : list of str
         Mocap files/folders, ``"default"`` (the embedded held-out clips
-        :data:`fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS`), embedded clip names (``walk`` or
+        :data:`fpg_gym.core.defaults.DEFAULT_HOLDOUT_CLIPS`), embedded clip names (``walk`` or
         ``default:walk``).
     inputs : list of str
         Recording files (``.npz`` with ground truth for errors; other formats give timing and

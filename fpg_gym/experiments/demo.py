@@ -10,9 +10,9 @@
    (``real/clean`` and ``real/occluded``, compare folders of their own; ``headline.md``, the
    README's headline table). The GIF shows a real squat whose lower legs are lost.
 1. The default pose graph of the embedded DeepMimic clips, built without the held-out clips
-   :data:`fpg_gym.defaults.DEFAULT_HOLDOUT_CLIPS` (walk, punch, kick, dance_b) and cached.
+   :data:`fpg_gym.core.defaults.DEFAULT_HOLDOUT_CLIPS` (walk, punch, kick, dance_b) and cached.
 2. Kinect streams simulated from the held-out clips in the scenarios
-   :data:`fpg_gym.defaults.DEFAULT_EPISODE_SCENARIOS` (front, 45° left and right, many
+   :data:`fpg_gym.core.defaults.DEFAULT_EPISODE_SCENARIOS` (front, 45° left and right, many
    occluders): 12 episodes with ground truth.
 3. Every method of :data:`DEMO_METHODS` on every episode (:func:`fpg_gym.experiments.run_compare`):
    the sensor as is, the Kinect SDK and Kalman filters, the graph selection with no search,
@@ -39,14 +39,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from fpg_gym.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.seeding import derive_seed
 from fpg_gym.experiments import CompareConfig, CompareOutcome, format_tests, plots, run_compare
 from fpg_gym.experiments.report import markdown_table
 from fpg_gym.experiments.store import frames_path, load_frames
 from fpg_gym.experiments.view import rerun_available, write_view
 from fpg_gym.experiments.warm import warm_kernels, warm_kernels_cached
 from fpg_gym.io.recording import load_recording, write_recording
-from fpg_gym.seeding import derive_seed
 from fpg_gym.simulate.occlude import OCCLUSION_CASES, occlude
 
 __all__ = [

@@ -26,7 +26,7 @@ from collections.abc import Callable, Sequence
 from typing import Any
 
 from fpg_gym.methods import MethodRunner
-from fpg_gym.ray_session import (
+from fpg_gym.runtime.ray_session import (
     RayUnavailable,
     ray_session,
     require_ray,

@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
+from fpg_gym.core.outputs import same_file
 from fpg_gym.experiments.config import CompareConfig, EpisodeSpec, safe_name
 from fpg_gym.experiments.store import Manifest
 from fpg_gym.io import read_recording, resolve_clips, write_recording
 from fpg_gym.io.files import file_digest
-from fpg_gym.outputs import same_file
 from fpg_gym.simulate import EpisodeSimulator, episode_seed, get_scenario
 from fpg_gym.simulate import plan_episodes as plan_simulated
 

@@ -15,8 +15,8 @@ import numpy as np
 from matplotlib.backends.backend_agg import FigureCanvasAgg
 from matplotlib.figure import Figure
 
-from fpg_gym import metrics, skeleton
-from fpg_gym.metrics import ERROR_BAND_EDGES
+from fpg_gym.core import metrics, skeleton
+from fpg_gym.core.metrics import ERROR_BAND_EDGES
 from fpg_gym.rendering import STATE_COLOURS
 
 __all__ = [

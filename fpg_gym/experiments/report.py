@@ -10,13 +10,13 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
+from fpg_gym.core.jsonable import jsonable
+from fpg_gym.core.outputs import write_text
 from fpg_gym.experiments import plots
 from fpg_gym.experiments.stats import summarise_frames
 from fpg_gym.experiments.store import FrameFiles
-from fpg_gym.jsonable import jsonable
 from fpg_gym.methods import BASELINE
-from fpg_gym.outputs import write_text
 
 #: Columns of the main table of ``report.md`` (and of what ``compare``/``demo`` print).
 TABLE_COLUMNS: tuple[str, ...] = (
@@ -347,9 +347,10 @@ def report_markdown(summary: dict[str, Any]) -> str:
         "episodes. Jitter: mean acceleration magnitude over joints and frames"
         + (f" (ground truth: {truth_jitter:.1f} m/s²)" if truth_jitter is not None else "")
         + ". Lag: the shift (frames) that best aligns the output with the ground truth "
-        "(`fpg_gym.metrics.lag`), mean over episodes; positive is late. Bone spread after 1 s: "
-        "the largest range (max − min) of a bone's length after the first second of an episode "
-        "(`fpg_gym.metrics.settled_bone_spread`), max over bones and episodes. ms/frame: "
+        "(`fpg_gym.core.metrics.lag`), mean over episodes; positive is late. Bone spread after "
+        "1 s: the largest range (max − min) of a bone's length after the first second of an "
+        "episode "
+        "(`fpg_gym.core.metrics.settled_bone_spread`), max over bones and episodes. ms/frame: "
         "computation time of one frame on this machine, ragdoll included, "
         "median / 95th percentile (noisy when workers share cores; with episodes side by "
         "side, a frame's search counts its share of the batched energy evaluations). "

@@ -57,8 +57,9 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from fpg_gym import metrics
-from fpg_gym.errors import FpgGymError, OutputError, TaskError
+from fpg_gym.core import metrics
+from fpg_gym.core.errors import FpgGymError, OutputError, TaskError
+from fpg_gym.core.outputs import write_text
 from fpg_gym.experiments.config import CompareConfig, EpisodeSpec, safe_name
 from fpg_gym.experiments.distributed import require_ray, run_on_ray
 from fpg_gym.experiments.planning import plan_keyed_episodes, write_episodes
@@ -78,9 +79,8 @@ from fpg_gym.graph import load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES
 from fpg_gym.io.recording import load_recording
 from fpg_gym.methods import Method, MethodResult, MethodRunner, parse_method
-from fpg_gym.outputs import write_text
-from fpg_gym.ray_session import check_address
 from fpg_gym.reconstruct.presets import choose_pipeline, default_graph_name, sensor_of
+from fpg_gym.runtime.ray_session import check_address
 from optimizers import make
 
 
@@ -413,7 +413,7 @@ def _run_batch(
     runner: MethodRunner, tasks: Sequence[_Task], load: Callable[[str], Any]
 ) -> list[tuple[dict[str, Any], dict[str, np.ndarray]]]:
     """Run a batch of tasks (one method): side by side (:func:`_execute_batch`) or one by one
-    (:func:`_execute`), with a failure named: a :class:`~fpg_gym.errors.TaskError` says which
+    (:func:`_execute`), with a failure named: a :class:`~fpg_gym.core.errors.TaskError` says which
     episode(s) and method failed, and why."""
     groups = [list(tasks)] if _side_by_side(tasks) else [[task] for task in tasks]
     out: list[tuple[dict[str, Any], dict[str, np.ndarray]]] = []

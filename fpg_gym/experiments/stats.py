@@ -12,7 +12,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import metrics, skeleton
+from fpg_gym.core import metrics, skeleton
 from fpg_gym.experiments.store import FrameFiles, read_config, read_rows
 from fpg_gym.methods import BASELINE
 

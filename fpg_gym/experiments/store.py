@@ -17,11 +17,11 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.errors import FpgGymError, OutputError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import FpgGymError, OutputError
+from fpg_gym.core.outputs import save_npz, write_text
 from fpg_gym.experiments.config import safe_name
 from fpg_gym.io.npz import check_npz
-from fpg_gym.outputs import save_npz, write_text
 
 try:
     import fcntl
@@ -277,7 +277,7 @@ class Manifest:
             if not real.is_relative_to(root) or real == root or path.is_symlink():
                 continue
             # The file, and temporary files of it left by a kill during a write
-            # (fpg_gym.outputs.atomic_path names them ".NAME.PID.HEX.tmp").
+            # (fpg_gym.core.outputs.atomic_path names them ".NAME.PID.HEX.tmp").
             pattern = f".{glob.escape(real.name)}.*.tmp"
             leftovers = [p for p in real.parent.glob(pattern) if p.is_file() and not p.is_symlink()]
             for leftover in leftovers:

@@ -27,9 +27,9 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import metrics, skeleton
-from fpg_gym.errors import FpgGymError, import_optional
-from fpg_gym.outputs import atomic_path
+from fpg_gym.core import metrics, skeleton
+from fpg_gym.core.errors import FpgGymError, import_optional
+from fpg_gym.core.outputs import atomic_path
 
 __all__ = [
     "STATE_COLORS",

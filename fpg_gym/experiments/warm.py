@@ -5,9 +5,9 @@ With ``fpg-gym[fast]`` the kernels compile on first use and are cached on disk (
 twenty seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the demo's
 methods on a short simulated stream, so that every kernel compiles with the argument types the
 real runs use; with ``workers > 1`` each process runs them with only its share of the compiled
-modules switched on (:func:`fpg_gym.compiled.only_compiled`), so the modules compile in parallel
-and none twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the cache is
-cold (a compare's workers would otherwise each compile every kernel).
+modules switched on (:func:`fpg_gym.core.compiled.only_compiled`), so the modules compile in
+parallel and none twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the
+cache is cold (a compare's workers would otherwise each compile every kernel).
 """
 
 from __future__ import annotations
@@ -18,8 +18,8 @@ import warnings
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 
-from fpg_gym.compiled import COMPILED_MODULES, kernels_cached, numba_available, only_compiled
-from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.compiled import COMPILED_MODULES, kernels_cached, numba_available, only_compiled
+from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.graph import default_graph
 from fpg_gym.io import load_default_clips
 from fpg_gym.methods import MethodRunner
@@ -54,7 +54,7 @@ _UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
     ),
     (("fpg_gym.reconstruct.compiled_selection",), 7.5),
     (("fpg_gym.physics.compiled_ragdoll",), 5.0),
-    (("fpg_gym.compiled_poses",), 2.5),
+    (("fpg_gym.core.compiled_poses",), 2.5),
     (("fpg_gym.filters.compiled_filters",), 2.0),
 )
 

@@ -26,7 +26,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED, TRACKING_STATES
+from fpg_gym.core.skeleton import INFERRED, NOT_TRACKED, TRACKED, TRACKING_STATES
 
 #: Frame period used when no timestamps are given (Kinect v1 and v2 run at 30 Hz).
 DEFAULT_DT: Final[float] = 1.0 / 30.0

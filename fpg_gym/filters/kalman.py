@@ -54,7 +54,7 @@ from typing import Any, Final
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym.compiled import compiled_module
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.filters.base import (
     INFERRED,
     NOT_TRACKED,

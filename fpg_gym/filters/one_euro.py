@@ -24,7 +24,7 @@ from typing import Final
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym.compiled import compiled_module
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.filters.base import DEFAULT_DT, FloatArray, PresetFilter, valid_joints
 
 

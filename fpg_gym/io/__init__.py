@@ -16,8 +16,8 @@ from pathlib import Path
 
 from tqdm.auto import tqdm
 
-from fpg_gym.defaults import DEFAULT_HOLDOUT_CLIPS
-from fpg_gym.errors import DataFormatError, FpgGymError
+from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
+from fpg_gym.core.errors import DataFormatError, FpgGymError
 from fpg_gym.io.bvh import BANDAI_NAMCO_MAP, BvhPoint, JointSource, read_bvh
 from fpg_gym.io.bvh_write import BVH_JOINT_MAP, write_bvh
 from fpg_gym.io.clip import Clip

@@ -6,7 +6,7 @@ import os
 import zlib
 from pathlib import Path
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io.files import MAX_INPUT_MB_ENV, max_input_bytes, read_input_file
 
 #: First two bytes of every gzip stream (RFC 1952).

@@ -20,14 +20,14 @@ from pathlib import Path
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.poses import resample
+from fpg_gym.core.rotations import euler_to_matrix
 from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.files import decode_text
 from fpg_gym.io.plausibility import check_plausible
-from fpg_gym.poses import resample
-from fpg_gym.rotations import euler_to_matrix
 
 _UNIT_SCALE = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 _CHANNEL_NAMES = {

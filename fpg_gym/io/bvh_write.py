@@ -1,7 +1,7 @@
 """Write Kinect-20 motion as BVH, rotations solved from the joint positions.
 
 The hierarchy (one BVH ``JOINT`` per Kinect-20 joint, named as in
-:data:`fpg_gym.skeleton.JOINT_NAMES`, plus zero-length connectors)::
+:data:`fpg_gym.core.skeleton.JOINT_NAMES`, plus zero-length connectors)::
 
     HipCenter (ROOT: Xposition Yposition Zposition Zrotation Xrotation Yrotation)
       SpineRoot > Spine > ShoulderCenter
@@ -33,10 +33,10 @@ from pathlib import Path
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from fpg_gym import skeleton
-from fpg_gym.outputs import atomic_path
-from fpg_gym.rotations import shortest_arc
-from fpg_gym.validation import check_number
+from fpg_gym.core import skeleton
+from fpg_gym.core.outputs import atomic_path
+from fpg_gym.core.rotations import shortest_arc
+from fpg_gym.core.validation import check_number
 
 __all__ = ["BVH_JOINT_MAP", "bvh_hierarchy", "write_bvh"]
 

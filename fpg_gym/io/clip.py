@@ -6,7 +6,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fpg_gym.poses import as_poses
+from fpg_gym.core.poses import as_poses
 
 
 @dataclass(frozen=True)

@@ -30,8 +30,9 @@ from typing import Any
 import numpy as np
 import pybullet_data
 
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.rotations import axis_rotation, quaternion_to_matrix, slerp
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.files import read_json
 from fpg_gym.io.plausibility import (
@@ -40,7 +41,6 @@ from fpg_gym.io.plausibility import (
     check_plausible,
     unusual_accepted,
 )
-from fpg_gym.rotations import axis_rotation, quaternion_to_matrix, slerp
 
 #: The 15 DeepMimic humanoid clips shipped inside the pybullet wheel (the embedded default).
 DEFAULT_CLIP_NAMES: tuple[str, ...] = (

@@ -17,7 +17,7 @@ import stat
 from pathlib import Path
 from typing import Any
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core.errors import DataFormatError
 
 __all__ = [
     "MAX_INPUT_MB_ENV",

@@ -23,15 +23,15 @@ Formats (:data:`KINECT_FORMATS`), detected from the extension and the first data
 ``csv``
     The documented CSV (:func:`write_csv` writes it): optional ``#`` comment lines, a header
     ``timestamp,HipCenter_x,HipCenter_y,HipCenter_z,HipCenter_state,...`` naming every
-    Kinect-20 joint (:data:`fpg_gym.skeleton.JOINT_NAMES`) in any column order, then one row per
-    frame: seconds, metres in camera space, state 2/1/0. ``timestamp`` is optional (30 Hz then).
+    Kinect-20 joint (:data:`fpg_gym.core.skeleton.JOINT_NAMES`) in any column order, then one row
+    per frame: seconds, metres in camera space, state 2/1/0. ``timestamp`` is optional (30 Hz then).
 ``npz``
     A recording file written by :func:`~fpg_gym.io.recording.write_recording`.
 ``azure_kinect``, ``mapped``
     Azure Kinect Body Tracking JSON (detected from a ``.json`` file's content) and any per-joint
     CSV/JSON through a user-given joint map (``joint_map=``): :mod:`fpg_gym.io.trackers`.
 
-Kinect v2 joints map to the Kinect-20 set with :data:`fpg_gym.skeleton.FROM_KINECT_V2`
+Kinect v2 joints map to the Kinect-20 set with :data:`fpg_gym.core.skeleton.FROM_KINECT_V2`
 (SpineBase -> HipCenter, SpineMid -> Spine, SpineShoulder -> ShoulderCenter; hand tips, thumbs
 and Neck are dropped).
 
@@ -39,7 +39,7 @@ No data is lost silently: lines that do not fit the layout (wrong field count, a
 not a number or not finite, a state outside 0/1/2, a timestamp going back) are skipped, counted
 by reason in ``metadata["skipped_lines"]`` and announced by one :class:`SkippedLinesWarning` per
 file. A file with no usable line, or where most lines are unusable, raises
-:class:`~fpg_gym.errors.DataFormatError` naming the first bad line. Frames without a body (all
+:class:`~fpg_gym.core.errors.DataFormatError` naming the first bad line. Frames without a body (all
 coordinates zero, or the picked NTU body absent) are kept with every joint not tracked and
 counted in ``metadata["no_body_frames"]``; a joint reported at exactly (0, 0, 0) is not tracked
 too. Such joints take their last known position (``metadata["untracked_positions"] ==
@@ -58,14 +58,14 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.outputs import atomic_path
 from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.files import check_input_file
 from fpg_gym.io.plausibility import MAX_COORDINATE_M, check_recording
 from fpg_gym.io.recording import NOT_TRACKED, TRACKED, Recording, load_recording
 from fpg_gym.io.trackers import JointMap, is_azure_kinect_json, read_azure_kinect, read_mapped
-from fpg_gym.outputs import atomic_path
 
 __all__ = [
     "KINECT_FORMATS",

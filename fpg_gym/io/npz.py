@@ -3,8 +3,8 @@
 ``numpy.load`` allocates what an array's header announces before reading any data, so a forged
 header (a shape of 10^12 elements in a file of a few bytes) ends in ``MemoryError``; a corrupt
 member ends in ``zlib.error``. :func:`check_npz` reads every member's header first and refuses,
-with a :class:`~fpg_gym.errors.DataFormatError` naming the file and the array, an archive that is
-not a zip, a member that is not an ``.npy`` array, a pickled (object) array, or an array larger
+with a :class:`~fpg_gym.core.errors.DataFormatError` naming the file and the array, an archive that
+is not a zip, a member that is not an ``.npy`` array, a pickled (object) array, or an array larger
 than its member can hold. It also refuses, before anything is inflated, arrays that together
 declare more than the memory ceiling (:func:`fpg_gym.io.files.max_input_bytes`) and, given the
 shapes a reader expects (``shapes``), arrays whose declared shapes do not fit them (a
@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 import numpy.lib.format as npy_format
 
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core.errors import DataFormatError
 from fpg_gym.io.files import MAX_INPUT_MB_ENV, check_input_file, max_input_bytes
 
 __all__ = ["Shape", "check_npz", "check_zip", "load_npz"]

@@ -27,8 +27,8 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
 
 __all__ = [
     "ACCEPT_UNUSUAL_ENV",

@@ -8,20 +8,20 @@ from pathlib import Path
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.outputs import save_npz
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.files import check_input_file
 from fpg_gym.io.npz import check_npz
 from fpg_gym.io.plausibility import check_plausible
-from fpg_gym.outputs import save_npz
 
 
 def read_positions(path: str | Path) -> Clip:
     """Read a positions ``.npz`` file as a clip.
 
     The archive holds ``positions``, float array ``(T, 20, 3)`` in metres, Y up, Kinect-20 joint
-    order (:data:`fpg_gym.skeleton.JOINT_NAMES`), and ``fps``, a positive scalar. An optional
+    order (:data:`fpg_gym.core.skeleton.JOINT_NAMES`), and ``fps``, a positive scalar. An optional
     ``name`` (string scalar) names the clip; the file stem is used otherwise. Pickled objects are
     refused.
 

@@ -1,7 +1,7 @@
 """The :class:`Recording`: a Kinect skeleton stream, and its ``.npz`` file format.
 
 A recording is what a Kinect (or the simulator in :mod:`fpg_gym.simulate`) reports, mapped to
-the Kinect-20 skeleton (:data:`fpg_gym.skeleton.JOINT_NAMES`), in the sensor's camera space:
+the Kinect-20 skeleton (:data:`fpg_gym.core.skeleton.JOINT_NAMES`), in the sensor's camera space:
 metres, Y up, Z away from the sensor, X towards the sensor's left (Kinect SDK convention; a user
 facing the sensor has the left shoulder at negative X).
 
@@ -36,13 +36,13 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.outputs import save_npz
+from fpg_gym.core.skeleton import INFERRED, NOT_TRACKED, TRACKED
 from fpg_gym.io.files import check_input_file
 from fpg_gym.io.npz import check_npz
 from fpg_gym.io.plausibility import check_recording
-from fpg_gym.outputs import save_npz
-from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
 
 __all__ = [
     "INFERRED",

@@ -33,7 +33,7 @@ definition map (``fpg-gym fit-map``) where it matters.
 Bad frames (a missing field, a wrong shape, a non-finite or implausible value, a timestamp going
 back) are skipped and counted in ``metadata["skipped_lines"]`` (the "line" is the frame's
 1-based position in the file); a file with no usable frame, or mostly unusable ones, raises
-:class:`~fpg_gym.errors.DataFormatError`.
+:class:`~fpg_gym.core.errors.DataFormatError`.
 """
 
 from __future__ import annotations
@@ -49,13 +49,13 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.validation import check_choice, check_integer
 from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.files import decode_text
 from fpg_gym.io.plausibility import check_recording
 from fpg_gym.io.recording import INFERRED, NOT_TRACKED, TRACKED, Recording
-from fpg_gym.validation import check_choice, check_integer
 
 __all__ = [
     "AZURE_KINECT_JOINT_NAMES",

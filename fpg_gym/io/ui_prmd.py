@@ -63,11 +63,11 @@ from pathlib import Path
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.rotations import euler_to_matrix
 from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.recording import Recording
-from fpg_gym.rotations import euler_to_matrix
 
 __all__ = [
     "HAND_EXTENSION_M",

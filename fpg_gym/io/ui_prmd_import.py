@@ -2,7 +2,7 @@
 
 For each session (one exercise of one subject, one camera placement) the Vicon joint centres
 (:func:`fpg_gym.io.ui_prmd.vicon_joint_centres`) are resampled from 100 to 30 Hz, then
-:func:`fpg_gym.pairing.pair_session` finds each repetition's lag and one rigid transform of the
+:func:`fpg_gym.core.pairing.pair_session` finds each repetition's lag and one rigid transform of the
 session from Vicon space into the Kinect's camera space. Written under ``OUT``:
 
 ``recordings/mMM_sSS_eEE.npz``
@@ -38,8 +38,11 @@ from typing import Any
 import numpy as np
 from tqdm.auto import tqdm
 
-from fpg_gym import poses
-from fpg_gym.errors import DataFormatError, OutputError
+from fpg_gym.core import poses
+from fpg_gym.core.errors import DataFormatError, OutputError
+from fpg_gym.core.metrics import robust_z_scores
+from fpg_gym.core.outputs import write_text
+from fpg_gym.core.pairing import apply_rigid, overlap, pair_session
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.files import read_json
 from fpg_gym.io.positions import write_positions
@@ -56,9 +59,6 @@ from fpg_gym.io.ui_prmd import (
     read_vicon_markers,
     vicon_joint_centres,
 )
-from fpg_gym.metrics import robust_z_scores
-from fpg_gym.outputs import write_text
-from fpg_gym.pairing import apply_rigid, overlap, pair_session
 
 __all__ = [
     "ALIGNMENT_OUTLIER_Z",
@@ -77,8 +77,8 @@ _VICON_POSITIONS = Path("Vicon") / "Positions"
 _SUBJECT = re.compile(r"^s\d+$")
 
 #: A session's mean alignment error whose robust z-score against the import's sessions exceeds
-#: this is an outlier (Iglewicz & Hoaglin's rule, :func:`fpg_gym.metrics.robust_z_scores`), when
-#: at least :data:`MIN_SESSIONS_COMPARED` sessions are compared.
+#: this is an outlier (Iglewicz & Hoaglin's rule, :func:`fpg_gym.core.metrics.robust_z_scores`),
+#: when at least :data:`MIN_SESSIONS_COMPARED` sessions are compared.
 ALIGNMENT_OUTLIER_Z = 3.5
 MIN_SESSIONS_COMPARED = 5
 #: A session's mean alignment error above this is an outlier however many sessions are imported

@@ -58,7 +58,7 @@ def _rotate(q, v):
 @numba.njit(cache=True, nogil=True)
 def _arc(a, b):
     """Shortest-arc quaternion turning unit ``a`` onto unit ``b``
-    (:func:`fpg_gym.rotations.shortest_arc`)."""
+    (:func:`fpg_gym.core.rotations.shortest_arc`)."""
     c = _cross(a, b)
     w = 1.0 + (a[0] * b[0] + a[1] * b[1] + a[2] * b[2])
     norm = math.sqrt(c[0] * c[0] + c[1] * c[1] + c[2] * c[2] + w * w)

@@ -1,8 +1,8 @@
 """PD-controlled ragdoll in pybullet: the final kinematic filter (Shum 2013 §VII, FPG 2016 §7).
 
 A :class:`Ragdoll` simulates one body of 19 rigid capsules, one per Kinect bone of
-:data:`fpg_gym.skeleton.BONES`, joined by ball joints (point-to-point constraints) at the Kinect
-joints, with masses and sizes from :mod:`fpg_gym.physics.ragdoll_model` (de Leva 1996), on a
+:data:`fpg_gym.core.skeleton.BONES`, joined by ball joints (point-to-point constraints) at the
+Kinect joints, with masses and sizes from :mod:`fpg_gym.physics.ragdoll_model` (de Leva 1996), on a
 floor plane under gravity. Each :meth:`Ragdoll.track` call advances one Kinect frame: the targets
 are interpolated between the previous and the new frame over ``substeps`` physics steps (4 at 30 Hz:
 120 Hz physics) and the simulated pose is returned.
@@ -13,7 +13,7 @@ Frame of the poses
 positions in metres in the *simulation world*: Y up, gravity ``(0, -9.81, 0)``, the floor is the
 plane ``y = floor_height`` (0 by default; ``floor_height=None`` removes it). Poses must therefore
 stand on that floor, as the embedded DeepMimic clips and the Bandai Namco clips do when read. A
-normalised pose (root at the origin, :func:`fpg_gym.poses.normalise`) is put on the floor by
+normalised pose (root at the origin, :func:`fpg_gym.core.poses.normalise`) is put on the floor by
 adding its root height, ``pose + (0, root_height, 0)``, and the output is moved back the same
 way; a camera-space stream by subtracting ``(0, y_floor, 0)``, with ``y_floor`` the lowest joint
 minus :attr:`Ragdoll.foot_clearance` (a foot joint lies that far above the sole). Yaw and
@@ -77,7 +77,7 @@ disagree); beyond ``max_joint_gap`` the step counts as a divergence. Self-collis
 
 Examples
 --------
->>> from fpg_gym import poses
+>>> from fpg_gym.core import poses
 >>> from fpg_gym.physics.ragdoll import Ragdoll
 >>> pose = poses.rest_pose() + (0.0, 0.96, 0.0)
 >>> with Ragdoll() as body:
@@ -96,15 +96,15 @@ from typing import Any, Literal
 
 import numpy as np
 
-from fpg_gym import poses, skeleton
-from fpg_gym.compiled import compiled_module
-from fpg_gym.errors import FpgGymError
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.compiled import compiled_module
+from fpg_gym.core.errors import FpgGymError
+from fpg_gym.core.poses import FloorShift
+from fpg_gym.core.rotations import cross_product, shortest_arc
 from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
 from fpg_gym.physics.ragdoll_model import GRAVITY, BodyModel, build_body_model
-from fpg_gym.poses import FloorShift
-from fpg_gym.rotations import cross_product, shortest_arc
 
-# FloorShift (fpg_gym.poses) is imported here too: the shift a camera-space stream takes around
+# FloorShift (fpg_gym.core.poses) is imported here too: the shift a camera-space stream takes around
 # the ragdoll.
 __all__ = ["FloorShift", "PhysicsError", "PhysicsWarning", "Ragdoll"]
 

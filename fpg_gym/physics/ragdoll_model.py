@@ -1,8 +1,8 @@
 """Body model of the ragdoll: segment masses, capsule radii and inertias per Kinect bone.
 
-Each of the 19 bones of :data:`fpg_gym.skeleton.BONES` is one rigid capsule segment. Masses come
-from the segment mass fractions of de Leva (1996), "Adjustments to Zatsiorsky–Seluyanov's segment
-inertia parameters", *Journal of Biomechanics* 29(9):1223–1230, Table 4 (males: head 6.94 %,
+Each of the 19 bones of :data:`fpg_gym.core.skeleton.BONES` is one rigid capsule segment. Masses
+come from the segment mass fractions of de Leva (1996), "Adjustments to Zatsiorsky–Seluyanov's
+segment inertia parameters", *Journal of Biomechanics* 29(9):1223–1230, Table 4 (males: head 6.94 %,
 upper/middle/lower trunk 15.96/16.33/11.17 %, upper arm 2.71 %, forearm 1.62 %, hand 0.61 %,
 thigh 14.16 %, shank 4.33 %, foot 1.37 %; the fractions sum to 100 %). Kinect-20 splits the
 trunk differently from de Leva, so the trunk is shared out as documented in
@@ -11,7 +11,7 @@ HipCenter–Spine bone the middle trunk, each clavicle a sixth of the upper trun
 Spine–ShoulderCenter bone the rest of it).
 
 The body mass defaults to de Leva's male reference, 73.0 kg at 1.741 m, scaled with the cube of
-the user's size (sum of bone lengths over that of :data:`fpg_gym.poses.DEFAULT_BONE_LENGTHS`,
+the user's size (sum of bone lengths over that of :data:`fpg_gym.core.poses.DEFAULT_BONE_LENGTHS`,
 the 1.75 m default body). Each capsule's radius is that of the cylinder of the bone's length
 with the segment's mass at a whole-body density of 1050 kg/m³ (Winter, *Biomechanics and Motor
 Control of Human Movement*, 4th ed., 2009, Table 4.1 lists segment densities of about 1.0–1.2
@@ -26,7 +26,7 @@ from typing import Final
 
 import numpy as np
 
-from fpg_gym import poses, skeleton
+from fpg_gym.core import poses, skeleton
 
 #: de Leva (1996) Table 4, male: mean body mass (kg) of the reference sample (stature 1.741 m).
 REFERENCE_BODY_MASS_KG: Final[float] = 73.0

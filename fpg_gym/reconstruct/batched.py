@@ -27,8 +27,9 @@ from typing import Any
 import numpy as np
 from tqdm import tqdm
 
-from fpg_gym import poses as pose_utils
-from fpg_gym import skeleton
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
+from fpg_gym.core.seeding import as_generator
 from fpg_gym.reconstruct.energy import EnergyModel, StackedEnergy
 from fpg_gym.reconstruct.output_correction import output_correction_of
 from fpg_gym.reconstruct.problem import SearchProblem
@@ -39,7 +40,6 @@ from fpg_gym.reconstruct.reconstructor import (
     ReconstructorConfig,
 )
 from fpg_gym.reconstruct.search import complete_compiled
-from fpg_gym.seeding import as_generator
 from optimizers import Optimizer, OptimizerRun, make
 
 __all__ = [

@@ -7,7 +7,7 @@ real Kinect v2 streams paired with Vicon, the mapped sensor's bone vectors still
 truth's by 5 cm on average (FPG Eq. 13), a quarter of it in the bone lengths.
 
 :class:`LinearBoneModel` predicts the missing part from the whole mapped pose: a ridge
-regression (:mod:`fpg_gym.ridge`) from the pose, root-relative and turned to face +Z (60
+regression (:mod:`fpg_gym.core.ridge`) from the pose, root-relative and turned to face +Z (60
 numbers), and its unit bone directions (57), to the offsets between the truth's and the
 sensor's bone vectors in that frame (57). The penalty is chosen by leave-one-group-out
 cross-validation (groups: the recordings' subjects), the score being the mean bone-vector
@@ -29,12 +29,12 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import poses as pose_utils
-from fpg_gym import skeleton
-from fpg_gym.errors import DataFormatError
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
+from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.outputs import save_npz
+from fpg_gym.core.ridge import fit_ridge, predict_ridge, ridge_sums
 from fpg_gym.io.npz import load_npz
-from fpg_gym.outputs import save_npz
-from fpg_gym.ridge import fit_ridge, predict_ridge, ridge_sums
 
 __all__ = ["FORMAT", "PENALTIES", "LinearBoneModel", "packaged_bone_model"]
 
@@ -84,7 +84,7 @@ class LinearBoneModel:
     ----------
     arrays : dict of ndarray
         The ridge fit: ``regressor_mean``, ``regressor_scale`` ``(117,)``, ``weights``
-        ``(117, 57)``, ``bias`` ``(57,)`` (:func:`fpg_gym.ridge.fit_ridge`).
+        ``(117, 57)``, ``bias`` ``(57,)`` (:func:`fpg_gym.core.ridge.fit_ridge`).
     source, target : str
         The definitions of the input poses and of the truth it was fitted on.
     info : dict

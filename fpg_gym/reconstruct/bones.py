@@ -28,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
 
 __all__ = ["BoneSettler", "BoneSettlingConfig"]
 

@@ -38,9 +38,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import skeleton
-from fpg_gym.compiled import compiled_module
-from fpg_gym.poses import bone_lengths
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
+from fpg_gym.core.poses import bone_lengths
 from fpg_gym.reconstruct.kernels import (
     KERNELS,
     EnergyTables,

@@ -52,12 +52,12 @@ from typing import Protocol
 
 import numpy as np
 
-from fpg_gym import poses as pose_utils
-from fpg_gym import skeleton
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
+from fpg_gym.core.validation import check_choice, check_number
 from fpg_gym.definitions import joint_frames
 from fpg_gym.filters import make_filter
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
-from fpg_gym.validation import check_choice, check_number
 
 __all__ = ["BoneModel", "FusionConfig", "SensorFusion", "SensorTrust", "fuse_positions"]
 
@@ -114,7 +114,7 @@ class FusionConfig:
     lengths : {"retarget", "solve", "none"}
         How the output keeps the user's bone lengths (the mean of the seen bones of the sensor,
         or of the bone model, under the settling rule of :mod:`fpg_gym.reconstruct.bones`):
-        retargeted after the filter (``"retarget"``, :func:`fpg_gym.poses.retarget`, the
+        retargeted after the filter (``"retarget"``, :func:`fpg_gym.core.poses.retarget`, the
         default), a second solve on its own bone directions with a stiff bone term
         (``"solve"``), or not at all (``"none"``).
     """

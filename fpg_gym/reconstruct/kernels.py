@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.compiled import compiled_module
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
 
 __all__ = [
     "KERNELS",

@@ -21,11 +21,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.compiled import compiled_module
-from fpg_gym.poses import as_poses
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
+from fpg_gym.core.poses import as_poses
 from fpg_gym.reconstruct.kernels import resolve_kernel
-from fpg_gym.threads import one_blas_thread
+from fpg_gym.runtime.threads import one_blas_thread
 
 POSE_SIZE = skeleton.NUM_JOINTS * 3
 
@@ -36,7 +36,7 @@ GRAM_MAX_CONDITION = 1e4
 
 def gram_eigenpairs(centred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.linalg.eigh`` of the Gram matrix ``C C^T`` of centred poses ``(K, 60)`` (eigenvalues
-    ascending), on one BLAS thread (:func:`fpg_gym.threads.one_blas_thread`)."""
+    ascending), on one BLAS thread (:func:`fpg_gym.runtime.threads.one_blas_thread`)."""
     with one_blas_thread():
         values, vectors = np.linalg.eigh(centred @ centred.T)
     return values, vectors

@@ -17,9 +17,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.compiled import compiled_module
-from fpg_gym.poses import as_poses, bone_directions
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
+from fpg_gym.core.poses import as_poses, bone_directions
 
 __all__ = ["AUGMENTED_SIZE", "NodeDatabase", "augmented_queries"]
 
@@ -61,7 +61,7 @@ class NodeDatabase:
     """The graph's node poses, retargetable to the user's bone lengths.
 
     Stores each node's root and unit bone directions so that a subset of nodes can be given any
-    bone lengths with one matrix product (:data:`fpg_gym.skeleton.PATH_MATRIX`). Poses are
+    bone lengths with one matrix product (:data:`fpg_gym.core.skeleton.PATH_MATRIX`). Poses are
     returned C-contiguous ``(M, 20, 3)`` (what the scores read row by row).
 
     Parameters
@@ -97,7 +97,7 @@ class NodeDatabase:
         nodes = np.asarray(nodes, dtype=np.intp)
         if lengths is None:
             return self.poses[nodes]
-        compiled = compiled_module("fpg_gym.compiled_poses")
+        compiled = compiled_module("fpg_gym.core.compiled_poses")
         if compiled is not None:  # the same poses in one call
             out: np.ndarray = compiled.assemble_nodes(
                 self._directions,

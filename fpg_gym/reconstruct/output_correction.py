@@ -3,7 +3,7 @@
 The papers' output is a point of the frame's local PCA space (Shum et al. 2013 Eq. 9) given the
 frame's bone lengths; on real sensors it keeps a systematic miss, because the database's joints
 are not the sensor's. A correction model maps what a frame's output and input say, in the
-output's own normalised frame (root at the origin, facing +Z, :func:`fpg_gym.poses.normalise`),
+output's own normalised frame (root at the origin, facing +Z, :func:`fpg_gym.core.poses.normalise`),
 to an offset of the output's root-relative joints (:func:`correction_features`):
 
 * the output pose (60 values);
@@ -30,8 +30,8 @@ from typing import Any, Protocol, runtime_checkable
 
 import numpy as np
 
-from fpg_gym import poses as pose_utils
-from fpg_gym import skeleton
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
 
 __all__ = [
     "CORRECTION_FEATURES",
@@ -97,7 +97,7 @@ def correction_features(
     local : ndarray, shape (n, 20, 3), float64
         The outputs normalised (root at the origin, facing +Z).
     placement : Placement
-        Each output's root and heading (:func:`fpg_gym.poses.normalise`).
+        Each output's root and heading (:func:`fpg_gym.core.poses.normalise`).
     """
     local32, placement = pose_utils.normalise(np.asarray(outputs, dtype=np.float64))
     local = local32.astype(np.float64)

@@ -79,11 +79,13 @@ from typing import Any, Literal, Protocol
 import numpy as np
 from tqdm import tqdm
 
-from fpg_gym import poses as pose_utils
-from fpg_gym import skeleton
-from fpg_gym.compiled import compiled_module
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
+from fpg_gym.core.poses import FloorShift, RecordingLike
+from fpg_gym.core.seeding import as_generator
+from fpg_gym.core.validation import check_choice, check_integer, check_number
 from fpg_gym.definitions import OnlineDefinitionFit, PoseMap, sensor_to_output_map
-from fpg_gym.poses import FloorShift, RecordingLike
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.energy import (
     ENERGY_KERNELS,
@@ -120,8 +122,6 @@ from fpg_gym.reconstruct.temporal import (
     TemporalConfig,
     align_basis,
 )
-from fpg_gym.seeding import as_generator
-from fpg_gym.validation import check_choice, check_integer, check_number
 from optimizers import Optimizer, SearchResult, make
 
 STAGES: tuple[str, ...] = (
@@ -263,7 +263,7 @@ class ReconstructorConfig:
         decoded poses (the slow reference, for benchmarks).
     length_prior : {"database", "default"}
         Proportions of the bone-length fallback before calibration: the database's median
-        bone lengths or :data:`fpg_gym.poses.DEFAULT_BONE_LENGTHS` (see
+        bone lengths or :data:`fpg_gym.core.poses.DEFAULT_BONE_LENGTHS` (see
         :mod:`fpg_gym.reconstruct.reliability`).
     left_right_fix : bool
         Undo the sensor's left/right label confusions by continuity (True; not in the papers,

@@ -31,7 +31,7 @@ reference is the per-bone **median over the most recent
 calibration frame a documented fallback is used (``config.fallback``):
 
 1. ``"scaled-prior"`` (default): the prior proportions (``prior_lengths``: the reconstructor
-   passes its database's median bone lengths; :data:`fpg_gym.poses.DEFAULT_BONE_LENGTHS`
+   passes its database's median bone lengths; :data:`fpg_gym.core.poses.DEFAULT_BONE_LENGTHS`
    otherwise) times one size factor, the median ratio of every recent tracked bone sample (both
    joints tracked) to its prior length. Kinect bone lengths of a moving, partly occluded user
    are biased and noisy per bone (2-3 cm on the simulator's ``*-many`` streams even after
@@ -52,10 +52,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from fpg_gym import poses as pose_utils
-from fpg_gym import skeleton
-from fpg_gym.compiled import compiled_module
-from fpg_gym.skeleton import TRACKED
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
+from fpg_gym.core.skeleton import TRACKED
 
 # (20, 19) incidence matrix, rows normalised: Rk(j) = 1 - INCIDENCE @ deviation (mean over bones).
 _INCIDENCE = np.zeros((skeleton.NUM_JOINTS, skeleton.NUM_BONES))
@@ -205,7 +205,7 @@ def behaviour_angles(
     a = np.asarray(displacement, dtype=np.float64)
     b = np.asarray(previous, dtype=np.float64)
     if a.ndim == 2 and a.shape == b.shape and a.shape[1] == 3:
-        compiled = compiled_module("fpg_gym.compiled_poses")
+        compiled = compiled_module("fpg_gym.core.compiled_poses")
         if compiled is not None:  # one frame: one compiled call
             angles: np.ndarray = compiled.vector_angles(
                 np.ascontiguousarray(a), np.ascontiguousarray(b), float(min_length)
@@ -263,8 +263,8 @@ def is_neutral_pose(pose: np.ndarray, tolerance_deg: float = 30.0) -> bool:
     """Whether a pose is near the neutral standing pose (arms down) or a T-pose.
 
     Torso, shoulder, hip and leg bones must point within ``tolerance_deg`` of
-    :data:`fpg_gym.poses.REST_DIRECTIONS` (after normalisation); each arm's upper arm and forearm
-    must point within the tolerance either straight down (neutral) or sideways (T-pose).
+    :data:`fpg_gym.core.poses.REST_DIRECTIONS` (after normalisation); each arm's upper arm and
+    forearm must point within the tolerance either straight down (neutral) or sideways (T-pose).
     """
     normalised, _ = pose_utils.normalise(np.asarray(pose, dtype=np.float64))
     vectors = pose_utils.bone_vectors(normalised.astype(np.float64))
@@ -348,13 +348,13 @@ class ReliabilityEstimator:
         Fixed reference bone lengths; when omitted they are estimated from the stream (see the
         module docstring).
     prior_lengths : array_like, shape (19,), optional
-        Body proportions of the fallback (:data:`fpg_gym.poses.DEFAULT_BONE_LENGTHS` by
+        Body proportions of the fallback (:data:`fpg_gym.core.poses.DEFAULT_BONE_LENGTHS` by
         default; the reconstructor passes its database's median bone lengths).
 
     Examples
     --------
     >>> import numpy as np
-    >>> from fpg_gym import poses
+    >>> from fpg_gym.core import poses
     >>> est = ReliabilityEstimator()
     >>> terms = est.update(poses.rest_pose(), np.full(20, 2))  # one frame, every joint tracked
     >>> terms.reliability.shape

@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym.compiled import compiled_module
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.reconstruct.energy import EnergyModel
 from fpg_gym.reconstruct.kernels import compiled_arguments
 from fpg_gym.reconstruct.problem import SearchProblem

@@ -48,8 +48,8 @@ from typing import Protocol, runtime_checkable
 
 import numpy as np
 
-from fpg_gym import skeleton
-from fpg_gym.compiled import compiled_module
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.reconstruct.node_database import NodeDatabase
 
 # --------------------------------------------------------------------------- scores
@@ -122,7 +122,7 @@ def _best_k(scores: np.ndarray, k: int) -> np.ndarray:
 
 def _compiled() -> ModuleType | None:
     """The compiled selection kernels, or None without numba (imported once,
-    :func:`~fpg_gym.compiled.compiled_module`)."""
+    :func:`~fpg_gym.core.compiled.compiled_module`)."""
     return compiled_module("fpg_gym.reconstruct.compiled_selection")
 
 

@@ -6,7 +6,7 @@ continuity. Measured on simulated and real streams that is not enough: the outpu
 than its own input (issue 15). The causes, and the piece that answers each:
 
 * **Placement** (:class:`PlacementSmoother`). Each frame is normalised with the sensor's root
-  and a heading from the sensor's hip line (:func:`fpg_gym.poses.normalise`), and the
+  and a heading from the sensor's hip line (:func:`fpg_gym.core.poses.normalise`), and the
   reconstruction is put back in camera space with the same root and heading: the root's noise
   moves every joint, whatever the reconstruction does. A One-Euro filter on the root position
   (and optionally on the heading, as a unit vector) steadies the output's placement; the pose
@@ -31,9 +31,9 @@ than its own input (issue 15). The causes, and the piece that answers each:
   the root is the smoothed placement's): by default the constant-velocity Kalman filter of the
   reference filters (:class:`fpg_gym.filters.KalmanFilter`), which removes noise with almost no
   lag on steady motion. The user's bone lengths are restored after it
-  (:func:`fpg_gym.poses.retarget`), so the filter never changes a bone's length.
+  (:func:`fpg_gym.core.poses.retarget`), so the filter never changes a bone's length.
 
-Lag is the cost of any causal smoothing; :func:`fpg_gym.metrics.lag` measures it against the
+Lag is the cost of any causal smoothing; :func:`fpg_gym.core.metrics.lag` measures it against the
 ground truth, and the defaults were chosen on validation takes under a one-frame bound (README,
 "Temporal coherence").
 """
@@ -44,8 +44,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from fpg_gym import poses as pose_utils
-from fpg_gym import skeleton
+from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
 from fpg_gym.filters import make_filter
 from fpg_gym.filters.one_euro import OneEuroFilter
 from fpg_gym.reconstruct.latent import LatentSpace

@@ -3,7 +3,7 @@
 Camera space is the Kinect SDK's skeleton space: metres, origin at the sensor, Z along the
 optical axis away from the sensor, Y up, X towards the sensor's left (right-handed). A user who
 faces the sensor has the left shoulder at negative X. The scene ("stage") is any right-handed
-Y-up frame; the camera's heading ``yaw`` is measured like :func:`fpg_gym.poses.facing_yaw`
+Y-up frame; the camera's heading ``yaw`` is measured like :func:`fpg_gym.core.poses.facing_yaw`
 (from +Z towards +X) and ``pitch`` is positive when looking up.
 
 The default field of view and range are the Kinect for Windows v1 sensor's (57° x 43°, default

@@ -9,7 +9,7 @@ and by sampler training (:mod:`policies.training`).
 
     sim_seed = SeedSequence([n, crc32(clip), crc32(scenario)]).generate_state(1)[0]
 
-(:func:`episode_seed`, the project's one seeding rule :func:`fpg_gym.seeding.derive_seed`). It
+(:func:`episode_seed`, the project's one seeding rule :func:`fpg_gym.core.seeding.derive_seed`). It
 depends on the three values only, not on the order or the length of the lists the episode was
 planned from, and different clips or scenarios with the same ``n`` get unrelated noise. So
 ``walk`` in ``front-many`` with seed 0 is the same stream in the env, in a comparison and in
@@ -33,9 +33,9 @@ from dataclasses import dataclass
 
 from tqdm.auto import tqdm
 
+from fpg_gym.core.seeding import derive_seed
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
-from fpg_gym.seeding import derive_seed
 from fpg_gym.simulate.scenarios import Scenario, get_scenario
 from fpg_gym.simulate.simulator import KinectSimulator
 
@@ -54,7 +54,7 @@ __all__ = [
 def episode_seed(seed: int, *names: str) -> int:
     """The simulator (and optimiser) seed of an episode: the user's ``seed`` and the names.
 
-    The project's seeding rule, :func:`fpg_gym.seeding.derive_seed`:
+    The project's seeding rule, :func:`fpg_gym.core.seeding.derive_seed`:
     ``SeedSequence([seed, crc32(name_1), crc32(name_2), ...]).generate_state(1)[0]``, a
     non-negative 32-bit integer; for a simulated episode the names are the clip and the scenario
     (a comparison seeds the optimisers on a recording file with its stem alone).

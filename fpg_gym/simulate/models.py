@@ -65,7 +65,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
 
 __all__ = ["JOINT_GROUP", "NoiseModel", "OcclusionModel"]
 

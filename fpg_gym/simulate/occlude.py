@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
 from fpg_gym.io.recording import Recording
 from fpg_gym.simulate.models import OcclusionModel
 from fpg_gym.simulate.scenarios import KINECT_V2_OCCLUSION

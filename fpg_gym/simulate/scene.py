@@ -24,9 +24,9 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import poses, skeleton
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.rotations import matrix_to_quaternion_xyzw, shortest_arc
 from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
-from fpg_gym.rotations import matrix_to_quaternion_xyzw, shortest_arc
 
 __all__ = ["Box", "RayCaster", "TraceResult", "body_shape_poses", "box_poses"]
 

@@ -4,7 +4,7 @@ Steps for one clip (all vectorised over frames and joints except the per-frame r
 per-frame occlusion state update, which depends on the previous frame):
 
 1. **Placement.** The clip is turned about the vertical so that its mean heading (circular mean
-   of :func:`fpg_gym.poses.facing_yaw`) faces +Z, and moved so that its mean root position is
+   of :func:`fpg_gym.core.poses.facing_yaw`) faces +Z, and moved so that its mean root position is
    above the stage origin with the floor at Y = 0 (the lowest joints of the clip, less 4 cm for
    the feet). The camera stands ``distance`` metres away at ``view_deg`` around the body,
    ``camera_height`` above the floor, looking at the body's vertical at ``target_height``.
@@ -34,16 +34,16 @@ from typing import Any
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import skeleton
+from fpg_gym.core import skeleton
+from fpg_gym.core.poses import as_poses, facing_yaw, yaw_matrix
+from fpg_gym.core.rotations import axis_angle_matrix
+from fpg_gym.core.skeleton import INFERRED, NOT_TRACKED, TRACKED
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
-from fpg_gym.poses import as_poses, facing_yaw, yaw_matrix
-from fpg_gym.rotations import axis_angle_matrix
 from fpg_gym.simulate.camera import Camera
 from fpg_gym.simulate.models import JOINT_GROUP, OcclusionModel
 from fpg_gym.simulate.scenarios import Scenario, get_scenario
 from fpg_gym.simulate.scene import RayCaster, TraceResult
-from fpg_gym.skeleton import INFERRED, NOT_TRACKED, TRACKED
 
 __all__ = [
     "ARM_JOINTS",

@@ -33,7 +33,7 @@ import zlib
 
 import numpy as np
 
-from fpg_gym.validation import check_integer
+from fpg_gym.core.validation import check_integer
 
 __all__ = ["SeedLike", "as_generator", "derive_seed"]
 

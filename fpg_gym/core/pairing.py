@@ -10,7 +10,7 @@ transform are refined alternately.
 Examples
 --------
 >>> import numpy as np
->>> from fpg_gym.pairing import kabsch, apply_rigid
+>>> from fpg_gym.core.pairing import kabsch, apply_rigid
 >>> rng = np.random.default_rng(0)
 >>> points = rng.normal(size=(50, 3))
 >>> rotation, shift = kabsch(points, points + [1.0, 2.0, 3.0])

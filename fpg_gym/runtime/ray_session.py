@@ -17,7 +17,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import Any
 
-from fpg_gym.errors import FpgGymError, import_optional
+from fpg_gym.core.errors import FpgGymError, import_optional
 
 __all__ = [
     "RayUnavailable",

@@ -6,7 +6,7 @@ the joints in order visits each parent before its children.
 
 Examples
 --------
->>> from fpg_gym import skeleton
+>>> from fpg_gym.core import skeleton
 >>> skeleton.NUM_JOINTS, skeleton.NUM_BONES
 (20, 19)
 >>> skeleton.JOINT_NAMES[skeleton.PARENTS[skeleton.joint_index("ElbowLeft")]]

@@ -31,7 +31,7 @@ __all__ = [
 
 #: The modules of compiled kernels, each imported only when ``fpg-gym[fast]`` is installed.
 COMPILED_MODULES: tuple[str, ...] = (
-    "fpg_gym.compiled_poses",
+    "fpg_gym.core.compiled_poses",
     "fpg_gym.filters.compiled_filters",
     "fpg_gym.physics.compiled_ragdoll",
     "fpg_gym.reconstruct.compiled_frame",

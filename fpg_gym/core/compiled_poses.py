@@ -1,16 +1,16 @@
 """Pose kernels compiled (numba); imported only when ``fpg-gym[fast]`` is installed.
 
-:func:`retarget_pose` is :func:`fpg_gym.poses.retarget` for one pose: the same directions (a bone
-shorter than 1e-9 m takes its rest direction) and the same sums along the tree (each joint is
-its root plus the bone vectors of its path, in bone order, as ``PATH_MATRIX``'s product adds
+:func:`retarget_pose` is :func:`fpg_gym.core.poses.retarget` for one pose: the same directions (a
+bone shorter than 1e-9 m takes its rest direction) and the same sums along the tree (each joint
+is its root plus the bone vectors of its path, in bone order, as ``PATH_MATRIX``'s product adds
 them), in one call instead of about fifteen numpy calls. :func:`assemble_nodes` builds a pose
 database's candidates from their directions the same way
 (:meth:`~fpg_gym.reconstruct.node_database.NodeDatabase.poses_for`), :func:`bone_lengths_pose`
-and :func:`vector_angles` are :func:`fpg_gym.poses.bone_lengths` of one pose (the same sums) and
-:func:`fpg_gym.reconstruct.reliability.behaviour_angles` (equal to rounding);
-:func:`facing_yaw_pose` and :func:`place_pose` are :func:`fpg_gym.poses.facing_yaw`, and the
-rotations of :func:`~fpg_gym.poses.normalise`, :func:`~fpg_gym.poses.into_placement` and
-:func:`~fpg_gym.poses.denormalise`, for one pose (equal to rounding: numpy's 3 x 3 products may
+and :func:`vector_angles` are :func:`fpg_gym.core.poses.bone_lengths` of one pose (the same sums)
+and :func:`fpg_gym.reconstruct.reliability.behaviour_angles` (equal to rounding);
+:func:`facing_yaw_pose` and :func:`place_pose` are :func:`fpg_gym.core.poses.facing_yaw`, and the
+rotations of :func:`~fpg_gym.core.poses.normalise`, :func:`~fpg_gym.core.poses.into_placement` and
+:func:`~fpg_gym.core.poses.denormalise`, for one pose (equal to rounding: numpy's 3 x 3 products may
 fuse their multiply-adds). Module-level functions so that numba's disk cache (``cache=True``)
 finds them in a new process.
 """

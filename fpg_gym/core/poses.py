@@ -18,8 +18,8 @@ from typing import Any, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import skeleton
-from fpg_gym.compiled import compiled_module
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
 
 FloatArray = npt.NDArray[np.floating]
 
@@ -135,13 +135,13 @@ class Placement:
 
 
 def _one_pose_kernels(pose: np.ndarray, placement: Placement | None = None) -> Any:
-    """The compiled pose kernels (:mod:`fpg_gym.compiled_poses`) when ``pose`` is one pose
+    """The compiled pose kernels (:mod:`fpg_gym.core.compiled_poses`) when ``pose`` is one pose
     ``(20, 3)`` (and ``placement`` one root and one yaw) and numba is installed, else None."""
     if pose.shape != (skeleton.NUM_JOINTS, 3):
         return None
     if placement is not None and (np.shape(placement.root) != (3,) or np.ndim(placement.yaw)):
         return None
-    return compiled_module("fpg_gym.compiled_poses")
+    return compiled_module("fpg_gym.core.compiled_poses")
 
 
 def _place_one_pose(pose: np.ndarray, placement: Placement, inverse: bool) -> np.ndarray | None:
@@ -274,7 +274,7 @@ def bone_lengths(poses: FloatArray) -> np.ndarray:
     """Bone lengths in metres: ``(..., 20, 3) -> (..., 19)``."""
     poses64 = np.asarray(poses, dtype=np.float64)
     if poses64.shape == (skeleton.NUM_JOINTS, 3):
-        compiled = compiled_module("fpg_gym.compiled_poses")
+        compiled = compiled_module("fpg_gym.core.compiled_poses")
         if compiled is not None:  # one pose: one compiled call, the same sums
             lengths: np.ndarray = compiled.bone_lengths_pose(
                 np.ascontiguousarray(poses64), skeleton.BONES
@@ -322,7 +322,7 @@ def retarget(poses: FloatArray, lengths: FloatArray) -> np.ndarray:
     if lengths64.shape[-1:] != (skeleton.NUM_BONES,):
         raise ValueError(f"lengths: expected shape (..., 19), got {lengths64.shape}")
     if poses64.shape == (skeleton.NUM_JOINTS, 3) and lengths64.ndim == 1:
-        compiled = compiled_module("fpg_gym.compiled_poses")
+        compiled = compiled_module("fpg_gym.core.compiled_poses")
         if compiled is not None:  # one pose (a frame's output): one compiled call
             out: np.ndarray = compiled.retarget_pose(
                 np.ascontiguousarray(poses64), lengths64, skeleton.BONES, REST_DIRECTIONS

@@ -38,7 +38,7 @@ metres (any space, as long as reference and estimate share it).
 Examples
 --------
 >>> import numpy as np
->>> from fpg_gym import metrics, poses
+>>> from fpg_gym.core import metrics, poses
 >>> clip = np.repeat(poses.rest_pose()[None], 5, axis=0)
 >>> round(float(metrics.mean_error(clip, clip + 0.1)), 6)  # a rigid shift moves no bone vector
 0.0
@@ -49,8 +49,8 @@ from __future__ import annotations
 import numpy as np
 import numpy.typing as npt
 
-from fpg_gym import poses, skeleton
-from fpg_gym.seeding import as_generator
+from fpg_gym.core import poses, skeleton
+from fpg_gym.core.seeding import as_generator
 
 __all__ = [
     "ERROR_BAND_EDGES",
@@ -109,7 +109,7 @@ def frame_error(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarray
     """FPG Eq. 13 per frame: mean over bones of ``||(r(j) - r(pa j)) - (x(j) - x(pa j))||``.
 
     The paper writes the mean over the joints; the root has no parent, so the mean runs over the
-    19 bones (joints with a parent), see :data:`fpg_gym.skeleton.BONES`.
+    19 bones (joints with a parent), see :data:`fpg_gym.core.skeleton.BONES`.
 
     Parameters
     ----------

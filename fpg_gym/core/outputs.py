@@ -2,7 +2,7 @@
 
 Every command that writes a file checks its output first (:func:`check_output`), before any
 work: an output that resolves to one of the command's inputs, an existing folder, or a place
-that cannot be written is refused with an :class:`~fpg_gym.errors.OutputError` naming the
+that cannot be written is refused with an :class:`~fpg_gym.core.errors.OutputError` naming the
 argument. The file is then written to a temporary file in the same folder and renamed into place
 (:func:`atomic_path`, :func:`save_npz`, :func:`write_text`), so a crash or a kill leaves either
 the old file or the new one, never a torn one.
@@ -22,7 +22,7 @@ from typing import Any
 
 import numpy as np
 
-from fpg_gym.errors import OutputError
+from fpg_gym.core.errors import OutputError
 
 __all__ = [
     "atomic_path",
