@@ -73,7 +73,7 @@ from fpg_gym.filters import PRESETS, make_filter
 from fpg_gym.physics.ragdoll import Ragdoll
 from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
 from fpg_gym.reconstruct.batched import run_streams
-from fpg_gym.reconstruct.reconstructor import RagdollFactory
+from fpg_gym.reconstruct.config import RagdollFactory
 from optimizers import make
 
 __all__ = [

@@ -30,8 +30,8 @@ from fpg_gym.core.compiled import (
 from fpg_gym.filters import INFERRED, NOT_TRACKED, TRACKED, KalmanFilter, OneEuroFilter
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights
 from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.left_right import left_right_costs
 from fpg_gym.reconstruct.node_database import NodeDatabase
-from fpg_gym.reconstruct.reconstructor import left_right_costs
 from fpg_gym.reconstruct.reliability import SortedWindow, behaviour_angles
 
 pytestmark = pytest.mark.skipif(not numba_available(), reason="needs numba (fpg-gym[fast])")

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.closed_form import ClosedForm
+from fpg_gym.reconstruct.config import ReconstructorConfig
 from fpg_gym.reconstruct.energy import (
     ENERGY_KERNELS,
     POSE_TERM_NAMES,
@@ -24,16 +25,10 @@ from fpg_gym.reconstruct.energy import (
     style_energy,
 )
 from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.left_right import LABELLINGS, left_right_costs
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
-from fpg_gym.reconstruct.reconstructor import (
-    LABELLINGS,
-    STAGES,
-    FrameRecord,
-    ReconstructionResult,
-    Reconstructor,
-    ReconstructorConfig,
-    left_right_costs,
-)
+from fpg_gym.reconstruct.reconstructor import Reconstructor
+from fpg_gym.reconstruct.records import STAGES, FrameRecord, ReconstructionResult
 from fpg_gym.reconstruct.reliability import (
     ReliabilityConfig,
     ReliabilityEstimator,

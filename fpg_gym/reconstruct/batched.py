@@ -30,15 +30,12 @@ from tqdm import tqdm
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
 from fpg_gym.core.seeding import as_generator
+from fpg_gym.reconstruct.config import ReconstructorConfig
 from fpg_gym.reconstruct.energy import EnergyModel, StackedEnergy
 from fpg_gym.reconstruct.output_correction import output_correction_of
 from fpg_gym.reconstruct.problem import SearchProblem
-from fpg_gym.reconstruct.reconstructor import (
-    FrameRecord,
-    ReconstructionResult,
-    Reconstructor,
-    ReconstructorConfig,
-)
+from fpg_gym.reconstruct.reconstructor import Reconstructor
+from fpg_gym.reconstruct.records import FrameRecord, ReconstructionResult
 from fpg_gym.reconstruct.search import complete_compiled
 from optimizers import Optimizer, OptimizerRun, make
 

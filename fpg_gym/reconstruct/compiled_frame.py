@@ -272,7 +272,7 @@ def remove_sorted(values, old):
 
 @numba.njit(cache=True, nogil=True)
 def labelling_costs(positions, states, prediction, permutations, tracked, inferred):
-    """:func:`fpg_gym.reconstruct.reconstructor.left_right_costs`: for each row of
+    """:func:`fpg_gym.reconstruct.left_right.left_right_costs`: for each row of
     ``permutations`` ``(H, 20)``, the mean distance (weights 1 tracked, 0.5 inferred, 0 not
     tracked) between the relabelled root-relative sensor joints and the root-relative
     prediction; ``(H,)`` float64."""

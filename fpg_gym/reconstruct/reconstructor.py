@@ -73,38 +73,36 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field, fields, replace
-from typing import Any, Literal, Protocol
+from dataclasses import dataclass, fields, replace
+from typing import Any, Literal
 
 import numpy as np
 from tqdm import tqdm
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
-from fpg_gym.core.compiled import compiled_module
 from fpg_gym.core.poses import FloorShift, RecordingLike
 from fpg_gym.core.seeding import as_generator
-from fpg_gym.core.validation import check_choice, check_integer, check_number
-from fpg_gym.definitions import OnlineDefinitionFit, PoseMap, sensor_to_output_map
-from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
+from fpg_gym.definitions import OnlineDefinitionFit, sensor_to_output_map
+from fpg_gym.reconstruct.bones import BoneSettler
+from fpg_gym.reconstruct.config import RagdollFactory, RagdollLike, ReconstructorConfig
 from fpg_gym.reconstruct.energy import (
-    ENERGY_KERNELS,
     TERM_NAMES,
     EnergyModel,
-    EnergyWeights,
     motion_target,
 )
-from fpg_gym.reconstruct.fusion import BoneModel, FusionConfig, SensorFusion, SensorTrust
+from fpg_gym.reconstruct.fusion import SensorFusion, SensorTrust
 from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.reconstruct.latent import LatentSpace
+from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, LABELLINGS, left_right_costs
 from fpg_gym.reconstruct.output_correction import (
     CorrectionState,
     OutputCorrection,
     output_correction_of,
 )
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
+from fpg_gym.reconstruct.records import STAGES, FrameRecord, ReconstructionResult
 from fpg_gym.reconstruct.reliability import (
-    ReliabilityConfig,
     ReliabilityEstimator,
     ReliabilityTerms,
 )
@@ -119,397 +117,9 @@ from fpg_gym.reconstruct.selection import (
 from fpg_gym.reconstruct.temporal import (
     OutputSmoother,
     PlacementSmoother,
-    TemporalConfig,
     align_basis,
 )
 from optimizers import Optimizer, SearchResult, make
-
-STAGES: tuple[str, ...] = (
-    "normalise",
-    "reliability",
-    "selection",
-    "latent",
-    "search",
-    "finish",
-    "ragdoll",
-)
-"""Stages timed in :attr:`FrameRecord.ms` (milliseconds)."""
-
-
-def _side_joints(prefixes: tuple[str, ...]) -> np.ndarray:
-    return np.array(
-        [
-            i
-            for i, n in enumerate(skeleton.JOINT_NAMES)
-            if n.startswith(prefixes) and (skeleton.is_left(i) or skeleton.is_right(i))
-        ]
-    )
-
-
-def _swap(joints: np.ndarray) -> np.ndarray:
-    permutation = np.arange(skeleton.NUM_JOINTS)
-    permutation[joints] = skeleton.MIRROR_PERMUTATION[joints]
-    return permutation
-
-
-LABELLINGS: tuple[str, ...] = ("as-reported", "mirrored", "arms-swapped", "legs-swapped")
-"""Left/right labellings the reconstructor considers (see ``left_right_fix``)."""
-
-_LABEL_PERMUTATIONS = np.stack(
-    [
-        np.arange(skeleton.NUM_JOINTS),
-        np.asarray(skeleton.MIRROR_PERMUTATION),
-        _swap(_side_joints(("Shoulder", "Elbow", "Wrist", "Hand"))),
-        _swap(_side_joints(("Hip", "Knee", "Ankle", "Foot"))),
-    ]
-)
-_LABEL_PERMUTATIONS.flags.writeable = False
-
-
-def left_right_costs(
-    positions: np.ndarray, states: np.ndarray, prediction: np.ndarray
-) -> np.ndarray:
-    """How far each labelling of :data:`LABELLINGS` puts the sensor joints from a prediction.
-
-    The mean, over joints weighted by tracking state (tracked 1, inferred 0.5, not tracked 0),
-    of the distance between the relabelled, root-relative sensor pose and the root-relative
-    prediction (camera space). Returns ``(4,)`` metres.
-    """
-    positions = np.asarray(positions, dtype=np.float64)
-    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
-    if compiled is not None:  # one call; the same costs to rounding
-        costs: np.ndarray = compiled.labelling_costs(
-            np.ascontiguousarray(positions),
-            np.ascontiguousarray(states),
-            np.ascontiguousarray(prediction, dtype=np.float64),
-            _LABEL_PERMUTATIONS,
-            skeleton.TRACKED,
-            skeleton.INFERRED,
-        )
-        return costs
-    local = positions - positions[skeleton.ROOT]
-    target = np.asarray(prediction, dtype=np.float64)
-    target = target - target[skeleton.ROOT]
-    states = np.asarray(states)
-    weights = np.where(
-        states >= skeleton.TRACKED, 1.0, np.where(states == skeleton.INFERRED, 0.5, 0.0)
-    )
-    relabelled = local[_LABEL_PERMUTATIONS]  # (H, 20, 3)
-    w = weights[_LABEL_PERMUTATIONS]  # (H, 20)
-    dist = np.linalg.norm(relabelled - target, axis=-1)
-    return np.asarray((w * dist).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-9))
-
-
-class RagdollLike(Protocol):
-    """What the reconstructor needs of a ragdoll (:class:`fpg_gym.physics.ragdoll.Ragdoll`,
-    injected by a factory: this layer imports no physics)."""
-
-    def reset(self, pose: np.ndarray) -> np.ndarray:
-        """Place the body on ``pose``."""
-        ...
-
-    def track(self, target_pose: np.ndarray) -> np.ndarray:
-        """Advance one frame toward ``target_pose``; return the simulated pose."""
-        ...
-
-    def close(self) -> None:
-        """Release the simulation."""
-        ...
-
-
-RagdollFactory = Callable[[np.ndarray], RagdollLike]
-
-
-@dataclass(frozen=True)
-class ReconstructorConfig:
-    """Settings of the pipeline (defaults from the papers where they give one).
-
-    Attributes
-    ----------
-    k : int
-        Candidates per frame (30, both papers).
-    latent_dim : int
-        Most latent dimensions; ``d = min(latent_dim, K - 1)`` (20).
-    selector : {"graph", "brute-force", "auto"}
-        FPG's graph search, Shum's brute force (Eq. 9), or "auto": the graph walk or a full
-        search with FPG's score, whichever is estimated cheaper each frame
-        (:class:`~fpg_gym.reconstruct.selection.GraphSelector`).
-    brute_force_score : {"shum", "fpg"}
-        Score of the brute-force selector (Eq. 9, or FPG's S over all nodes).
-    weights : EnergyWeights
-        ``Ec, Es, Ek, Em`` weights (1.0, 0.5, 1.5, 0.25).
-    max_evaluations : int or None
-        Evaluation budget per frame (2,000).
-    time_budget_s : float or None
-        Search time budget per frame, from its first evaluation (None).
-    recovery_factor, recovery_min_score : float or None, float
-        Graph selector's recovery rule (see :mod:`fpg_gym.reconstruct.selection`).
-    reliability : ReliabilityConfig
-    reference_lengths : tuple of 19 floats, optional
-        The user's bone lengths, when known; estimated from the stream otherwise.
-    retarget_candidates : bool
-        Give the candidates the user's bone lengths before comparing (True).
-    max_gap_s : float
-        A longer gap between timestamps restarts the stream (0.5 s).
-    frame_dt : float
-        Frame interval assumed on a first frame or without timestamps (1/30 s).
-    ragdoll_rebuild_m : float
-        Rebuild the ragdoll when a reference bone length moved by more than this (0.02 m).
-    energy_dtype : {"float64", "float32"}
-        Arithmetic precision of the energy (see :class:`EnergyModel`).
-    energy_kernel : {"auto", "numba", "numpy", "direct"}
-        The search's energy kernel (:mod:`fpg_gym.reconstruct.kernels`; ``"auto"``: compiled
-        when ``fpg-gym[fast]`` is installed); ``"direct"`` evaluates the terms' definitions on
-        decoded poses (the slow reference, for benchmarks).
-    length_prior : {"database", "default"}
-        Proportions of the bone-length fallback before calibration: the database's median
-        bone lengths or :data:`fpg_gym.core.poses.DEFAULT_BONE_LENGTHS` (see
-        :mod:`fpg_gym.reconstruct.reliability`).
-    left_right_fix : bool
-        Undo the sensor's left/right label confusions by continuity (True; not in the papers,
-        see the module docstring).
-    left_right_margin : float
-        A relabelling is used only when it brings the sensor at least this factor closer to
-        the prediction than the reported labels (0.6), and by more than 3 cm.
-    temporal : TemporalConfig
-        Temporal coherence beyond the papers: smoothed placement, aligned latent basis,
-        optional output filter (:mod:`fpg_gym.reconstruct.temporal`; ``TemporalConfig.off()``
-        is the papers' pipeline).
-    bones : BoneSettlingConfig
-        Settling rule of the user's bone lengths (:mod:`fpg_gym.reconstruct.bones`).
-    sensor_map : PoseMap, optional
-        Maps the sensor's joint definitions onto the database's
-        (:class:`fpg_gym.definitions.DefinitionMap`); applied to every input frame before
-        anything else, so reliability, selection, energy and bone lengths all work in the
-        database's definitions. None: the sensor's points are taken as the database's.
-    output_map : PoseMap, optional
-        Maps the database's definitions onto the definitions the output is wanted in (e.g.
-        marker-based joint centres); applied to the returned pose only (the history that
-        drives continuity stays in the database's definitions). A mapped output gets settled
-        bone lengths of its own after the first ``bones.settle_s`` seconds.
-    sensor_blend : float
-        Beyond the papers (0 = off, the papers' pipeline): after the search, each joint of the
-        back-projected pose moves this fraction of the way towards the (mapped) sensor joint,
-        scaled by the joint's reliability ``R(j)`` — the minimiser of ``Ec`` without the
-        posture-space constraint for a fully trusted joint — before retargeting to the user's
-        bone lengths. The posture space of K database poses cannot represent a pose the
-        database lacks; reliable sensor evidence can.
-    calibrate_output : bool
-        Beyond the papers (off by default): instead of a fixed ``output_map``, fit the map from
-        the database's definitions to the sensor's while the stream runs, from this user's
-        tracked joints (:class:`fpg_gym.definitions.OnlineDefinitionFit`: a running mean of
-        the output-to-sensor residual in each joint's frame), and apply it to the returned
-        pose. Needs no paired data; the output comes in the sensor's definitions, or in those
-        of ``calibration_map``.
-    calibration_map : PoseMap, optional
-        With ``calibrate_output``: maps the raw sensor onto the definitions wanted in the
-        output (e.g. Kinect v2 -> Vicon joint centres); None: the sensor's own.
-    fusion : FusionConfig
-        Beyond the papers (off by default): the output keeps the mapped, filtered sensor's
-        joints where the sensor is trusted and the reconstruction where it is not
-        (:mod:`fpg_gym.reconstruct.fusion`); the trust also scales ``R`` (selection, energy,
-        sensor blend) and picks the joints the output calibration learns from.
-    bone_model : BoneModel, optional
-        With ``fusion``: the sensor's bone vectors in the output's definitions (e.g. a learned
-        correction of the sensor's bias), in place of the mapped sensor's own.
-    """
-
-    k: int = 30
-    latent_dim: int = 20
-    selector: str = "graph"
-    brute_force_score: str = "shum"
-    weights: EnergyWeights = field(default_factory=EnergyWeights)
-    max_evaluations: int | None = 2000
-    time_budget_s: float | None = None
-    recovery_factor: float | None = 3.0
-    recovery_min_score: float = 0.05
-    reliability: ReliabilityConfig = field(default_factory=ReliabilityConfig)
-    reference_lengths: tuple[float, ...] | None = None
-    retarget_candidates: bool = True
-    max_gap_s: float = 0.5
-    frame_dt: float = 1.0 / 30.0
-    ragdoll_rebuild_m: float = 0.02
-    energy_dtype: str = "float64"
-    energy_kernel: str = "auto"
-    left_right_fix: bool = True
-    length_prior: str = "database"
-    left_right_margin: float = 0.6
-    temporal: TemporalConfig = field(default_factory=TemporalConfig)
-    bones: BoneSettlingConfig = field(default_factory=BoneSettlingConfig)
-    sensor_map: PoseMap | None = None
-    output_map: PoseMap | None = None
-    sensor_blend: float = 0.0
-    calibrate_output: bool = False
-    calibration_map: PoseMap | None = None
-    fusion: FusionConfig = field(default_factory=FusionConfig)
-    bone_model: BoneModel | None = None
-
-    def __post_init__(self) -> None:
-        check_integer(self.k, "k", low=1)
-        check_integer(self.latent_dim, "latent_dim", low=0)
-        check_number(self.sensor_blend, "sensor_blend", low=0.0, high=1.0)
-        check_number(self.max_gap_s, "max_gap_s", low=0.0, low_open=True)
-        check_number(self.frame_dt, "frame_dt", low=0.0, low_open=True)
-        check_choice(self.selector, "selector", ("graph", "brute-force", "auto"))
-        check_choice(self.length_prior, "length_prior", ("database", "default"))
-        check_choice(self.energy_dtype, "energy_dtype", ("float64", "float32"))
-        check_choice(self.energy_kernel, "energy_kernel", ENERGY_KERNELS)
-        if self.calibrate_output and self.output_map is not None:
-            raise ValueError(
-                "calibrate_output and output_map: give one (the calibration fits the output map)"
-            )
-        if self.calibration_map is not None and not self.calibrate_output:
-            raise ValueError("calibration_map: only used with calibrate_output=True")
-        if self.bone_model is not None and not self.fusion.enabled:
-            raise ValueError("bone_model: only used with fusion enabled")
-        if self.reference_lengths is not None and len(self.reference_lengths) != skeleton.NUM_BONES:
-            raise ValueError(
-                f"reference_lengths: expected 19 lengths, got {len(self.reference_lengths)}"
-            )
-
-
-@dataclass(frozen=True)
-class FrameRecord:
-    """What happened in one frame.
-
-    Attributes
-    ----------
-    index, timestamp : int, float
-    reliability, behaviour, kinematic, tracking : ndarray, shape (20,)
-    reference_source : str
-        Where the bone lengths came from (see :mod:`fpg_gym.reconstruct.reliability`).
-    nodes, node_scores : ndarray, shape (K,)
-        Selected nodes (best first) and their selection scores.
-    num_scored : int
-        Nodes scored by the selector.
-    full_search, recovered : bool
-        Whether every node was scored; whether the recovery rule triggered it.
-    first, no_body : bool
-        Stream (re)start; no joint tracked or inferred.
-    energy, energy_x0 : float
-        ``E`` of the chosen point and of ``x0``.
-    terms : dict of str to float
-        ``Ec``, ``Es``, ``Ek``, ``Em`` of the chosen point (unweighted).
-    evaluations : int
-        Energy evaluations spent by the search.
-    ms : dict of str to float
-        Milliseconds per stage (:data:`STAGES`) and ``total``.
-    ragdoll : dict or None
-        The ragdoll's ``info`` after the frame (None without a ragdoll).
-    labelling : str
-        The left/right labelling used (:data:`LABELLINGS`; ``"as-reported"`` unless fixed).
-    bone_lengths : ndarray, shape (19,) or None
-        The user's bone lengths used in this frame (after the settling rule).
-    """
-
-    index: int
-    timestamp: float
-    reliability: np.ndarray
-    behaviour: np.ndarray
-    kinematic: np.ndarray
-    tracking: np.ndarray
-    reference_source: str
-    nodes: np.ndarray
-    node_scores: np.ndarray
-    num_scored: int
-    full_search: bool
-    recovered: bool
-    first: bool
-    no_body: bool
-    energy: float
-    energy_x0: float
-    terms: dict[str, float]
-    evaluations: int
-    ms: dict[str, float]
-    ragdoll: dict[str, Any] | None = None
-    labelling: str = "as-reported"
-    bone_lengths: np.ndarray | None = None
-
-
-@dataclass
-class ReconstructionResult:
-    """A reconstructed stream: poses and per-frame records.
-
-    Attributes
-    ----------
-    poses : ndarray, shape (T, 20, 3), float32
-        Reconstructed poses in the input's camera space, frame for frame.
-    records : list of FrameRecord
-    interrupted : bool
-        True when the run stopped early (Ctrl-C); ``poses`` then holds the frames done.
-    bones : dict
-        When the bone lengths settled and how much they changed afterwards
-        (:meth:`fpg_gym.reconstruct.bones.BoneSettler.report`).
-    """
-
-    poses: np.ndarray
-    records: list[FrameRecord]
-    interrupted: bool = False
-    bones: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def num_frames(self) -> int:
-        """Frames reconstructed."""
-        return len(self.records)
-
-    @property
-    def ms_per_frame(self) -> np.ndarray:
-        """Total milliseconds per frame ``(T,)``."""
-        return np.array([r.ms["total"] for r in self.records])
-
-    def arrays(self) -> dict[str, np.ndarray]:
-        """Everything as arrays (the ``reconstruct`` command's ``.npz`` keys).
-
-        ``poses`` (T,20,3), ``timestamps`` (T,), ``reliability``/``behaviour``/``kinematic``/
-        ``tracking`` (T,20), ``nodes``/``node_scores`` (T,K) (−1 / NaN padded), ``num_scored``,
-        ``evaluations`` (T,), ``energy``, ``energy_x0`` (T,), ``energy_terms`` (T,5) in
-        ``energy_term_names`` order, ``full_search``/``recovered``/``first``/``no_body`` (T,)
-        bool, ``ms_per_frame`` (T,), ``ms_stages`` (T,S) in ``stage_names`` order.
-        """
-        records = self.records
-        t = len(records)
-        k = max((len(r.nodes) for r in records), default=0)
-        nodes = np.full((t, k), -1, dtype=np.int64)
-        scores = np.full((t, k), np.nan)
-        for i, r in enumerate(records):
-            nodes[i, : len(r.nodes)] = r.nodes
-            scores[i, : len(r.nodes)] = r.node_scores
-
-        def stack(name: str, dtype: Any = np.float64) -> np.ndarray:
-            return np.array([getattr(r, name) for r in records], dtype=dtype).reshape(t, -1)
-
-        out: dict[str, np.ndarray] = {
-            "poses": np.asarray(self.poses[:t], dtype=np.float32),
-            "timestamps": np.array([r.timestamp for r in records], dtype=np.float64),
-            "reliability": stack("reliability").astype(np.float32),
-            "behaviour": stack("behaviour").astype(np.float32),
-            "kinematic": stack("kinematic").astype(np.float32),
-            "tracking": stack("tracking").astype(np.float32),
-            "nodes": nodes,
-            "node_scores": scores,
-            "num_scored": np.array([r.num_scored for r in records], dtype=np.int64),
-            "evaluations": np.array([r.evaluations for r in records], dtype=np.int64),
-            "energy": np.array([r.energy for r in records]),
-            "energy_x0": np.array([r.energy_x0 for r in records]),
-            "energy_terms": np.array([[r.terms[n] for n in TERM_NAMES] for r in records]).reshape(
-                t, len(TERM_NAMES)
-            ),
-            "energy_term_names": np.array(TERM_NAMES),
-            "full_search": np.array([r.full_search for r in records], dtype=bool),
-            "recovered": np.array([r.recovered for r in records], dtype=bool),
-            "first": np.array([r.first for r in records], dtype=bool),
-            "no_body": np.array([r.no_body for r in records], dtype=bool),
-            "labelling": np.array([LABELLINGS.index(r.labelling) for r in records], dtype=np.int8),
-            "labelling_names": np.array(LABELLINGS),
-            "ms_per_frame": self.ms_per_frame,
-            "ms_stages": np.array([[r.ms[s] for s in STAGES] for r in records]).reshape(
-                t, len(STAGES)
-            ),
-            "stage_names": np.array(STAGES),
-        }
-        if t and all(r.bone_lengths is not None for r in records):
-            out["bone_lengths"] = np.stack([np.asarray(r.bone_lengths) for r in records])
-        return out
 
 
 @dataclass
@@ -781,21 +391,91 @@ class Reconstructor:
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)
         no_body = not bool(np.any(states > 0))
+        self._restart_after_gap(timestamp)
+        first = not self._history
+        dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
+        labelling, positions, states, compared = self._relabel(
+            positions, states, sensor, dt, no_body
+        )
+        kinect, placement, output_placement = self._normalise(positions, timestamp, no_body)
+        t1 = time.perf_counter()
 
-        # Stream (re)start: first frame, or a long gap since the last reconstruction.
-        if self._history and (timestamp - self._history[-1][1] > cfg.max_gap_s):
+        terms, trust, lengths = self._reliability_terms(positions, states, compared, timestamp)
+        t2 = time.perf_counter()
+
+        previous, prediction = self._continuity(placement.yaw, dt, no_body)
+        selection = self.selector.select(
+            SelectionQuery(
+                pose=kinect,
+                reliability=terms.reliability,
+                prediction=prediction,
+                lengths=lengths if cfg.retarget_candidates else None,
+            )
+        )
+        t3 = time.perf_counter()
+
+        problem = self._frame_problem(
+            kinect,
+            terms,
+            selection,
+            lengths,
+            previous,
+            prediction,
+            FrameContext(index=self._index, timestamp=timestamp, dt=dt, first=first),
+        )
+        t4 = time.perf_counter()
+        ms = {
+            "normalise": 1e3 * (t1 - t0),
+            "reliability": 1e3 * (t2 - t1),
+            "selection": 1e3 * (t3 - t2),
+            "latent": 1e3 * (t4 - t3),
+        }
+        self._pending = _Pending(
+            problem,
+            output_placement,
+            terms,
+            selection,
+            first,
+            no_body,
+            timestamp,
+            ms,
+            t4,
+            LABELLINGS[labelling],
+            np.asarray(lengths, dtype=np.float64),
+            sensor,
+            ((states == skeleton.TRACKED) if trust is None else (trust > 0.9)) & (not no_body),
+            sensor_states=raw_states,
+            trust=trust,
+            permutation=LABEL_PERMUTATIONS[labelling],
+        )
+        return problem
+
+    def _restart_after_gap(self, timestamp: float) -> None:
+        """Stream (re)start: a long gap since the last reconstruction forgets the stream."""
+        if self._history and (timestamp - self._history[-1][1] > self.config.max_gap_s):
             self._history.clear()
             self._fused_history.clear()
             self.selector.reset()
             self.reliability.forget_motion()
             self._ragdoll_needs_reset = True
             self._restart_temporal()
-        first = not self._history
-        dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
 
-        # Left/right confusions (a Kinect assumes the user faces it): keep the labelling that
-        # continues the previous outputs best (with the fusion, the fused outputs, compared with
-        # the sensor in their definitions: the database's own pose may be another activity's).
+    def _relabel(
+        self,
+        positions: np.ndarray,
+        states: np.ndarray,
+        sensor: np.ndarray,
+        dt: float,
+        no_body: bool,
+    ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """Left/right confusions (a Kinect assumes the user faces it): keep the labelling that
+        continues the previous outputs best (with the fusion, the fused outputs, compared with
+        the sensor in their definitions: the database's own pose may be another activity's).
+
+        Returns the labelling's index in :data:`LABELLINGS`, the relabelled positions and
+        states, and the relabelled pose the outputs were compared with.
+        """
+        cfg = self.config
         labelling = 0
         history, compared = self._history, positions
         if self._fusion is not None:
@@ -821,11 +501,19 @@ class Reconstructor:
                 and costs[0] - costs[best] > 0.03
             ):
                 labelling = best
-                positions = positions[_LABEL_PERMUTATIONS[best]]
-                states = states[_LABEL_PERMUTATIONS[best]]
-                compared = compared[_LABEL_PERMUTATIONS[best]]
+                positions = positions[LABEL_PERMUTATIONS[best]]
+                states = states[LABEL_PERMUTATIONS[best]]
+                compared = compared[LABEL_PERMUTATIONS[best]]
+        return labelling, positions, states, compared
 
-        # Normalise (root to origin, facing +Z); without a body keep the last placement.
+    def _normalise(
+        self, positions: np.ndarray, timestamp: float, no_body: bool
+    ) -> tuple[np.ndarray, pose_utils.Placement, pose_utils.Placement]:
+        """Normalise (root to origin, facing +Z); without a body keep the last placement.
+
+        Returns the normalised pose, the placement it was estimated in and the placement the
+        output is put back with.
+        """
         kinect, placement = pose_utils.normalise(positions)
         output_placement = placement
         if no_body and self._placement is not None:
@@ -835,14 +523,19 @@ class Reconstructor:
             # Temporal coherence (not in the papers): the output is put back at a smoothed root
             # (and heading, when smoothed; the pose is then estimated in that heading's frame).
             smoothed = self._placement_smoother.update(placement, timestamp)
-            if cfg.temporal.smooth_heading:
+            if self.config.temporal.smooth_heading:
                 output_placement = smoothed
                 placement = pose_utils.Placement(root=placement.root, yaw=smoothed.yaw)
                 kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
             else:
                 output_placement = pose_utils.Placement(root=smoothed.root, yaw=placement.yaw)
-        t1 = time.perf_counter()
+        return kinect, placement, output_placement
 
+    def _reliability_terms(
+        self, positions: np.ndarray, states: np.ndarray, compared: np.ndarray, timestamp: float
+    ) -> tuple[ReliabilityTerms, np.ndarray | None, np.ndarray]:
+        """The frame's reliability terms (scaled by the fusion's trust, if any), the trust and
+        the user's bone lengths after the settling rule."""
         terms = self.reliability.update(positions, states)
         trust = None
         if self._trust is not None:  # the fusion's trust scales R (not in the papers)
@@ -854,34 +547,41 @@ class Reconstructor:
         lengths = self.bones.update(terms.reference_lengths, timestamp)
         if self.bones.settled and not was_settled:
             self._ragdoll_settle = True
-        t2 = time.perf_counter()
+        return terms, trust, lengths
 
-        # Previous reconstructions in this frame; continuity prediction (FPG Eq. 6) which is also
-        # the motion target of Em (Shum Eq. 14).
+    def _continuity(
+        self, yaw: np.ndarray, dt: float, no_body: bool
+    ) -> tuple[np.ndarray | None, np.ndarray | None]:
+        """Previous reconstructions in this frame; continuity prediction (FPG Eq. 6) which is
+        also the motion target of Em (Shum Eq. 14). Both None on a stream's first frame."""
         previous = prediction = None
         if self._history:
-            previous = _rotate_into(self._history[-1][0], placement.yaw)
+            previous = _rotate_into(self._history[-1][0], yaw)
             if len(self._history) >= 2 and not no_body:
-                before = _rotate_into(self._history[-2][0], placement.yaw)
+                before = _rotate_into(self._history[-2][0], yaw)
                 dt_prev = self._history[-1][1] - self._history[-2][1]
                 prediction = motion_target(previous, before, dt, dt_prev)
-                damping = cfg.temporal.velocity_damping
+                damping = self.config.temporal.velocity_damping
                 if damping != 1.0:
                     # Temporal coherence (not in the papers): a continuity prior anchored on the
                     # previous reconstruction rather than on its noisy extrapolation.
                     prediction = previous + damping * (prediction - previous)
             else:
                 prediction = previous.copy()
-        selection = self.selector.select(
-            SelectionQuery(
-                pose=kinect,
-                reliability=terms.reliability,
-                prediction=prediction,
-                lengths=lengths if cfg.retarget_candidates else None,
-            )
-        )
-        t3 = time.perf_counter()
+        return previous, prediction
 
+    def _frame_problem(
+        self,
+        kinect: np.ndarray,
+        terms: ReliabilityTerms,
+        selection: Selection,
+        lengths: np.ndarray,
+        previous: np.ndarray | None,
+        prediction: np.ndarray | None,
+        context: FrameContext,
+    ) -> SearchProblem:
+        """The natural posture space of the candidates (whitened PCA), the energy and x0."""
+        cfg = self.config
         latent = LatentSpace.fit(
             selection.poses,
             max_dim=cfg.latent_dim,
@@ -902,7 +602,7 @@ class Reconstructor:
             kernel=cfg.energy_kernel,
         )
         x0 = latent.encode(previous if previous is not None else selection.poses[0])
-        problem = SearchProblem(
+        return SearchProblem(
             energy=energy,
             kinect_pose=kinect,
             reliability=terms,
@@ -910,34 +610,8 @@ class Reconstructor:
             prediction=prediction,
             previous=previous,
             x0=x0,
-            context=FrameContext(index=self._index, timestamp=timestamp, dt=dt, first=first),
+            context=context,
         )
-        t4 = time.perf_counter()
-        ms = {
-            "normalise": 1e3 * (t1 - t0),
-            "reliability": 1e3 * (t2 - t1),
-            "selection": 1e3 * (t3 - t2),
-            "latent": 1e3 * (t4 - t3),
-        }
-        self._pending = _Pending(
-            problem,
-            output_placement,
-            terms,
-            selection,
-            first,
-            no_body,
-            timestamp,
-            ms,
-            t4,
-            LABELLINGS[labelling],
-            np.asarray(lengths, dtype=np.float64),
-            sensor,
-            ((states == skeleton.TRACKED) if trust is None else (trust > 0.9)) & (not no_body),
-            sensor_states=raw_states,
-            trust=trust,
-            permutation=_LABEL_PERMUTATIONS[labelling],
-        )
-        return problem
 
     # ------------------------------------------------------------------ finish
 

@@ -1,0 +1,82 @@
+"""Left/right confusions of a Kinect (not in the papers; used by the reconstructor).
+
+A Kinect assumes that the user faces it: a user seen side-on gets arms or legs swapped for a
+while, one seen from behind is reported mirrored (Shum §I). :func:`left_right_costs` scores each
+labelling of :data:`LABELLINGS` (as reported, mirrored, arms swapped, legs swapped) against a
+prediction; :class:`~fpg_gym.reconstruct.reconstructor.Reconstructor` uses another labelling when
+it is clearly closer.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
+
+__all__ = ["LABELLINGS", "LABEL_PERMUTATIONS", "left_right_costs"]
+
+
+def _side_joints(prefixes: tuple[str, ...]) -> np.ndarray:
+    return np.array(
+        [
+            i
+            for i, n in enumerate(skeleton.JOINT_NAMES)
+            if n.startswith(prefixes) and (skeleton.is_left(i) or skeleton.is_right(i))
+        ]
+    )
+
+
+def _swap(joints: np.ndarray) -> np.ndarray:
+    permutation = np.arange(skeleton.NUM_JOINTS)
+    permutation[joints] = skeleton.MIRROR_PERMUTATION[joints]
+    return permutation
+
+
+LABELLINGS: tuple[str, ...] = ("as-reported", "mirrored", "arms-swapped", "legs-swapped")
+"""Left/right labellings the reconstructor considers (see ``left_right_fix``)."""
+
+#: The joint permutation of each labelling of :data:`LABELLINGS` ``(4, 20)``, read-only.
+LABEL_PERMUTATIONS = np.stack(
+    [
+        np.arange(skeleton.NUM_JOINTS),
+        np.asarray(skeleton.MIRROR_PERMUTATION),
+        _swap(_side_joints(("Shoulder", "Elbow", "Wrist", "Hand"))),
+        _swap(_side_joints(("Hip", "Knee", "Ankle", "Foot"))),
+    ]
+)
+LABEL_PERMUTATIONS.flags.writeable = False
+
+
+def left_right_costs(
+    positions: np.ndarray, states: np.ndarray, prediction: np.ndarray
+) -> np.ndarray:
+    """How far each labelling of :data:`LABELLINGS` puts the sensor joints from a prediction.
+
+    The mean, over joints weighted by tracking state (tracked 1, inferred 0.5, not tracked 0),
+    of the distance between the relabelled, root-relative sensor pose and the root-relative
+    prediction (camera space). Returns ``(4,)`` metres.
+    """
+    positions = np.asarray(positions, dtype=np.float64)
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    if compiled is not None:  # one call; the same costs to rounding
+        costs: np.ndarray = compiled.labelling_costs(
+            np.ascontiguousarray(positions),
+            np.ascontiguousarray(states),
+            np.ascontiguousarray(prediction, dtype=np.float64),
+            LABEL_PERMUTATIONS,
+            skeleton.TRACKED,
+            skeleton.INFERRED,
+        )
+        return costs
+    local = positions - positions[skeleton.ROOT]
+    target = np.asarray(prediction, dtype=np.float64)
+    target = target - target[skeleton.ROOT]
+    states = np.asarray(states)
+    weights = np.where(
+        states >= skeleton.TRACKED, 1.0, np.where(states == skeleton.INFERRED, 0.5, 0.0)
+    )
+    relabelled = local[LABEL_PERMUTATIONS]  # (H, 20, 3)
+    w = weights[LABEL_PERMUTATIONS]  # (H, 20)
+    dist = np.linalg.norm(relabelled - target, axis=-1)
+    return np.asarray((w * dist).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-9))
