@@ -10,23 +10,12 @@ from pathlib import Path
 from typing import Any
 
 from fpg_gym.commands import types
+from fpg_gym.io.kinect import KINECT_FORMATS  # loaded with the CLI (fpg_gym.io.plausibility)
 
 NAME = "reconstruct"
 HELP = (
     "reconstruct a Kinect recording (graph or brute-force selection, an optimiser, ragdoll), "
     "or run a reference filter on it (--method raw|holt|kalman)"
-)
-
-#: Formats of ``--format`` (:data:`fpg_gym.io.kinect.KINECT_FORMATS`; listed here so that
-#: ``--help`` imports nothing heavy).
-KINECT_FORMATS: tuple[str, ...] = (
-    "msrc12",
-    "kinect_v2",
-    "ntu",
-    "csv",
-    "npz",
-    "azure_kinect",
-    "mapped",
 )
 
 #: Bin edges (metres) of the printed error histogram.
