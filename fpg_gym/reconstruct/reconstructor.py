@@ -681,8 +681,37 @@ class Reconstructor:
         ms["ragdoll"] = 1e3 * (t2 - t1)
         ms["total"] = sum(ms[s] for s in STAGES)
         terms = pending.terms
+        record = self._frame_record(pending, chosen, ms, ragdoll_info)
+        self._pending = None
+        self._index += 1
+        pose = self._output_stages(pose, pending, record)
+        correction = pending.correction if correction is None else correction
+        if correction is not None and pending.sensor is not None:
+            t4 = time.perf_counter()
+            pose = self._correction.correct(
+                correction,
+                np.asarray(pose, dtype=np.float64),
+                np.asarray(pending.sensor, dtype=np.float64),
+                np.asarray(pending.sensor_states),
+                terms.reliability,
+            )
+            spent = 1e3 * (time.perf_counter() - t4)
+            record.ms["finish"] += spent
+            record.ms["total"] += spent
+        return pose.astype(np.float32), record
+
+    def _frame_record(
+        self,
+        pending: _Pending,
+        chosen: dict[str, np.ndarray],
+        ms: dict[str, float],
+        ragdoll_info: dict[str, Any] | None,
+    ) -> FrameRecord:
+        """What happened in the finished frame (``chosen``: the terms of z and of x0)."""
+        terms = pending.terms
         selection = pending.selection
-        record = FrameRecord(
+        problem = pending.problem
+        return FrameRecord(
             index=self._index,
             timestamp=pending.timestamp,
             reliability=terms.reliability,
@@ -706,8 +735,13 @@ class Reconstructor:
             labelling=pending.labelling,
             bone_lengths=pending.lengths,
         )
-        self._pending = None
-        self._index += 1
+
+    def _output_stages(
+        self, pose: np.ndarray, pending: _Pending, record: FrameRecord
+    ) -> np.ndarray:
+        """The stages after the history's pose: the output map or the online calibration, the
+        output's settled bone lengths, the fusion with the sensor (its time added to
+        ``record.ms``)."""
         if self.config.output_map is not None:
             pose = self.config.output_map.apply(pose)
         sensor = pending.sensor
@@ -735,20 +769,7 @@ class Reconstructor:
             spent = 1e3 * (time.perf_counter() - t5)
             record.ms["finish"] += spent
             record.ms["total"] += spent
-        correction = pending.correction if correction is None else correction
-        if correction is not None and pending.sensor is not None:
-            t4 = time.perf_counter()
-            pose = self._correction.correct(
-                correction,
-                np.asarray(pose, dtype=np.float64),
-                np.asarray(pending.sensor, dtype=np.float64),
-                np.asarray(pending.sensor_states),
-                terms.reliability,
-            )
-            spent = 1e3 * (time.perf_counter() - t4)
-            record.ms["finish"] += spent
-            record.ms["total"] += spent
-        return pose.astype(np.float32), record
+        return pose
 
     def _settle_output_bones(self, pose: np.ndarray, timestamp: float) -> np.ndarray:
         """The mapped output with settled bone lengths.
