@@ -414,53 +414,19 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
 
         # Reconstruction core.
         self.graph = load_graph(graph, exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=cache_dir)
-        overrides: dict[str, Any] = dict(reconstructor_options or {})
-        explicit: dict[str, Any] = {
-            "selector": selector,
-            "k": int(k),
-            "latent_dim": int(latent_dim),
-            "weights": self.weights,
-            "max_evaluations": max_evaluations,
-        }
-        clash = sorted(set(overrides) & set(explicit))
-        if clash:
-            raise ValueError(
-                f"reconstructor_options: {clash} are arguments of the env itself; pass them "
-                "as keyword arguments"
-            )
+        self._counts = {"ragdoll_resets": 0, "ragdoll_divergences": 0, "ragdoll_builds": 0}
         self._ragdoll_kwargs: dict[str, Any] | None = (
             dict(ragdoll) if isinstance(ragdoll, Mapping) else ({} if ragdoll else None)
         )
-        self._counts = {"ragdoll_resets": 0, "ragdoll_divergences": 0, "ragdoll_builds": 0}
-        # The per-frame problem keeps the papers' energy and frame (the reward's meaning; see
-        # fpg_gym.reconstruct.temporal); reconstructor_options={"temporal": ...} overrides it.
-        overrides.setdefault("temporal", TemporalConfig.off())
-        self.reconstructor = Reconstructor(
-            self.graph,
-            ragdoll=(
-                None
-                if self._ragdoll_kwargs is None
-                else _RagdollFactory(self._ragdoll_kwargs, self._counts)
-            ),
-            **explicit,
-            **overrides,
+        self.reconstructor = self._make_reconstructor(
+            selector, int(k), max_evaluations, reconstructor_options
         )
         self.candidates = self.reconstructor.k
         self.layout = ObservationLayout(self.latent_dim, self.candidates)
 
         # Spaces.
         self.action_space = spaces.Box(-1.0, 1.0, (self.latent_dim,), dtype=np.float32)
-        if observation_mode == "vector":
-            self.observation_space: spaces.Space[Any] = spaces.Box(
-                self.layout.low, self.layout.high, dtype=np.float32
-            )
-        else:
-            self.observation_space = spaces.Dict(
-                {
-                    name: spaces.Box(self.layout.low[sl], self.layout.high[sl], dtype=np.float32)
-                    for name, sl in self.layout.slices.items()
-                }
-            )
+        self.observation_space = self._observation_space(observation_mode)
 
         # Episode state.
         self._recording: Recording | None = None
@@ -477,6 +443,53 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._prepare_ms = self._observation_ms = 0.0
 
     # ------------------------------------------------------------------ construction helpers
+
+    def _make_reconstructor(
+        self,
+        selector: str,
+        k: int,
+        max_evaluations: int | None,
+        reconstructor_options: Mapping[str, Any] | None,
+    ) -> Reconstructor:
+        """The env's reconstructor: its own arguments, then ``reconstructor_options``."""
+        overrides: dict[str, Any] = dict(reconstructor_options or {})
+        explicit: dict[str, Any] = {
+            "selector": selector,
+            "k": k,
+            "latent_dim": self.latent_dim,
+            "weights": self.weights,
+            "max_evaluations": max_evaluations,
+        }
+        clash = sorted(set(overrides) & set(explicit))
+        if clash:
+            raise ValueError(
+                f"reconstructor_options: {clash} are arguments of the env itself; pass them "
+                "as keyword arguments"
+            )
+        # The per-frame problem keeps the papers' energy and frame (the reward's meaning; see
+        # fpg_gym.reconstruct.temporal); reconstructor_options={"temporal": ...} overrides it.
+        overrides.setdefault("temporal", TemporalConfig.off())
+        return Reconstructor(
+            self.graph,
+            ragdoll=(
+                None
+                if self._ragdoll_kwargs is None
+                else _RagdollFactory(self._ragdoll_kwargs, self._counts)
+            ),
+            **explicit,
+            **overrides,
+        )
+
+    def _observation_space(self, observation_mode: str) -> spaces.Space[Any]:
+        """A ``Box`` of :attr:`layout` (``"vector"``) or a ``Dict`` of its parts."""
+        if observation_mode == "vector":
+            return spaces.Box(self.layout.low, self.layout.high, dtype=np.float32)
+        return spaces.Dict(
+            {
+                name: spaces.Box(self.layout.low[sl], self.layout.high[sl], dtype=np.float32)
+                for name, sl in self.layout.slices.items()
+            }
+        )
 
     # ------------------------------------------------------------------ public state
 
