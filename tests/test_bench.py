@@ -7,8 +7,9 @@ import json
 import pytest
 
 from fpg_gym.cli import main
-from fpg_gym.experiments.bench import BenchSettings, format_bench, run_bench
+from fpg_gym.experiments.bench import BenchSettings, run_bench
 from fpg_gym.experiments.bench_kernels import DIRECT_FRAME
+from fpg_gym.experiments.bench_report import format_bench
 
 
 def test_bench_quick_json(capsys: pytest.CaptureFixture[str]) -> None:

@@ -34,7 +34,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     """Run the bench and print its tables."""
     from fpg_gym.commands.output import emit_json
-    from fpg_gym.experiments.bench import BenchSettings, format_bench, run_bench
+    from fpg_gym.experiments.bench import BenchSettings, run_bench
+    from fpg_gym.experiments.bench_report import format_bench
 
     settings = BenchSettings.make(quick=args.quick, mocap=args.mocap)
     if args.sections:
