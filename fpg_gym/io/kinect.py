@@ -50,9 +50,8 @@ keep what the sensor reported.
 from __future__ import annotations
 
 import math
-import warnings
 from collections import Counter
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
@@ -61,10 +60,21 @@ import numpy as np
 from fpg_gym.core import skeleton
 from fpg_gym.core.errors import DataFormatError
 from fpg_gym.core.outputs import atomic_path
-from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.files import check_input_file
-from fpg_gym.io.plausibility import MAX_COORDINATE_M, check_recording
-from fpg_gym.io.recording import NOT_TRACKED, TRACKED, Recording, load_recording
+from fpg_gym.io.lines import (
+    DEFAULT_FPS,
+    LineLog,
+    SkippedLinesWarning,
+    coordinate_columns,
+    finish_recording,
+    implausible,
+    numeric_lines,
+    parse_numbers,
+    read_text,
+    timestamp_unit,
+)
+from fpg_gym.io.plausibility import MAX_COORDINATE_M
+from fpg_gym.io.recording import TRACKED, Recording, load_recording
 from fpg_gym.io.trackers import JointMap, is_azure_kinect_json, read_azure_kinect, read_mapped
 
 __all__ = [
@@ -96,180 +106,9 @@ _V2_FIELDS = 1 + _V2_JOINTS * 4  # 101
 _V2_ALT_FIELDS = 2 + _V2_JOINTS * 8  # 202: index, time ms, 25 x (state x y z qw qx qy qz)
 _NTU_BODY_FIELDS = 10
 _NTU_JOINT_FIELDS = 12
-_DEFAULT_FPS = 30.0
-_MAX_BAD_SHARE = 0.5
 _STATE_COLUMNS = ("x", "y", "z", "state")
 #: Data lines :func:`detect_format` looks at.
 _DETECT_LINES = 64
-
-
-class SkippedLinesWarning(UserWarning):
-    """A reader skipped lines of a Kinect file (counts and reasons in the message)."""
-
-
-# --------------------------------------------------------------------------- helpers
-
-
-def _read_text(path: Path) -> list[str]:
-    """The file's lines (gzip-compressed files are accepted)."""
-    text = read_input_bytes(path).decode("utf-8", errors="replace")
-    return text.removeprefix("\ufeff").splitlines()  # a byte-order mark is not a header
-
-
-class _LineLog:
-    """Counts skipped lines by reason and remembers the first few line numbers."""
-
-    def __init__(self) -> None:
-        self.reasons: Counter[str] = Counter()
-        self.first: list[int] = []
-        self.first_reason: str = ""
-
-    def skip(self, line: int, reason: str) -> None:
-        if not self.reasons:
-            self.first_reason = reason
-        self.reasons[reason] += 1
-        if len(self.first) < 10:
-            self.first.append(line)
-
-    @property
-    def count(self) -> int:
-        return int(sum(self.reasons.values()))
-
-    def check(self, path: Path, kept: int, fmt: str) -> None:
-        """Raise when nothing (or too little) was usable."""
-        total = kept + self.count
-        if total == 0:
-            raise DataFormatError(path, f"no data lines (empty {fmt} file)")
-        if kept == 0 or self.count > _MAX_BAD_SHARE * total:
-            raise DataFormatError(
-                path,
-                f"{self.count} of {total} data lines do not fit the {fmt} layout; first bad "
-                f"line: {self.first_reason} (pass format= to pick another reader)",
-                line=self.first[0],
-            )
-
-    def report(self, path: Path, total: int) -> dict[str, Any]:
-        """Metadata entry; warns once when lines were skipped."""
-        entry: dict[str, Any] = {
-            "count": self.count,
-            "reasons": dict(self.reasons),
-            "first_lines": self.first,
-        }
-        if self.count:
-            reasons = "; ".join(f"{n} x {r}" for r, n in self.reasons.most_common())
-            warnings.warn(
-                f"{path}: skipped {self.count} of {total} data lines ({reasons}); first at "
-                f"line {self.first[0]}",
-                SkippedLinesWarning,
-                stacklevel=3,
-            )
-        return entry
-
-
-def _parse_numbers(fields: Sequence[str]) -> np.ndarray | None:
-    try:
-        values = np.array([float(f) for f in fields], dtype=np.float64)
-    except ValueError:
-        return None
-    return values
-
-
-def _numeric_lines(
-    lines: Iterable[tuple[int, Sequence[str]]],
-    expected: int,
-    log: _LineLog,
-    *,
-    finite: bool = True,
-    coordinates: np.ndarray | None = None,
-) -> Iterator[tuple[int, np.ndarray]]:
-    """``(line number, values)`` of the lines holding ``expected`` numbers (all finite when
-    ``finite``, and the ``coordinates`` columns within :data:`MAX_COORDINATE_M`); every other
-    line is logged as skipped, with the reason."""
-    for number, fields in lines:
-        if len(fields) != expected:
-            log.skip(number, f"expected {expected} fields, got {len(fields)}")
-            continue
-        values = _parse_numbers(fields)
-        if values is None:
-            log.skip(number, "a field is not a number")
-            continue
-        if finite and not np.all(np.isfinite(values)):
-            log.skip(number, "NaN or inf value")
-            continue
-        if coordinates is not None and _implausible(values[coordinates]):
-            log.skip(number, f"a coordinate beyond ±{MAX_COORDINATE_M:g} m")
-            continue
-        yield number, values
-
-
-def _implausible(coordinates: np.ndarray) -> bool:
-    """Whether a finite coordinate lies beyond :data:`MAX_COORDINATE_M` (NaN is not judged
-    here)."""
-    with np.errstate(invalid="ignore"):
-        return bool(np.any(np.abs(coordinates) > MAX_COORDINATE_M))
-
-
-def _coordinate_columns(offset: int, joints: int, stride: int, first: int) -> np.ndarray:
-    """Column indices of the x, y, z values of ``joints`` joints laid out every ``stride``
-    columns from ``offset``, x at ``first`` within each group."""
-    starts = offset + stride * np.arange(joints) + first
-    return (starts[:, None] + np.arange(3)[None, :]).ravel()
-
-
-def _timestamp_unit(ticks: np.ndarray, candidates: Iterable[float]) -> float:
-    """The unit (seconds per tick) that makes the median frame step closest to 1/30 s."""
-    steps = np.diff(ticks)
-    steps = steps[steps > 0]
-    if len(steps) == 0:
-        return next(iter(candidates))
-    step = float(np.median(steps))
-    return min(candidates, key=lambda unit: abs(math.log(step * unit * _DEFAULT_FPS)))
-
-
-def _finish(
-    path: Path,
-    positions: np.ndarray,
-    states: np.ndarray,
-    timestamps: np.ndarray,
-    body: np.ndarray,
-    metadata: dict[str, Any],
-) -> Recording:
-    """Mark no-body frames and zero joints not tracked, fill their positions, build it."""
-    positions = positions.astype(np.float64)
-    states = states.astype(np.int8)
-    zero = np.all(positions == 0.0, axis=-1)  # (T, 20): the sensor reported no position
-    missing = zero | ~body[:, None]
-    states[missing] = NOT_TRACKED
-    if not body.any():
-        raise DataFormatError(path, "no frame holds a body (every frame is empty)")
-    filled = 0
-    if missing.any():
-        count = len(positions)
-        frame = np.arange(count)[:, None]
-        last = np.maximum.accumulate(np.where(missing, -1, frame), axis=0)  # (T, 20)
-        known = ~missing
-        first = np.where(known.any(axis=0), np.argmax(known, axis=0), 0)  # (20,)
-        source = np.where(last >= 0, last, first[None, :])
-        fill = positions[source, np.arange(skeleton.NUM_JOINTS)[None, :]]
-        positions = np.where(missing[..., None], fill, positions)
-        filled = int(missing.sum())
-    metadata.update(
-        {
-            "source": str(path),
-            "joint_set": "kinect20",
-            "no_body_frames": int((~body).sum()),
-            "filled_joint_frames": filled,
-            "untracked_positions": "last_known" if filled else "sensor",
-        }
-    )
-    recording = Recording(
-        positions=positions.astype(np.float32),
-        states=states,
-        timestamps=timestamps,
-        metadata=metadata,
-    )
-    check_recording(path, recording)
-    return recording
 
 
 # --------------------------------------------------------------------------- MSRC-12 / SDK v1
@@ -284,13 +123,13 @@ def read_msrc12(path: str | Path) -> Recording:
         If no line (or under half of the lines) has 81 finite numbers.
     """
     path = Path(path)
-    lines = _read_text(path)
-    log = _LineLog()
+    lines = read_text(path)
+    log = LineLog()
     rows: list[np.ndarray] = []
     last_tick = -math.inf
     numbered = ((n, text.split()) for n, text in enumerate(lines, start=1) if text.split())
-    coordinates = _coordinate_columns(1, skeleton.NUM_JOINTS, 4, 0)
-    for number, values in _numeric_lines(numbered, _V1_FIELDS, log, coordinates=coordinates):
+    coordinates = coordinate_columns(1, skeleton.NUM_JOINTS, 4, 0)
+    for number, values in numeric_lines(numbered, _V1_FIELDS, log, coordinates=coordinates):
         if values[0] < last_tick:
             log.skip(number, "timestamp goes back")
             continue
@@ -302,7 +141,7 @@ def read_msrc12(path: str | Path) -> Recording:
     joints = data[:, 1:].reshape(len(data), skeleton.NUM_JOINTS, 4)[:, skeleton.FROM_KINECT_V1]
     positions = joints[..., :3]
     body = ~np.all(positions == 0.0, axis=(1, 2))
-    unit = _timestamp_unit(ticks, (1e-3, 1e-6, 1e-7))
+    unit = timestamp_unit(ticks, (1e-3, 1e-6, 1e-7))
     states = np.full(positions.shape[:2], TRACKED, dtype=np.int8)
     metadata: dict[str, Any] = {
         "format": "msrc12",
@@ -313,7 +152,7 @@ def read_msrc12(path: str | Path) -> Recording:
         "timestamp_origin_ticks": float(ticks[0]),
         "skipped_lines": log.report(path, len(rows) + log.count),
     }
-    return _finish(path, positions, states, (ticks - ticks[0]) * unit, body, metadata)
+    return finish_recording(path, positions, states, (ticks - ticks[0]) * unit, body, metadata)
 
 
 # --------------------------------------------------------------------------- Kinect v2 text
@@ -328,7 +167,7 @@ def read_kinect_v2(path: str | Path) -> Recording:
         If no line (or under half of the lines) fits the layout.
     """
     path = Path(path)
-    lines = _read_text(path)
+    lines = read_text(path)
     split = [
         (n, [f.strip() for f in t.strip().rstrip(",").split(",")])
         for n, t in enumerate(lines, start=1)
@@ -336,15 +175,15 @@ def read_kinect_v2(path: str | Path) -> Recording:
     ]
     counts = Counter(len(fields) for _, fields in split)
     layout = _V2_ALT_FIELDS if counts[_V2_ALT_FIELDS] > counts[_V2_FIELDS] else _V2_FIELDS
-    log = _LineLog()
+    log = LineLog()
     rows: list[np.ndarray] = []
     last_tick = -math.inf
     coordinates = (
-        _coordinate_columns(1, _V2_JOINTS, 4, 0)
+        coordinate_columns(1, _V2_JOINTS, 4, 0)
         if layout == _V2_FIELDS
-        else _coordinate_columns(2, _V2_JOINTS, 8, 1)
+        else coordinate_columns(2, _V2_JOINTS, 8, 1)
     )
-    for number, values in _numeric_lines(split, layout, log, coordinates=coordinates):
+    for number, values in numeric_lines(split, layout, log, coordinates=coordinates):
         if layout == _V2_FIELDS:
             tick, joints = values[0], values[1:].reshape(_V2_JOINTS, 4)
             state = joints[:, 3]
@@ -385,7 +224,7 @@ def read_kinect_v2(path: str | Path) -> Recording:
         "timestamp_origin_ticks": float(ticks[0]),
         "skipped_lines": log.report(path, len(rows) + log.count),
     }
-    return _finish(path, positions, states, (ticks - ticks[0]) * unit, body, metadata)
+    return finish_recording(path, positions, states, (ticks - ticks[0]) * unit, body, metadata)
 
 
 # --------------------------------------------------------------------------- NTU RGB+D
@@ -403,7 +242,7 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
     path = Path(path)
     if body < 0:
         raise ValueError(f"body: expected a non-negative index, got {body}")
-    lines = _read_text(path)
+    lines = read_text(path)
     position = 0
 
     def next_fields(what: str) -> tuple[int, list[str]]:
@@ -472,7 +311,7 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
             joints = np.empty((_V2_JOINTS, _NTU_JOINT_FIELDS))
             for joint in range(_V2_JOINTS):
                 number, fields = next_fields(f"joint line {joint + 1}")
-                values = _parse_numbers(fields) if len(fields) == _NTU_JOINT_FIELDS else None
+                values = parse_numbers(fields) if len(fields) == _NTU_JOINT_FIELDS else None
                 if values is None or not np.all(np.isfinite(values)):
                     raise DataFormatError(
                         path,
@@ -485,7 +324,7 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
                         ),
                         line=number,
                     )
-                if _implausible(values[:3]):
+                if implausible(values[:3]):
                     raise DataFormatError(
                         path,
                         f"a coordinate beyond ±{MAX_COORDINATE_M:g} m ({' '.join(fields[:3])})",
@@ -528,8 +367,8 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
     }
     positions = positions[:, skeleton.FROM_KINECT_V2]
     states = states[:, skeleton.FROM_KINECT_V2]
-    timestamps = np.arange(frame_count) / _DEFAULT_FPS
-    return _finish(path, positions, states, timestamps, present, metadata)
+    timestamps = np.arange(frame_count) / DEFAULT_FPS
+    return finish_recording(path, positions, states, timestamps, present, metadata)
 
 
 # --------------------------------------------------------------------------- documented CSV
@@ -573,7 +412,7 @@ def read_csv(path: str | Path) -> Recording:
         If the header lacks a joint column, or no (or under half of the) rows are usable.
     """
     path = Path(path)
-    lines = _read_text(path)
+    lines = read_text(path)
     body_lines = [
         (n, t) for n, t in enumerate(lines, start=1) if t.strip() and not t.lstrip().startswith("#")
     ]
@@ -595,26 +434,26 @@ def read_csv(path: str | Path) -> Recording:
     has_time = "timestamp" in index
     known = set(_csv_columns()) | {"timestamp"}
     ignored = [h for h in header if h not in known]
-    log = _LineLog()
+    log = LineLog()
     rows: list[np.ndarray] = []
     stamps: list[float] = []
     numbered = (
         (n, [f.strip() for f in text.strip().rstrip(",").split(",")]) for n, text in body_lines[1:]
     )
-    for number, values in _numeric_lines(numbered, len(header), log, finite=False):
+    for number, values in numeric_lines(numbered, len(header), log, finite=False):
         if not np.all(np.isfinite(values[columns])) or (
             has_time and not math.isfinite(values[index["timestamp"]])
         ):
             log.skip(number, "NaN or inf value")
             continue
         joints = values[columns].reshape(skeleton.NUM_JOINTS, 4)
-        if _implausible(joints[:, :3]):
+        if implausible(joints[:, :3]):
             log.skip(number, f"a coordinate beyond ±{MAX_COORDINATE_M:g} m")
             continue
         if not np.all(np.isin(joints[:, 3], skeleton.TRACKING_STATES)):
             log.skip(number, "tracking state not 0, 1 or 2")
             continue
-        stamp = values[index["timestamp"]] if has_time else len(rows) / _DEFAULT_FPS
+        stamp = values[index["timestamp"]] if has_time else len(rows) / DEFAULT_FPS
         if stamps and stamp < stamps[-1]:
             log.skip(number, "timestamp goes back")
             continue
@@ -634,7 +473,7 @@ def read_csv(path: str | Path) -> Recording:
         metadata["ignored_columns"] = ignored
     if not has_time:
         metadata["timestamps_note"] = "no timestamp column: 30 Hz assumed"
-    return _finish(path, positions, states, np.asarray(stamps), body, metadata)
+    return finish_recording(path, positions, states, np.asarray(stamps), body, metadata)
 
 
 # --------------------------------------------------------------------------- detection
@@ -681,7 +520,7 @@ def detect_format(path: str | Path) -> str:
         return "ntu"
     if name.endswith((".json", ".json.gz")) and is_azure_kinect_json(path):
         return "azure_kinect"
-    lines = _read_text(path)
+    lines = read_text(path)
     sample = [t.strip() for t in lines if t.strip() and not t.lstrip().startswith("#")][
         :_DETECT_LINES
     ]
