@@ -61,6 +61,7 @@ from fpg_gym.core.errors import FpgGymError
 from fpg_gym.core.validation import check_integer, check_number
 from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.filters import make_filter
+from fpg_gym.io.plausibility import MAX_COORDINATE_M  # a larger coordinate is a corrupt frame
 from fpg_gym.methods import Method
 from fpg_gym.reconstruct import Reconstructor
 from optimizers import make
@@ -87,8 +88,6 @@ __all__ = [
     "udp_sender",
 ]
 
-#: Largest plausible coordinate (metres); a larger one is a corrupt frame.
-MAX_COORDINATE_M = 1000.0
 #: Frame step assumed when a frame carries no timestamp (seconds).
 DEFAULT_DT = 1.0 / 30.0
 #: Largest UDP datagram read.

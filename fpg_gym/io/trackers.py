@@ -54,7 +54,8 @@ from fpg_gym.core.errors import DataFormatError
 from fpg_gym.core.validation import check_choice, check_integer
 from fpg_gym.io._compression import read_input_bytes
 from fpg_gym.io.files import decode_text
-from fpg_gym.io.plausibility import check_recording
+from fpg_gym.io.lines import DEFAULT_FPS, MAX_BAD_SHARE
+from fpg_gym.io.plausibility import MAX_COORDINATE_M, check_recording
 from fpg_gym.io.recording import INFERRED, NOT_TRACKED, TRACKED, Recording
 
 __all__ = [
@@ -133,10 +134,6 @@ CONFIDENCE_STATES: dict[str, int] = {
 }
 _CONFIDENCE_BY_VALUE = (NOT_TRACKED, INFERRED, TRACKED, TRACKED)
 _CONFIDENCE_KEYS = ("joint_confidences", "confidence_levels", "joint_confidence")
-#: Largest plausible coordinate in metres.
-MAX_COORDINATE_M = 1000.0
-_MAX_BAD_SHARE = 0.5
-_DEFAULT_FPS = 30.0
 UNITS: dict[str, float] = {"m": 1.0, "cm": 0.01, "mm": 0.001}
 
 
@@ -157,7 +154,7 @@ class _FrameLog:
         total = kept + count
         if total == 0:
             raise DataFormatError(path, f"no {unit} (empty {fmt} file)")
-        if kept == 0 or count > _MAX_BAD_SHARE * total:
+        if kept == 0 or count > MAX_BAD_SHARE * total:
             reason = next(iter(self.reasons))
             raise DataFormatError(
                 path,
@@ -592,7 +589,7 @@ def _mapped_csv(path: Path, joint_map: JointMap, log: _FrameLog) -> tuple[Any, .
         except ValueError:
             log.skip(number, "a field is not a number")
             continue
-        stamp = values[column["timestamp"]] if has_time else len(rows) / _DEFAULT_FPS
+        stamp = values[column["timestamp"]] if has_time else len(rows) / DEFAULT_FPS
         joints = values[xyz]
         states = np.array(
             [TRACKED if c is None else values[c] for c in state_columns], dtype=np.float64
@@ -625,7 +622,7 @@ def _mapped_json(path: Path, joint_map: JointMap, log: _FrameLog) -> tuple[Any, 
             log.skip(number, "a joint is not [x, y, z]")
             continue
         has_states |= bool(frame.get("states"))
-        stamp = _number(frame.get("timestamp", len(rows) / _DEFAULT_FPS))
+        stamp = _number(frame.get("timestamp", len(rows) / DEFAULT_FPS))
         if stamp is None:
             log.skip(number, "'timestamp' is not a finite number")
             continue
