@@ -38,7 +38,13 @@ from fpg_gym.graph import load_graph
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
 from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
-from fpg_gym.reconstruct import EnergyWeights, Reconstructor, SearchProblem, TemporalConfig
+from fpg_gym.reconstruct import (
+    EnergyWeights,
+    FrameRecord,
+    Reconstructor,
+    SearchProblem,
+    TemporalConfig,
+)
 from fpg_gym.rendering import HumanWindow, render_panels
 
 __all__ = [
@@ -679,25 +685,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             "reward_temporal": -w.motion * terms["Em"],
             "reward_prior": -w.prior * terms["Ep"],
         }
-        truth = recording.ground_truth
-        if truth is not None:
-            errors = frame_error(truth[[t, t]], np.stack([pose, recording.positions[t]]))
-            info["frame_error"] = float(errors[0])
-            info["raw_frame_error"] = float(errors[1])
-        self._outputs = [*self._outputs[-2:], (pose, float(record.timestamp))]
-        info["acceleration"] = 0.0
-        if len(self._outputs) == 3:
-            poses, times = zip(*self._outputs, strict=True)
-            outputs = np.stack(poses).astype(np.float64)
-            info["acceleration"] = float(acceleration(outputs, timestamps=times).mean())
-        if self.reward_mode == "energy":
-            reward = -float(record.energy)
-        elif self.reward_mode == "error":
-            reward = -info["frame_error"]
-        elif self.reward_mode == "smooth":
-            reward = -(info["frame_error"] + self.smooth_weight * info["acceleration"])
-        else:
-            reward = -(float(record.energy) + self.error_weight * info["frame_error"])
+        reward = self._reward(record, pose, recording, info)
         info.update(
             {
                 **self._candidate_info(record.reliability, record.nodes),
@@ -733,6 +721,33 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         if self.render_mode == "human":
             self.render()
         return self._observation(obs_vector), reward, terminated, bool(truncated), info
+
+    def _reward(
+        self, record: FrameRecord, pose: np.ndarray, recording: Recording, info: dict[str, Any]
+    ) -> float:
+        """The step's reward (*Rewards*); keeps the last three outputs and puts ``frame_error``
+        and ``raw_frame_error`` (with ground truth) and ``acceleration`` into ``info``."""
+        t = self._t
+        truth = recording.ground_truth
+        if truth is not None:
+            errors = frame_error(truth[[t, t]], np.stack([pose, recording.positions[t]]))
+            info["frame_error"] = float(errors[0])
+            info["raw_frame_error"] = float(errors[1])
+        self._outputs = [*self._outputs[-2:], (pose, float(record.timestamp))]
+        info["acceleration"] = 0.0
+        if len(self._outputs) == 3:
+            poses, times = zip(*self._outputs, strict=True)
+            outputs = np.stack(poses).astype(np.float64)
+            info["acceleration"] = float(acceleration(outputs, timestamps=times).mean())
+        if self.reward_mode == "energy":
+            reward = -float(record.energy)
+        elif self.reward_mode == "error":
+            reward = -info["frame_error"]
+        elif self.reward_mode == "smooth":
+            reward = -(info["frame_error"] + self.smooth_weight * info["acceleration"])
+        else:
+            reward = -(float(record.energy) + self.error_weight * info["frame_error"])
+        return reward
 
     def render(self) -> np.ndarray | None:
         """``rgb_array``: a ``(320, 640, 3)`` uint8 image, the Kinect input (joints coloured by
