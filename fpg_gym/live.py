@@ -43,187 +43,42 @@ offline: with no frame dropped and the same seed, the live output equals the off
 
 from __future__ import annotations
 
-import json
-import math
-import socket
-import sys
 import threading
 import time
 from collections import Counter, deque
-from collections.abc import Callable, Iterable, Iterator
+from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field, replace
-from typing import Any, BinaryIO
+from typing import Any
 
 import numpy as np
 
-from fpg_gym.core import skeleton
 from fpg_gym.core.errors import FpgGymError
 from fpg_gym.core.validation import check_integer, check_number
 from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.filters import make_filter
-from fpg_gym.io.plausibility import MAX_COORDINATE_M  # a larger coordinate is a corrupt frame
+from fpg_gym.io.live_frames import FrameError, LiveFrame, is_end, parse_frame
 from fpg_gym.methods import Method
 from fpg_gym.reconstruct import Reconstructor
 from optimizers import make
 
 __all__ = [
     "MAX_JUMP_NOTICES",
-    "FrameError",
     "FrameQueue",
-    "LiveAddressError",
-    "LiveFrame",
     "LiveReader",
     "LiveStats",
     "ReconstructorStep",
     "StreamClock",
     "emit_frame",
-    "frame_line",
-    "is_end",
-    "open_udp_input",
-    "parse_address",
-    "parse_frame",
     "run_live",
-    "stdin_lines",
-    "udp_lines",
-    "udp_sender",
 ]
 
 #: Frame step assumed when a frame carries no timestamp (seconds).
 DEFAULT_DT = 1.0 / 30.0
-#: Largest UDP datagram read.
-MAX_DATAGRAM = 65507
-#: Largest plausible timestamp (seconds, about 31,700 years): beyond it, a frame is corrupt (and
-#: a float64 no longer resolves a frame interval well).
-MAX_TIMESTAMP_S = 1e12
 #: A frame at most this much older than the last one (seconds) arrived out of order: skipped.
 #: Further back, the sender's clock jumped or restarted (:class:`StreamClock`).
 LATE_S = 0.1
 #: Frames held at most while the pipeline starts (before it first asks for a frame).
 MAX_STARTUP_FRAMES = 10_000
-
-
-class FrameError(FpgGymError, ValueError):
-    """A malformed live frame; ``reason`` is a short category for the counts."""
-
-    def __init__(self, reason: str, detail: str = "") -> None:
-        self.reason = reason
-        super().__init__(f"{reason}: {detail}" if detail else reason)
-
-
-@dataclass(frozen=True)
-class LiveFrame:
-    """One received frame.
-
-    Attributes
-    ----------
-    index : int
-        Sequence number among well-formed frames (0, 1, ...).
-    timestamp : float or None
-        Seconds, as sent (None: not sent).
-    positions : ndarray, shape (20, 3), float32
-    states : ndarray, shape (20,), int8
-    received : float
-        ``time.perf_counter()`` when the line arrived.
-    """
-
-    index: int
-    timestamp: float | None
-    positions: np.ndarray
-    states: np.ndarray
-    received: float
-
-
-def _joint_values(value: Any, name: str, width: int) -> np.ndarray:
-    """A list of 20 (or an object naming all 20 joints) as an array ``(20, width)``."""
-    if isinstance(value, dict):
-        missing = [j for j in skeleton.JOINT_NAMES if j not in value]
-        if missing:
-            raise FrameError(f"{name} lacks joints", f"e.g. {missing[:3]}")
-        value = [value[j] for j in skeleton.JOINT_NAMES]
-    try:
-        array = np.asarray(value, dtype=np.float64)
-    except (TypeError, ValueError, OverflowError):
-        raise FrameError(f"{name} not numbers") from None
-    shape = (skeleton.NUM_JOINTS, width) if width > 1 else (skeleton.NUM_JOINTS,)
-    if array.shape != shape:
-        raise FrameError(f"{name} wrong shape", f"expected {shape}, got {array.shape}")
-    if not np.all(np.isfinite(array)):
-        raise FrameError(f"{name} not finite")
-    return array
-
-
-def parse_frame(line: str | bytes, index: int = 0, received: float | None = None) -> LiveFrame:
-    """Parse one JSON line of the wire format (module docstring).
-
-    Raises
-    ------
-    FrameError
-        On anything that does not fit the format (``reason`` names the category).
-    """
-    try:
-        data = json.loads(line)
-    except (UnicodeDecodeError, json.JSONDecodeError, RecursionError):
-        raise FrameError("not JSON") from None
-    if not isinstance(data, dict):
-        raise FrameError("not a JSON object")
-    if "joints" not in data:
-        raise FrameError("no joints")
-    positions = _joint_values(data["joints"], "joints", 3)
-    if np.abs(positions).max() > MAX_COORDINATE_M:
-        raise FrameError("joints implausible", f"a coordinate beyond ±{MAX_COORDINATE_M:g} m")
-    states: np.ndarray
-    if data.get("states") is None:
-        states = np.full(skeleton.NUM_JOINTS, skeleton.TRACKED, dtype=np.int8)
-    else:
-        values = _joint_values(data["states"], "states", 1)
-        if not np.all(np.isin(values, skeleton.TRACKING_STATES)):
-            raise FrameError("states not 0, 1 or 2")
-        states = values.astype(np.int8)
-    stamp = data.get("timestamp")
-    if stamp is not None:
-        if isinstance(stamp, bool) or not isinstance(stamp, int | float):
-            raise FrameError("timestamp not a number")
-        try:
-            stamp = float(stamp)
-        except OverflowError:
-            raise FrameError("timestamp not finite") from None
-        if not math.isfinite(stamp):
-            raise FrameError("timestamp not finite")
-        if abs(stamp) > MAX_TIMESTAMP_S:
-            raise FrameError("timestamp implausible", f"beyond ±{MAX_TIMESTAMP_S:g} s")
-    return LiveFrame(
-        index=index,
-        timestamp=stamp,
-        positions=positions.astype(np.float32),
-        states=states,
-        received=time.perf_counter() if received is None else received,
-    )
-
-
-def frame_line(
-    positions: np.ndarray, states: np.ndarray | None = None, timestamp: float | None = None
-) -> str:
-    """One frame in the wire format (what a sender writes; values kept exactly)."""
-    data: dict[str, Any] = {}
-    if timestamp is not None:
-        data["timestamp"] = float(timestamp)
-    data["joints"] = np.asarray(positions, dtype=np.float64).tolist()
-    if states is not None:
-        data["states"] = np.asarray(states, dtype=int).tolist()
-    return json.dumps(data, separators=(",", ":"))
-
-
-def is_end(line: str | bytes) -> bool:
-    """Whether a line is the end-of-stream marker ``{"end": true}``."""
-    text = line.decode("utf-8", errors="replace") if isinstance(line, bytes) else line
-    text = text.strip()
-    if not text.startswith("{") or "end" not in text:
-        return False
-    try:
-        data = json.loads(text)
-    except (json.JSONDecodeError, RecursionError):
-        return False
-    return isinstance(data, dict) and data.get("end") is True
 
 
 # --------------------------------------------------------------------------- queue and counts
@@ -398,126 +253,6 @@ class StreamClock:
                 self._anchor = (stamp, time_s)
             self._last_stamp = stamp
         self._last_time = time_s
-
-
-# --------------------------------------------------------------------------- sources and sinks
-
-
-class LiveAddressError(FpgGymError, ValueError):
-    """A ``udp://HOST:PORT`` that cannot be listened on or sent to (names the argument)."""
-
-
-def parse_address(text: str, argument: str) -> tuple[str, int]:
-    """``udp://HOST:PORT`` -> ``(host, port)``.
-
-    Raises
-    ------
-    ValueError
-        Naming ``argument`` when the text is not of that form.
-    """
-    prefix = "udp://"
-    host, sep, port = (
-        text[len(prefix) :].rpartition(":") if text.startswith(prefix) else ("", "", "")
-    )
-    if not sep or not host or not port.isdigit() or not 0 <= int(port) <= 65535:
-        raise ValueError(f"{argument}: expected '-' or udp://HOST:PORT, got {text!r}")
-    return host.strip("[]"), int(port)
-
-
-def _resolve(text: str, argument: str, passive: bool) -> tuple[Any, ...]:
-    """``(family, address)`` of a ``udp://HOST:PORT`` (the first of ``getaddrinfo``)."""
-    host, port = parse_address(text, argument)
-    try:
-        found = socket.getaddrinfo(
-            host, port, type=socket.SOCK_DGRAM, flags=socket.AI_PASSIVE if passive else 0
-        )
-    except (OSError, UnicodeError) as error:
-        reason = getattr(error, "strerror", None) or str(error)
-        raise LiveAddressError(
-            f"{argument} {text}: host {host!r} not found ({reason}); expected an IP address "
-            "or a host name this machine resolves"
-        ) from None
-    family, _, _, _, address = found[0]
-    return family, address
-
-
-def open_udp_input(text: str, argument: str = "--input") -> socket.socket:
-    """A UDP socket bound to ``udp://HOST:PORT`` (port 0: any free port).
-
-    Raises
-    ------
-    LiveAddressError
-        Naming ``argument`` and the address when it cannot be resolved or bound (in use, not an
-        address of this machine, a privileged port).
-    """
-    family, address = _resolve(text, argument, passive=True)
-    sock = socket.socket(family, socket.SOCK_DGRAM)
-    try:
-        sock.bind(address)
-    except OSError as error:
-        sock.close()
-        raise LiveAddressError(
-            f"{argument} {text}: cannot listen there ({error.strerror or error}); expected an "
-            "address of this machine (e.g. 0.0.0.0 or 127.0.0.1) and a free port (1024-65535, "
-            "or 0 for any)"
-        ) from None
-    return sock
-
-
-def stdin_lines(stream: BinaryIO | None = None) -> Iterator[bytes]:
-    """Lines of standard input (or ``stream``) as they arrive."""
-    source = sys.stdin.buffer if stream is None else stream
-    yield from iter(source.readline, b"")
-
-
-def udp_lines(
-    sock: socket.socket, stop: threading.Event, idle_timeout_s: float | None = None
-) -> Iterator[bytes]:
-    """Lines of the datagrams arriving on a bound UDP socket, until ``stop`` is set or, after
-    the first datagram, none came for ``idle_timeout_s`` seconds (None: wait for ever)."""
-    sock.settimeout(0.1)
-    last: float | None = None  # the idle time counts from the first datagram
-    while not stop.is_set():
-        try:
-            data = sock.recv(MAX_DATAGRAM)
-        except TimeoutError:
-            if (
-                idle_timeout_s is not None
-                and last is not None
-                and time.monotonic() - last > idle_timeout_s
-            ):
-                return
-            continue
-        except OSError:  # e.g. an ICMP error reported on the socket: not a frame, go on
-            continue
-        last = time.monotonic()
-        yield from (line for line in data.splitlines() if line.strip())
-
-
-def udp_sender(text: str, argument: str = "--output") -> Callable[[str], None]:
-    """A function sending one line as one UDP datagram to ``udp://HOST:PORT`` (resolved once).
-
-    Raises
-    ------
-    LiveAddressError
-        Naming ``argument`` and the address: now when it cannot be resolved or its port is 0,
-        and from the function when a datagram cannot be sent.
-    """
-    family, address = _resolve(text, argument, passive=False)
-    if address[1] == 0:
-        raise LiveAddressError(f"{argument} {text}: expected a port from 1 to 65535, got 0")
-    sock = socket.socket(family, socket.SOCK_DGRAM)
-
-    def send(line: str) -> None:
-        try:
-            sock.sendto(line.encode("utf-8"), address)
-        except OSError as error:
-            raise LiveAddressError(
-                f"{argument} {text}: cannot send ({error.strerror or error}); expected a "
-                "reachable address"
-            ) from None
-
-    return send
 
 
 def emit_frame(frame: LiveFrame, pose: np.ndarray, ms: float, stats: LiveStats) -> dict[str, Any]:

@@ -688,7 +688,7 @@ def test_argument_files_expand_to_arguments_never_options(tmp_path: Path, raw: b
 def _live_stream(draw: Any) -> list[str]:
     """A sender's lines: frames with timestamps that run on, jump, restart or go missing,
     between malformed lines and the end marker."""
-    from fpg_gym.live import frame_line
+    from fpg_gym.io.live_frames import frame_line
 
     pose = load_default_clips(["walk"])[0].positions[0]
     lines: list[str] = []
@@ -714,7 +714,8 @@ def _live_stream(draw: Any) -> list[str]:
 @FAST
 @given(lines=_live_stream())
 def test_whole_live_streams_parse_frame_by_frame(lines: list[str]) -> None:
-    from fpg_gym.live import MAX_COORDINATE_M, FrameError, is_end, parse_frame
+    from fpg_gym.io.live_frames import FrameError, is_end, parse_frame
+    from fpg_gym.io.plausibility import MAX_COORDINATE_M
 
     parsed = 0
     for line in lines:

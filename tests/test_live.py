@@ -22,7 +22,7 @@ from fpg_gym import live
 from fpg_gym.cli import main
 from fpg_gym.core import skeleton
 from fpg_gym.graph import FilteredPoseGraph, default_graph
-from fpg_gym.io import Recording, load_default_clips, write_recording
+from fpg_gym.io import Recording, live_frames, load_default_clips, udp, write_recording
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.simulate import simulate
 
@@ -51,7 +51,7 @@ def offline_poses(seed: int = 0) -> np.ndarray:
 
 def frame_lines(rec: Recording) -> list[str]:
     return [
-        live.frame_line(rec.positions[i], rec.states[i], rec.timestamps[i])
+        live_frames.frame_line(rec.positions[i], rec.states[i], rec.timestamps[i])
         for i in range(rec.num_frames)
     ]
 
@@ -63,7 +63,7 @@ def test_parse_frame_reads_lists_and_joint_objects() -> None:
     rng = np.random.default_rng(0)
     positions = rng.normal(size=(20, 3)).astype(np.float32)
     states = rng.integers(0, 3, size=20)
-    frame = live.parse_frame(live.frame_line(positions, states, 1.25), index=3)
+    frame = live_frames.parse_frame(live_frames.frame_line(positions, states, 1.25), index=3)
     np.testing.assert_array_equal(frame.positions, positions)
     np.testing.assert_array_equal(frame.states, states)
     assert frame.timestamp == 1.25 and frame.index == 3
@@ -71,11 +71,11 @@ def test_parse_frame_reads_lists_and_joint_objects() -> None:
         "joints": dict(zip(skeleton.JOINT_NAMES, positions.tolist(), strict=True)),
         "states": dict(zip(skeleton.JOINT_NAMES, states.tolist(), strict=True)),
     }
-    named = live.parse_frame(json.dumps(by_name))
+    named = live_frames.parse_frame(json.dumps(by_name))
     np.testing.assert_array_equal(named.positions, positions)
     np.testing.assert_array_equal(named.states, states)
     assert named.timestamp is None
-    untracked = live.parse_frame(json.dumps({"joints": positions.tolist()}))
+    untracked = live_frames.parse_frame(json.dumps({"joints": positions.tolist()}))
     assert np.all(untracked.states == skeleton.TRACKED)
 
 
@@ -98,16 +98,16 @@ def test_parse_frame_reads_lists_and_joint_objects() -> None:
     ],
 )
 def test_malformed_frames_name_their_reason(line: str | bytes, reason: str) -> None:
-    with pytest.raises(live.FrameError) as caught:
-        live.parse_frame(line)
+    with pytest.raises(live_frames.FrameError) as caught:
+        live_frames.parse_frame(line)
     assert caught.value.reason == reason
 
 
 def test_parse_address() -> None:
-    assert live.parse_address("udp://127.0.0.1:9000", "--input") == ("127.0.0.1", 9000)
+    assert udp.parse_address("udp://127.0.0.1:9000", "--input") == ("127.0.0.1", 9000)
     for bad in ("tcp://x:1", "udp://host", "udp://:80", "udp://h:99999", "9000"):
         with pytest.raises(ValueError, match="--input"):
-            live.parse_address(bad, "--input")
+            udp.parse_address(bad, "--input")
 
 
 # --------------------------------------------------------------------------- queue
@@ -116,7 +116,9 @@ def test_parse_address() -> None:
 def test_queue_drops_oldest_when_full_and_stale_frames_by_age() -> None:
     queue = live.FrameQueue(2, startup=False)
     frames = [
-        live.LiveFrame(i, None, np.zeros((20, 3), np.float32), np.zeros(20, np.int8), float(i))
+        live_frames.LiveFrame(
+            i, None, np.zeros((20, 3), np.float32), np.zeros(20, np.int8), float(i)
+        )
         for i in range(3)
     ]
     for frame in frames:
@@ -125,8 +127,8 @@ def test_queue_drops_oldest_when_full_and_stale_frames_by_age() -> None:
     assert queue.get().index == 1  # the oldest (0) went
     assert queue.get().index == 2
     now = time.perf_counter()
-    old = live.LiveFrame(7, None, frames[0].positions, frames[0].states, now - 10.0)
-    new = live.LiveFrame(8, None, frames[0].positions, frames[0].states, now)
+    old = live_frames.LiveFrame(7, None, frames[0].positions, frames[0].states, now - 10.0)
+    new = live_frames.LiveFrame(8, None, frames[0].positions, frames[0].states, now)
     queue.put(old)
     queue.put(new)
     assert queue.get(max_age_s=1.0).index == 8  # stale frame skipped: a newer one waited
@@ -138,7 +140,9 @@ def test_queue_drops_oldest_when_full_and_stale_frames_by_age() -> None:
 
 
 def test_slow_step_skips_stale_frames_and_malformed_lines_never_stop_the_stream() -> None:
-    lines = [live.frame_line(np.full((20, 3), i, np.float32), None, i / 30.0) for i in range(40)]
+    lines = [
+        live_frames.frame_line(np.full((20, 3), i, np.float32), None, i / 30.0) for i in range(40)
+    ]
     lines.insert(5, "garbage")
     lines.insert(9, json.dumps({"joints": [[1, 2]]}))
     emitted: list[dict] = []
@@ -148,7 +152,7 @@ def test_slow_step_skips_stale_frames_and_malformed_lines_never_stop_the_stream(
             time.sleep(0.002)
             yield line
 
-    def slow(frame: live.LiveFrame) -> np.ndarray:
+    def slow(frame: live_frames.LiveFrame) -> np.ndarray:
         time.sleep(0.02)  # ten times slower than frames arrive
         return frame.positions
 
@@ -161,9 +165,9 @@ def test_slow_step_skips_stale_frames_and_malformed_lines_never_stop_the_stream(
 
 
 def test_a_late_frame_and_a_refused_frame_are_counted() -> None:
-    lines = [live.frame_line(np.zeros((20, 3)), None, t) for t in (0.0, 1.0, 0.95, 2.0)]
+    lines = [live_frames.frame_line(np.zeros((20, 3)), None, t) for t in (0.0, 1.0, 0.95, 2.0)]
 
-    def step(frame: live.LiveFrame) -> np.ndarray:
+    def step(frame: live_frames.LiveFrame) -> np.ndarray:
         if frame.timestamp == 2.0:
             raise ValueError("refused")
         return frame.positions
@@ -179,12 +183,12 @@ def test_a_late_frame_and_a_refused_frame_are_counted() -> None:
 def _stream_times(stamps: list[float | None]) -> tuple[live.LiveStats, list, list[str], list]:
     """``run_live`` over frames stamped ``stamps``: the stats, the times the step saw, the
     notices and the outputs."""
-    lines = [live.frame_line(np.zeros((20, 3)), None, t) for t in stamps]
+    lines = [live_frames.frame_line(np.zeros((20, 3)), None, t) for t in stamps]
     seen: list[float | None] = []
     notices: list[str] = []
     out: list[dict] = []
 
-    def step(frame: live.LiveFrame) -> np.ndarray:
+    def step(frame: live_frames.LiveFrame) -> np.ndarray:
         seen.append(frame.timestamp)
         return frame.positions
 
@@ -246,8 +250,8 @@ def test_frames_waiting_at_start_up_are_all_reconstructed() -> None:
     queue = live.FrameQueue(2)
     zeros = np.zeros((20, 3), np.float32), np.zeros(20, np.int8)
 
-    def frame(i: int, age_s: float = 10.0) -> live.LiveFrame:
-        return live.LiveFrame(i, None, *zeros, time.perf_counter() - age_s)
+    def frame(i: int, age_s: float = 10.0) -> live_frames.LiveFrame:
+        return live_frames.LiveFrame(i, None, *zeros, time.perf_counter() - age_s)
 
     for i in range(30):  # arrived during the start-up, 10 s ago
         queue.put(frame(i))
@@ -270,10 +274,10 @@ def test_a_pipeline_slower_than_the_stream_ends_the_start_up() -> None:
     queue = live.FrameQueue(2)
     zeros = np.zeros((20, 3), np.float32), np.zeros(20, np.int8)
     for i in range(5):
-        queue.put(live.LiveFrame(i, None, *zeros, time.perf_counter()))
+        queue.put(live_frames.LiveFrame(i, None, *zeros, time.perf_counter()))
     assert queue.get().index == 0 and queue.backlog == 5  # start-up limit: 10 waiting
     for i in range(5, 12):  # 11 waiting: the stream outruns the pipeline
-        queue.put(live.LiveFrame(i, None, *zeros, time.perf_counter()))
+        queue.put(live_frames.LiveFrame(i, None, *zeros, time.perf_counter()))
     assert queue.dropped == 9  # back to the bounded queue of 2
     assert [queue.get().index, queue.get().index] == [10, 11]
 
@@ -300,7 +304,7 @@ def test_udp_stream_at_30_hz_equals_offline_reconstruct(tmp_path: Path) -> None:
             step = live.ReconstructorStep(rec_live, OPTIMIZER, seed=0)
             out: list[dict] = []
             stats = live.run_live(
-                live.udp_lines(sock, stop, idle_timeout_s=30.0),
+                udp.udp_lines(sock, stop, idle_timeout_s=30.0),
                 step,
                 out.append,
                 queue_size=rec.num_frames,  # no frame dropped: the output must equal offline
@@ -395,7 +399,7 @@ def test_live_command_goes_on_after_the_sender_clock_restarts(
         (ahead, "frame 11"),
     ):
         lines = [
-            live.frame_line(rec.positions[i], rec.states[i], stamps[i])
+            live_frames.frame_line(rec.positions[i], rec.states[i], stamps[i])
             for i in range(rec.num_frames)
         ]
         monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO("\n".join(lines).encode())))
@@ -491,9 +495,9 @@ def test_udp_sender_starting_late_gets_its_frames_through(tmp_path: Path) -> Non
 
 
 def test_ctrl_c_ends_the_stream_with_its_counts() -> None:
-    lines = [live.frame_line(np.zeros((20, 3)), None, i / 30.0) for i in range(10)]
+    lines = [live_frames.frame_line(np.zeros((20, 3)), None, i / 30.0) for i in range(10)]
 
-    def step(frame: live.LiveFrame) -> np.ndarray:
+    def step(frame: live_frames.LiveFrame) -> np.ndarray:
         if frame.index == 3:
             raise KeyboardInterrupt
         return frame.positions
@@ -532,12 +536,12 @@ _VALUES = st.recursive(
 def test_any_line_parses_or_raises_frame_error(value: object, raw: bytes) -> None:
     for line in (json.dumps(value, allow_nan=True), raw):
         try:
-            frame = live.parse_frame(line)
-        except live.FrameError:
+            frame = live_frames.parse_frame(line)
+        except live_frames.FrameError:
             continue
         assert frame.positions.shape == (20, 3) and np.all(np.isfinite(frame.positions))
         assert frame.states.shape == (20,)
-        live.is_end(line)  # never raises either
+        live_frames.is_end(line)  # never raises either
 
 
 def test_warm_up_leaves_no_trace_on_the_stream() -> None:
@@ -579,7 +583,7 @@ def test_live_runs_the_mapped_filters_as_offline(
 
     rec = recording()
     lines = [
-        live.frame_line(rec.positions[i], rec.states[i], rec.timestamps[i])
+        live_frames.frame_line(rec.positions[i], rec.states[i], rec.timestamps[i])
         for i in range(rec.num_frames)
     ]
     monkeypatch.setattr(sys, "stdin", io.TextIOWrapper(io.BytesIO("\n".join(lines).encode())))

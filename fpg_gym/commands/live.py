@@ -81,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
     import threading
 
     from fpg_gym import live
+    from fpg_gym.io import udp
     from fpg_gym.methods import parse_method, ragdoll_factory
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
 
@@ -100,14 +101,14 @@ def run(args: argparse.Namespace) -> int:
     if method.is_filter and method.ragdoll:
         raise ValueError(f"--method {method.name}: live runs the filters without the ragdoll")
     if args.input != "-":
-        live.parse_address(args.input, "--input")
+        udp.parse_address(args.input, "--input")
     if args.output == "-":
 
         def emit(frame: dict[str, Any]) -> None:
             print(json.dumps(frame, separators=(",", ":")), flush=True)
 
     else:
-        send = live.udp_sender(args.output, "--output")
+        send = udp.udp_sender(args.output, "--output")
 
         def emit(frame: dict[str, Any]) -> None:
             send(json.dumps(frame, separators=(",", ":")))
@@ -121,11 +122,11 @@ def run(args: argparse.Namespace) -> int:
     try:
         # Listen and read before the graph loads: frames sent meanwhile wait, none is lost.
         if args.input == "-":
-            lines: Any = live.stdin_lines()
+            lines: Any = udp.stdin_lines()
         else:
-            sock = live.open_udp_input(args.input, "--input")
+            sock = udp.open_udp_input(args.input, "--input")
             idle = args.idle_timeout_s if args.idle_timeout_s > 0 else None
-            lines = live.udp_lines(sock, stop, idle)
+            lines = udp.udp_lines(sock, stop, idle)
             host, port = sock.getsockname()[:2]
             say(f"listening on udp://{host}:{port}")
         reader = live.LiveReader(lines, args.queue)
