@@ -543,6 +543,93 @@ def _run_claimed(
     """:func:`run_compare` in a folder it holds (``manifest``)."""
     config_path = out / "config.json"
     results_path = out / "results.csv"
+    episodes, embedded, seen, resume_key = _resume(
+        config, out, manifest, fresh, progress, say, method_keys
+    )
+    graph_name, exclude, graph, chosen, warning = _pipeline(
+        config, out, episodes, embedded, seen, say
+    )
+    write_text(
+        config_path,
+        json.dumps(
+            {
+                "config": asdict(config),
+                "resume_key": resume_key,
+                "method_keys": method_keys,
+                "graph_exclude": exclude,
+                "graph_resolved": graph_name,
+                "graph_summary": repr(graph),
+                "pipeline": chosen.summary(),
+                "held_out_warning": warning,
+                "episodes": [asdict(e) for e in episodes],
+            },
+            indent=2,
+        ),
+    )
+
+    tasks, skipped = _tasks_to_run(config, episodes, out, say)
+    options = {"k": config.k, **chosen.options}
+    writer = ResultsWriter(results_path)
+    bar = tqdm(total=len(tasks), desc="compare", unit="run", disable=not progress)
+    completed = [0]
+
+    def finish(row: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        path = frames_path(out, row["episode"], row["method"])
+        manifest.add(path)
+        save_frames(path, arrays)
+        writer.write(row)
+        completed[0] += 1
+        error = row.get("mean_error_m")
+        bar.set_postfix_str(
+            f"{row['method']} {error:.3f} m" if isinstance(error, float) else row["method"],
+            refresh=False,
+        )
+        bar.update(1)
+
+    batches = _batches(tasks, config.batch, config.workers)
+    try:
+        interrupted = _run_batches(config, batches, graph, graph_name, exclude, options, finish)
+    except KeyboardInterrupt:
+        interrupted = True
+    finally:
+        bar.close()
+        writer.close()
+    if interrupted:
+        say("interrupted: finished results are kept; writing the report from them")
+    summary = write_report(
+        out, plots=plots, baseline=config.baseline, interrupted=interrupted, claim=manifest.add
+    )
+    files = sorted(p for p in out.iterdir() if p.is_file())
+    return CompareOutcome(
+        out=out,
+        summary=summary,
+        table=format_table(summary),
+        tasks_run=completed[0],
+        tasks_skipped=skipped,
+        interrupted=interrupted,
+        seconds=time.perf_counter() - started,
+        files=files,
+    )
+
+
+def _resume(
+    config: CompareConfig,
+    out: Path,
+    manifest: Manifest,
+    fresh: bool,
+    progress: bool,
+    say: Callable[[str], None],
+    method_keys: dict[str, str],
+) -> tuple[list[EpisodeSpec], list[str], list[str], dict[str, Any]]:
+    """Plan the episodes and bring the folder's earlier results up to date: another
+    configuration is refused; the rows of changed episodes, of changed models and of damaged
+    frame files are dropped (they run again); the episode files are written.
+
+    Returns the episodes, the embedded clips they use, the names of their sources (recorded
+    episodes and clips) and the configuration's resume key.
+    """
+    config_path = out / "config.json"
+    results_path = out / "results.csv"
     previous_config = read_config(config_path)
     resume_key = config.resume_key()
     if not fresh and results_path.is_file() and previous_config is not None:
@@ -580,6 +667,19 @@ def _run_claimed(
     )
 
     embedded = sorted({*embedded, *(n for n in recorded if n in DEFAULT_CLIP_NAMES)})
+    return episodes, embedded, [*recorded, *clip_names], resume_key
+
+
+def _pipeline(
+    config: CompareConfig,
+    out: Path,
+    episodes: Sequence[EpisodeSpec],
+    embedded: list[str],
+    seen: list[str],
+    say: Callable[[str], None],
+) -> tuple[str, list[str], Any, Any, str | None]:
+    """The graph (name, the clips it leaves out, the graph) and the pipeline chosen for the
+    episodes' sensor, with the warning when the graph saw an episode's source."""
     sensor = _episodes_sensor(config, out / "episodes", episodes)
     graph_name = default_graph_name(sensor) if config.graph == "default" else config.graph
     exclude = embedded if graph_name in ("default", "embedded") else []
@@ -588,27 +688,18 @@ def _run_claimed(
     say(f"configuration: {chosen.preset}: {chosen.description}")
     if chosen.note:
         say(f"note: {chosen.note}")
-    warning = _held_out_warning(graph, episodes, [*recorded, *clip_names])
+    warning = _held_out_warning(graph, episodes, seen)
     if warning:
         say(f"warning: {warning}")
-    write_text(
-        config_path,
-        json.dumps(
-            {
-                "config": asdict(config),
-                "resume_key": resume_key,
-                "method_keys": method_keys,
-                "graph_exclude": exclude,
-                "graph_resolved": graph_name,
-                "graph_summary": repr(graph),
-                "pipeline": chosen.summary(),
-                "held_out_warning": warning,
-                "episodes": [asdict(e) for e in episodes],
-            },
-            indent=2,
-        ),
-    )
+    return graph_name, exclude, graph, chosen, warning
 
+
+def _tasks_to_run(
+    config: CompareConfig, episodes: Sequence[EpisodeSpec], out: Path, say: Callable[[str], None]
+) -> tuple[list[_Task], int]:
+    """The (episode, method) runs not finished in ``out``'s results, and the number of finished
+    ones kept."""
+    results_path = out / "results.csv"
     done = {
         (r["episode"], r["method"])
         for r in read_rows(results_path)
@@ -623,68 +714,40 @@ def _run_claimed(
     skipped = len(episodes) * len(config.methods) - len(tasks)
     if skipped:
         say(f"resuming: {skipped} finished task(s) in {results_path} are kept")
-    options = {"k": config.k, **chosen.options}
-    writer = ResultsWriter(results_path)
-    bar = tqdm(total=len(tasks), desc="compare", unit="run", disable=not progress)
-    interrupted = False
-    completed = [0]
+    return tasks, skipped
 
-    def finish(row: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
-        path = frames_path(out, row["episode"], row["method"])
-        manifest.add(path)
-        save_frames(path, arrays)
-        writer.write(row)
-        completed[0] += 1
-        error = row.get("mean_error_m")
-        bar.set_postfix_str(
-            f"{row['method']} {error:.3f} m" if isinstance(error, float) else row["method"],
-            refresh=False,
-        )
-        bar.update(1)
 
-    batches = _batches(tasks, config.batch, config.workers)
+def _run_batches(
+    config: CompareConfig,
+    batches: list[list[_Task]],
+    graph: Any,
+    graph_name: str,
+    exclude: list[str],
+    options: dict[str, Any],
+    finish: Callable[[dict[str, Any], dict[str, np.ndarray]], None],
+) -> bool:
+    """Run the batches on Ray, in this process or in a pool of workers, each result through
+    ``finish``; True when the run was interrupted."""
     workers = max(1, min(int(config.workers), len(batches)))
-    try:
-        if config.backend == "ray":
-            interrupted = run_on_ray(
-                batches,
-                graph,
-                config.budget,
-                options,
-                _run_loaded,
-                load_recording,
-                finish,
-                address=config.address,
-                num_cpus=config.workers,
-            )
-        elif workers <= 1:
-            with MethodRunner(graph, budget=config.budget, reconstructor_options=options) as runner:
-                for batch in batches:
-                    for result in _run_batch(runner, batch, load_recording):
-                        finish(*result)
-        else:
-            interrupted = _run_pool(batches, workers, config, graph_name, exclude, options, finish)
-    except KeyboardInterrupt:
-        interrupted = True
-    finally:
-        bar.close()
-        writer.close()
-    if interrupted:
-        say("interrupted: finished results are kept; writing the report from them")
-    summary = write_report(
-        out, plots=plots, baseline=config.baseline, interrupted=interrupted, claim=manifest.add
-    )
-    files = sorted(p for p in out.iterdir() if p.is_file())
-    return CompareOutcome(
-        out=out,
-        summary=summary,
-        table=format_table(summary),
-        tasks_run=completed[0],
-        tasks_skipped=skipped,
-        interrupted=interrupted,
-        seconds=time.perf_counter() - started,
-        files=files,
-    )
+    if config.backend == "ray":
+        return run_on_ray(
+            batches,
+            graph,
+            config.budget,
+            options,
+            _run_loaded,
+            load_recording,
+            finish,
+            address=config.address,
+            num_cpus=config.workers,
+        )
+    if workers <= 1:
+        with MethodRunner(graph, budget=config.budget, reconstructor_options=options) as runner:
+            for batch in batches:
+                for result in _run_batch(runner, batch, load_recording):
+                    finish(*result)
+        return False
+    return _run_pool(batches, workers, config, graph_name, exclude, options, finish)
 
 
 def _note_other_rows(
