@@ -107,6 +107,38 @@ def _progress_bar(enabled: bool, total: int, desc: str, unit: str) -> Any:
     return tqdm(total=total, desc=desc, unit=unit, disable=not enabled, leave=False)
 
 
+def _check_build_arguments(clips: Sequence[Clip], thres1: float, thres2: float | None) -> None:
+    """Refuse no clips, or a threshold that is not a positive finite distance."""
+    if not clips:
+        raise ValueError("clips: expected at least one clip, got none")
+    for name, value in (("thres1", thres1), ("thres2", thres2)):
+        if value is not None and not (np.isfinite(value) and value > 0):
+            raise ValueError(f"{name}: expected a positive finite distance in metres, got {value}")
+
+
+def _normalised_poses(
+    clips: Sequence[Clip], mirror: bool
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Every frame of the clips normalised, in clip order (with ``mirror``, the mirror images
+    after all originals): the poses ``(N, 20, 3)``, each processed clip's length and the input
+    clip it comes from."""
+    lengths = np.array([clip.num_frames for clip in clips], dtype=np.int64)
+    source_clip = np.arange(len(clips), dtype=np.int64)
+    flat_poses = np.empty(
+        (int(lengths.sum()) * (2 if mirror else 1), skeleton.NUM_JOINTS, 3), np.float32
+    )
+    position = 0
+    for clip in clips:
+        flat_poses[position : position + clip.num_frames] = normalise(clip.positions)[0]
+        position += clip.num_frames
+    if mirror:
+        # Mirror images of the normalised poses still face +Z with the root at the origin.
+        flat_poses[position:] = mirror_poses(flat_poses[:position])
+        lengths = np.concatenate([lengths, lengths])
+        source_clip = np.concatenate([source_clip, source_clip])
+    return flat_poses, lengths, source_clip
+
+
 class FilteredPoseGraph:
     """A Filtered Pose Graph: filtered normalised poses and their transition edges (CSR).
 
@@ -294,28 +326,9 @@ class FilteredPoseGraph:
         """
 
         clips = list(clips)
-        if not clips:
-            raise ValueError("clips: expected at least one clip, got none")
-        for name, value in (("thres1", thres1), ("thres2", thres2)):
-            if value is not None and not (np.isfinite(value) and value > 0):
-                raise ValueError(
-                    f"{name}: expected a positive finite distance in metres, got {value}"
-                )
+        _check_build_arguments(clips, thres1, thres2)
         started = time.perf_counter()
-        lengths = np.array([clip.num_frames for clip in clips], dtype=np.int64)
-        source_clip = np.arange(len(clips), dtype=np.int64)
-        flat_poses = np.empty(
-            (int(lengths.sum()) * (2 if mirror else 1), skeleton.NUM_JOINTS, 3), np.float32
-        )
-        position = 0
-        for clip in clips:
-            flat_poses[position : position + clip.num_frames] = normalise(clip.positions)[0]
-            position += clip.num_frames
-        if mirror:
-            # Mirror images of the normalised poses still face +Z with the root at the origin.
-            flat_poses[position:] = mirror_poses(flat_poses[:position])
-            lengths = np.concatenate([lengths, lengths])
-            source_clip = np.concatenate([source_clip, source_clip])
+        flat_poses, lengths, source_clip = _normalised_poses(clips, mirror)
         offsets = np.concatenate([[0], np.cumsum(lengths)])
         seconds_normalise = time.perf_counter() - started
 
