@@ -239,42 +239,16 @@ def run_episode(
     bar = None
     if progress:
         bar = tqdm(total=total, unit="frame", desc=f"episode ({label})", leave=False)
-    poses: list[np.ndarray] = []
-    rewards: list[float] = []
-    energies: list[float] = []
-    errors: list[float] = []
-    raw_errors: list[float] = []
-    evaluations: list[int] = []
-    agent_ms: list[float] = []
-    step_ms: list[float] = []
-    infos: list[dict[str, Any]] = []
+    steps = _Steps()
     terminated = truncated = False
     try:
-        while max_steps is None or len(rewards) < max_steps:
+        while max_steps is None or len(steps.rewards) < max_steps:
             t0 = time.perf_counter()
-            if kind == "optimizer":
-                problem = base.problem
-                z = base.reconstructor.search(actor, generator).x
-                # An ExactAction: the env steps exactly z, even outside the action box.
-                action: Any = base.action_for(z, problem, exact=True)
-            elif kind == "policy":
-                action, _ = actor.predict(obs, deterministic=deterministic)
-            else:
-                action = actor(obs)
+            action = _action(kind, actor, base, obs, generator, deterministic)
             t1 = time.perf_counter()
             obs, reward, terminated, truncated, info = env.step(action)
             t2 = time.perf_counter()
-            poses.append(info["pose"])
-            rewards.append(float(reward))
-            energies.append(info["energy"])
-            if "frame_error" in info:
-                errors.append(info["frame_error"])
-                raw_errors.append(info["raw_frame_error"])
-            evaluations.append(info["evaluations"])
-            agent_ms.append(1e3 * (t1 - t0))
-            step_ms.append(1e3 * (t2 - t1))
-            if keep_infos:
-                infos.append(info)
+            steps.add(info, float(reward), 1e3 * (t1 - t0), 1e3 * (t2 - t1), keep_infos)
             if bar is not None:
                 bar.update(1)
             if terminated or truncated:
@@ -282,23 +256,91 @@ def run_episode(
     finally:
         if bar is not None:
             bar.close()
-    count = len(rewards)
-    return EpisodeResult(
-        name=str(reset_info.get("recording", "")),
-        agent=label,
-        poses=np.asarray(poses, dtype=np.float32).reshape(count, -1, 3),
-        rewards=np.asarray(rewards, dtype=np.float64),
-        energies=np.asarray(energies, dtype=np.float64),
-        frame_errors=np.asarray(errors) if len(errors) == count and count else None,
-        raw_frame_errors=np.asarray(raw_errors) if len(raw_errors) == count and count else None,
-        evaluations=np.asarray(evaluations, dtype=np.int64),
-        agent_ms=np.asarray(agent_ms),
-        step_ms=np.asarray(step_ms),
-        terminated=bool(terminated),
-        truncated=bool(truncated),
-        reset_info=reset_info,
-        infos=infos,
+    return steps.result(
+        str(reset_info.get("recording", "")), label, terminated, truncated, reset_info
     )
+
+
+@dataclass
+class _Steps:
+    """What :func:`run_episode` keeps of each step."""
+
+    poses: list[np.ndarray] = field(default_factory=list)
+    rewards: list[float] = field(default_factory=list)
+    energies: list[float] = field(default_factory=list)
+    errors: list[float] = field(default_factory=list)
+    raw_errors: list[float] = field(default_factory=list)
+    evaluations: list[int] = field(default_factory=list)
+    agent_ms: list[float] = field(default_factory=list)
+    step_ms: list[float] = field(default_factory=list)
+    infos: list[dict[str, Any]] = field(default_factory=list)
+
+    def add(
+        self, info: dict[str, Any], reward: float, agent_ms: float, step_ms: float, keep: bool
+    ) -> None:
+        """One step's ``info`` and reward, the agent's and the step's milliseconds."""
+        self.poses.append(info["pose"])
+        self.rewards.append(reward)
+        self.energies.append(info["energy"])
+        if "frame_error" in info:
+            self.errors.append(info["frame_error"])
+            self.raw_errors.append(info["raw_frame_error"])
+        self.evaluations.append(info["evaluations"])
+        self.agent_ms.append(agent_ms)
+        self.step_ms.append(step_ms)
+        if keep:
+            self.infos.append(info)
+
+    def result(
+        self,
+        name: str,
+        agent: str,
+        terminated: bool,
+        truncated: bool,
+        reset_info: dict[str, Any],
+    ) -> EpisodeResult:
+        """The episode's :class:`EpisodeResult`."""
+        count = len(self.rewards)
+        errors, raw_errors = self.errors, self.raw_errors
+        return EpisodeResult(
+            name=name,
+            agent=agent,
+            poses=np.asarray(self.poses, dtype=np.float32).reshape(count, -1, 3),
+            rewards=np.asarray(self.rewards, dtype=np.float64),
+            energies=np.asarray(self.energies, dtype=np.float64),
+            frame_errors=np.asarray(errors) if len(errors) == count and count else None,
+            raw_frame_errors=(
+                np.asarray(raw_errors) if len(raw_errors) == count and count else None
+            ),
+            evaluations=np.asarray(self.evaluations, dtype=np.int64),
+            agent_ms=np.asarray(self.agent_ms),
+            step_ms=np.asarray(self.step_ms),
+            terminated=bool(terminated),
+            truncated=bool(truncated),
+            reset_info=reset_info,
+            infos=self.infos,
+        )
+
+
+def _action(
+    kind: str,
+    actor: Any,
+    base: Any,
+    obs: Any,
+    generator: np.random.Generator,
+    deterministic: bool,
+) -> Any:
+    """The agent's action on the waiting frame: an optimiser's search result as an
+    :class:`~fpg_gym.env.ExactAction` (the env steps exactly that point, even outside the
+    action box), a policy's prediction, or a callable's answer."""
+    if kind == "optimizer":
+        problem = base.problem
+        z = base.reconstructor.search(actor, generator).x
+        return base.action_for(z, problem, exact=True)
+    if kind == "policy":
+        action, _ = actor.predict(obs, deterministic=deterministic)
+        return action
+    return actor(obs)
 
 
 def _run_filter_episode(
