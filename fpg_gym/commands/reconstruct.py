@@ -369,36 +369,12 @@ def run(args: argparse.Namespace) -> int:
     """Reconstruct, write the ``.npz`` and print the summary (errors when ground truth exists)."""
     import numpy as np
 
-    from fpg_gym.commands.output import emit_json
     from fpg_gym.core.outputs import interrupts_deferred
     from fpg_gym.methods import ragdoll_factory
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
     from optimizers import make
 
-    if args.budget < 0:
-        raise ValueError(f"--budget: expected >= 0, got {args.budget}")
-    if args.k < 1:
-        raise ValueError(f"--k: expected >= 1, got {args.k}")
-    if not args.prior >= 0:
-        raise ValueError(f"--prior: expected >= 0, got {args.prior}")
-    if not args.checkpoint_s >= 0:
-        raise ValueError(f"--checkpoint-s: expected >= 0 seconds, got {args.checkpoint_s}")
-    given = [
-        name
-        for name, value in (
-            ("--optimizer", args.optimizer),
-            ("--selector", args.selector),
-            ("--no-ragdoll", args.no_ragdoll or None),
-        )
-        if value is not None
-    ]
-    if args.method and given:
-        raise ValueError(
-            f"--method {args.method} and {', '.join(given)}: give one (a method name says the "
-            "optimiser, selector and ragdoll, e.g. fpg:cma-es or shum:local-search+ragdoll)"
-        )
-    if args.optimizer:
-        make(args.optimizer)  # an unknown name fails before any work
+    _check_arguments(args)
     args.selector = args.selector or "graph"
     args.out = _check_out(args)
     if args.method:
@@ -447,9 +423,48 @@ def run(args: argparse.Namespace) -> int:
     # the frames are done: an interrupt from here on waits until they are written
     with interrupts_deferred():
         summary, out = _save_result(args, recording, result, time.perf_counter() - start)
-    frames = result.num_frames
-    total = recording.num_frames
+    _print_summary(args, summary, result, recording.num_frames, out)
+    return 130 if result.interrupted else 0
 
+
+def _check_arguments(args: argparse.Namespace) -> None:
+    """Refuse out-of-range numbers, ``--method`` beside the options it sets, and an unknown
+    ``--optimizer``, before any work."""
+    from optimizers import make
+
+    if args.budget < 0:
+        raise ValueError(f"--budget: expected >= 0, got {args.budget}")
+    if args.k < 1:
+        raise ValueError(f"--k: expected >= 1, got {args.k}")
+    if not args.prior >= 0:
+        raise ValueError(f"--prior: expected >= 0, got {args.prior}")
+    if not args.checkpoint_s >= 0:
+        raise ValueError(f"--checkpoint-s: expected >= 0 seconds, got {args.checkpoint_s}")
+    given = [
+        name
+        for name, value in (
+            ("--optimizer", args.optimizer),
+            ("--selector", args.selector),
+            ("--no-ragdoll", args.no_ragdoll or None),
+        )
+        if value is not None
+    ]
+    if args.method and given:
+        raise ValueError(
+            f"--method {args.method} and {', '.join(given)}: give one (a method name says the "
+            "optimiser, selector and ragdoll, e.g. fpg:cma-es or shum:local-search+ragdoll)"
+        )
+    if args.optimizer:
+        make(args.optimizer)  # an unknown name fails before any work
+
+
+def _print_summary(
+    args: argparse.Namespace, summary: dict[str, Any], result: Any, total: int, out: Path
+) -> None:
+    """The run's summary lines (errors and their histogram when ground truth exists)."""
+    from fpg_gym.commands.output import emit_json
+
+    frames = result.num_frames
     state = " (interrupted)" if result.interrupted else ""
     _say(args, f"frames           {frames} of {total}{state}")
     _say(
@@ -481,7 +496,6 @@ def run(args: argparse.Namespace) -> int:
     _say(args, f"written          {out}")
     if args.json:
         emit_json({**summary, "out": str(out)})
-    return 130 if result.interrupted else 0
 
 
 def _save_result(
