@@ -285,10 +285,10 @@ def write_report(
     return summary
 
 
-def report_markdown(summary: dict[str, Any]) -> str:
-    """The text of ``report.md``."""
+def _report_header(summary: dict[str, Any]) -> list[str]:
+    """The report's first lines: the version, the graph, the episodes and the run's settings."""
     config = summary.get("config", {})
-    lines = [
+    return [
         "# fpg-gym compare",
         "",
         f"Generated {summary['generated']} (fpg-gym "
@@ -316,6 +316,11 @@ def report_markdown(summary: dict[str, Any]) -> str:
         + ".",
         "",
     ]
+
+
+def report_markdown(summary: dict[str, Any]) -> str:
+    """The text of ``report.md``."""
+    lines = _report_header(summary)
     if summary.get("held_out_warning"):
         lines += [f"**Warning:** {summary['held_out_warning']}.", ""]
     if summary.get("interrupted"):
