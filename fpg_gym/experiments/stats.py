@@ -101,6 +101,97 @@ def _per_joint(parts: list[tuple[np.ndarray, int]]) -> dict[str, float] | None:
     return dict(zip(skeleton.JOINT_NAMES, mean.tolist(), strict=True))
 
 
+def _method_summary(method: str, mine: list[dict[str, str]], files: FrameFiles) -> dict[str, Any]:
+    """One method's entry of the summary from its rows (``mine``) and their per-frame files."""
+    errors, ms, joints, root_joints, mpjpe_joints = [], [], [], [], []
+    stage_sums: dict[str, list[np.ndarray]] = {}
+    for r in mine:
+        frames = files.get(r["episode"], method)
+        if frames is None:
+            continue
+        if "errors" in frames:
+            errors.append(frames["errors"])
+            joints.append((frames["per_joint_error"], len(frames["errors"])))
+            if "per_joint_root_error" in frames:
+                root_joints.append((frames["per_joint_root_error"], len(frames["errors"])))
+            if "per_joint_mpjpe" in frames:
+                mpjpe_joints.append((frames["per_joint_mpjpe"], len(frames["errors"])))
+        ms.append(frames["ms"])
+        for i, stage in enumerate(frames["stage_names"]):
+            stage_sums.setdefault(str(stage), []).append(frames["stage_ms"][:, i])
+    episode_err02 = np.array([_num(r["err02_pct"]) for r in mine])
+    episode_err02 = episode_err02[np.isfinite(episode_err02)]
+    all_errors = np.concatenate(errors) if errors else np.zeros(0)
+    all_ms = np.concatenate(ms) if ms else np.zeros(0)
+    weights = np.array([_num(r["frames"]) for r in mine])
+
+    def weighted(column: str, rows_: list[dict[str, str]] = mine, w: np.ndarray = weights) -> Any:
+        values = np.array([_num(r.get(column, "")) for r in rows_])
+        use = np.isfinite(values) & (w > 0)
+        return float(np.average(values[use], weights=w[use])) if use.any() else None
+
+    entry: dict[str, Any] = {
+        "episodes": len(mine),
+        "frames": int(np.nansum(weights)),
+        "mean_error_m": float(all_errors.mean()) if all_errors.size else None,
+        "std_error_m": float(all_errors.std()) if all_errors.size else None,
+        "median_error_m": float(np.median(all_errors)) if all_errors.size else None,
+        "err02_pct": (
+            {
+                "min": float(episode_err02.min()),
+                "mean": float(episode_err02.mean()),
+                "max": float(episode_err02.max()),
+                "pooled": 100.0 * metrics.err_ratio(all_errors),
+            }
+            if episode_err02.size and all_errors.size
+            else None
+        ),
+        "band_shares": (metrics.band_shares(all_errors).tolist() if all_errors.size else None),
+        "bone_length_spread_mm": weighted("bone_length_spread_mm"),
+        "jitter_ms2": weighted("jitter_ms2"),
+        "lag_frames": weighted("lag_frames"),
+        "lag_ms": weighted("lag_ms"),
+        "settled_bone_spread_mm": _max_column(mine, "settled_bone_spread_mm"),
+        "ms_per_frame": metrics.time_summary(all_ms) if all_ms.size else None,
+        "stage_ms_median": {s: float(np.median(np.concatenate(v))) for s, v in stage_sums.items()},
+        "evaluations_per_frame": weighted("evaluations_mean"),
+        "mean_energy": weighted("energy_mean"),
+        "per_joint_error_m": (
+            dict(
+                zip(
+                    skeleton.JOINT_NAMES,
+                    (
+                        np.sum([j * n for j, n in joints], axis=0) / sum(n for _, n in joints)
+                    ).tolist(),
+                    strict=True,
+                )
+            )
+            if joints
+            else None
+        ),
+        "per_joint_root_error_m": _per_joint(root_joints),
+        "per_joint_mpjpe_m": _per_joint(mpjpe_joints),
+        "mpjpe_m": weighted("mpjpe_m"),
+        "root_mpjpe_m": weighted("root_mpjpe_m"),
+        "pa_mpjpe_m": weighted("pa_mpjpe_m"),
+        "visible_mpjpe_m": weighted("visible_mpjpe_m"),
+        "occluded_mpjpe_m": weighted(
+            "occluded_mpjpe_m",
+            mine,
+            np.array([_num(r.get("occluded_joint_frames", "")) for r in mine]),
+        ),
+        "input_mpjpe_m": weighted("input_mpjpe_m"),
+        "bone_length_error_mm": weighted("bone_length_error_mm"),
+        "per_scenario_mean_error_m": {},
+    }
+    for scenario in sorted({r["scenario"] for r in mine}):
+        subset = [r for r in mine if r["scenario"] == scenario]
+        entry["per_scenario_mean_error_m"][scenario or "(recording)"] = weighted(
+            "mean_error_m", subset, np.array([_num(r["frames"]) for r in subset])
+        )
+    return entry
+
+
 def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, Any]:
     rows = [r for r in read_rows(out / "results.csv") if r.get("interrupted") in ("0", "")]
     latest: dict[tuple[str, str], dict[str, str]] = {}
@@ -128,98 +219,8 @@ def summarise_frames(out: Path, baseline: str, files: FrameFiles) -> dict[str, A
     result: dict[str, Any] = {}
     for method in methods:
         mine = [r for r in rows if r["method"] == method]
-        errors, ms, joints, root_joints, mpjpe_joints = [], [], [], [], []
-        stage_sums: dict[str, list[np.ndarray]] = {}
-        for r in mine:
-            frames = files.get(r["episode"], method)
-            if frames is None:
-                continue
-            if "errors" in frames:
-                errors.append(frames["errors"])
-                joints.append((frames["per_joint_error"], len(frames["errors"])))
-                if "per_joint_root_error" in frames:
-                    root_joints.append((frames["per_joint_root_error"], len(frames["errors"])))
-                if "per_joint_mpjpe" in frames:
-                    mpjpe_joints.append((frames["per_joint_mpjpe"], len(frames["errors"])))
-            ms.append(frames["ms"])
-            for i, stage in enumerate(frames["stage_names"]):
-                stage_sums.setdefault(str(stage), []).append(frames["stage_ms"][:, i])
         per_episode_error[method] = {r["episode"]: _num(r["mean_error_m"]) for r in mine}
-        episode_err02 = np.array([_num(r["err02_pct"]) for r in mine])
-        episode_err02 = episode_err02[np.isfinite(episode_err02)]
-        all_errors = np.concatenate(errors) if errors else np.zeros(0)
-        all_ms = np.concatenate(ms) if ms else np.zeros(0)
-        weights = np.array([_num(r["frames"]) for r in mine])
-
-        def weighted(
-            column: str, rows_: list[dict[str, str]] = mine, w: np.ndarray = weights
-        ) -> Any:
-            values = np.array([_num(r.get(column, "")) for r in rows_])
-            use = np.isfinite(values) & (w > 0)
-            return float(np.average(values[use], weights=w[use])) if use.any() else None
-
-        entry: dict[str, Any] = {
-            "episodes": len(mine),
-            "frames": int(np.nansum(weights)),
-            "mean_error_m": float(all_errors.mean()) if all_errors.size else None,
-            "std_error_m": float(all_errors.std()) if all_errors.size else None,
-            "median_error_m": float(np.median(all_errors)) if all_errors.size else None,
-            "err02_pct": (
-                {
-                    "min": float(episode_err02.min()),
-                    "mean": float(episode_err02.mean()),
-                    "max": float(episode_err02.max()),
-                    "pooled": 100.0 * metrics.err_ratio(all_errors),
-                }
-                if episode_err02.size and all_errors.size
-                else None
-            ),
-            "band_shares": (metrics.band_shares(all_errors).tolist() if all_errors.size else None),
-            "bone_length_spread_mm": weighted("bone_length_spread_mm"),
-            "jitter_ms2": weighted("jitter_ms2"),
-            "lag_frames": weighted("lag_frames"),
-            "lag_ms": weighted("lag_ms"),
-            "settled_bone_spread_mm": _max_column(mine, "settled_bone_spread_mm"),
-            "ms_per_frame": metrics.time_summary(all_ms) if all_ms.size else None,
-            "stage_ms_median": {
-                s: float(np.median(np.concatenate(v))) for s, v in stage_sums.items()
-            },
-            "evaluations_per_frame": weighted("evaluations_mean"),
-            "mean_energy": weighted("energy_mean"),
-            "per_joint_error_m": (
-                dict(
-                    zip(
-                        skeleton.JOINT_NAMES,
-                        (
-                            np.sum([j * n for j, n in joints], axis=0) / sum(n for _, n in joints)
-                        ).tolist(),
-                        strict=True,
-                    )
-                )
-                if joints
-                else None
-            ),
-            "per_joint_root_error_m": _per_joint(root_joints),
-            "per_joint_mpjpe_m": _per_joint(mpjpe_joints),
-            "mpjpe_m": weighted("mpjpe_m"),
-            "root_mpjpe_m": weighted("root_mpjpe_m"),
-            "pa_mpjpe_m": weighted("pa_mpjpe_m"),
-            "visible_mpjpe_m": weighted("visible_mpjpe_m"),
-            "occluded_mpjpe_m": weighted(
-                "occluded_mpjpe_m",
-                mine,
-                np.array([_num(r.get("occluded_joint_frames", "")) for r in mine]),
-            ),
-            "input_mpjpe_m": weighted("input_mpjpe_m"),
-            "bone_length_error_mm": weighted("bone_length_error_mm"),
-            "per_scenario_mean_error_m": {},
-        }
-        for scenario in sorted({r["scenario"] for r in mine}):
-            subset = [r for r in mine if r["scenario"] == scenario]
-            entry["per_scenario_mean_error_m"][scenario or "(recording)"] = weighted(
-                "mean_error_m", subset, np.array([_num(r["frames"]) for r in subset])
-            )
-        result[method] = entry
+        result[method] = _method_summary(method, mine, files)
     for method in methods:
         result[method]["vs_baseline"] = _paired_test(per_episode_error, method, baseline)
     truth_rows = [r for r in rows if r["method"] == (methods[0] if methods else "")]
