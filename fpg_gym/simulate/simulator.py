@@ -336,6 +336,188 @@ _LEVELS = skeleton.JOINT_LEVELS
 _LEVEL_PARENTS = [skeleton.PARENTS[level] for level in _LEVELS]
 
 
+@dataclass(frozen=True)
+class _OcclusionDraws:
+    """The random draws of :func:`occlusion_effects`, all made up front, in one order (same
+    seed, same stream; no per-frame generator calls)."""
+
+    u_mode: np.ndarray
+    u_snap: np.ndarray
+    shrink_draw: np.ndarray
+    angle_draw: np.ndarray
+    axis_draw: np.ndarray
+    u_not_tracked: np.ndarray
+    after_draw: np.ndarray
+    kicks: np.ndarray
+    glitch: np.ndarray
+    glitch_axis: np.ndarray
+    glitch_angle: np.ndarray
+    vibration: np.ndarray
+    flicker: np.ndarray | None
+
+    @classmethod
+    def make(
+        cls, model: OcclusionModel, rng: np.random.Generator, count: int, joints: int
+    ) -> _OcclusionDraws:
+        """Draw them for ``count`` frames of ``joints`` joints."""
+        u_mode = rng.random((count, joints))
+        u_snap = rng.random((count, joints))
+        shrink_draw = rng.uniform(*model.collapse_shrink, size=(count, joints))
+        angle_draw = np.radians(rng.uniform(*model.swing_deg, size=(count, joints)))
+        axis_draw = rng.normal(size=(count, joints, 3))
+        u_not_tracked = rng.random((count, joints))
+        after_draw = rng.integers(
+            model.not_tracked_after[0], model.not_tracked_after[1] + 1, size=(count, joints)
+        )
+        kicks = rng.normal(size=(count, joints, 3)) * model.drift_sigma
+        # Limb joints glitch (their bone turns); torso, head, shoulders and hips are held still.
+        glitch = (rng.random((count, joints)) < model.glitch_probability) & _LIMB
+        glitch_axis = rng.normal(size=(count, joints, 3))
+        glitch_angle = np.radians(rng.normal(size=(count, joints)) * model.glitch_deg)
+        vibration = rng.normal(size=(count, joints, 3)) * model.inferred_sigma
+        flicker = _flicker(rng, model, count, joints) if model.flicker_rate > 0 else None
+        return cls(
+            u_mode=u_mode,
+            u_snap=u_snap,
+            shrink_draw=shrink_draw,
+            angle_draw=angle_draw,
+            axis_draw=axis_draw,
+            u_not_tracked=u_not_tracked,
+            after_draw=after_draw,
+            kicks=kicks,
+            glitch=glitch,
+            glitch_axis=glitch_axis,
+            glitch_angle=glitch_angle,
+            vibration=vibration,
+            flicker=flicker,
+        )
+
+
+#: A joint's not-tracked limit that never comes (frames).
+_NEVER = np.iinfo(np.intp).max
+
+
+@dataclass
+class _HiddenEpisodes:
+    """Per joint, the hidden episode it is in: its mode (snap, freeze, swing, collapse), the
+    reported bone, the bone it froze at, its swing, its collapse, the frames hidden so far and
+    after how many it is reported not tracked."""
+
+    mode: np.ndarray
+    bone_rep: np.ndarray
+    frozen: np.ndarray
+    turn: np.ndarray
+    shrink: np.ndarray
+    run: np.ndarray
+    limit: np.ndarray
+
+    @classmethod
+    def start(cls, joints: int) -> _HiddenEpisodes:
+        """No joint hidden yet."""
+        return cls(
+            mode=np.zeros(joints, dtype=np.intp),
+            bone_rep=np.zeros((joints, 3)),  # reported bone of hidden joints
+            frozen=np.zeros((joints, 3)),
+            turn=np.tile(np.eye(3), (joints, 1, 1)),
+            shrink=np.ones(joints),
+            run=np.zeros(joints, dtype=np.intp),
+            limit=np.full(joints, _NEVER),
+        )
+
+    def begin(
+        self,
+        model: OcclusionModel,
+        draws: _OcclusionDraws,
+        t: int,
+        begin: np.ndarray,
+        previous: np.ndarray,
+        bone_t: np.ndarray,
+        can_snap: np.ndarray,
+    ) -> None:
+        """Start the hidden episodes of the joints ``begin`` at frame ``t`` (``previous``: their
+        reported bones in the frame before)."""
+        u = draws.u_mode[t]
+        self.mode = np.where(
+            begin,
+            np.where(
+                can_snap & (draws.u_snap[t] < model.snap_probability),
+                _SNAP,
+                np.where(
+                    u < model.freeze_probability,
+                    _FREEZE,
+                    np.where(
+                        u < model.freeze_probability + model.swing_probability,
+                        _SWING,
+                        _COLLAPSE,
+                    ),
+                ),
+            ),
+            self.mode,
+        )
+        self.bone_rep = np.where(begin[:, None], previous, self.bone_rep)
+        self.frozen = np.where(begin[:, None], previous, self.frozen)
+        axis = np.cross(bone_t, draws.axis_draw[t])
+        norm = np.linalg.norm(axis, axis=-1, keepdims=True)
+        axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
+        self.turn = np.where(
+            begin[:, None, None], axis_angle_matrix(axis, draws.angle_draw[t]), self.turn
+        )
+        self.shrink = np.where(begin, draws.shrink_draw[t], self.shrink)
+        self.limit = np.where(
+            begin,
+            np.where(
+                draws.u_not_tracked[t] < model.not_tracked_probability,
+                draws.after_draw[t],
+                _NEVER,
+            ),
+            self.limit,
+        )
+
+    def glitch(self, draws: _OcclusionDraws, t: int, jumps: np.ndarray) -> None:
+        """Turn the reported bones of the hidden limb joints ``jumps`` that glitch at ``t``."""
+        if not jumps.any():
+            return
+        axis = np.cross(self.bone_rep[jumps], draws.glitch_axis[t, jumps])
+        norm = np.linalg.norm(axis, axis=-1, keepdims=True)
+        axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
+        turned = np.einsum(
+            "jab,jb->ja",
+            axis_angle_matrix(axis, draws.glitch_angle[t, jumps]),
+            self.bone_rep[jumps],
+        )
+        self.bone_rep[jumps] = turned
+
+    def states(self, h: np.ndarray) -> np.ndarray:
+        """The states the sensor reports: a snapped joint tracked, a hidden one inferred until
+        its limit, then not tracked; a seen joint tracked."""
+        return np.where(
+            h,
+            np.where(
+                self.mode == _SNAP,
+                TRACKED,
+                np.where(self.run > self.limit, NOT_TRACKED, INFERRED),
+            ),
+            TRACKED,
+        )
+
+
+def _propagate(
+    model: OcclusionModel, excess: np.ndarray, own: np.ndarray, h: np.ndarray, kick: np.ndarray
+) -> None:
+    """Update, in place, each joint's occlusion error: a hidden joint's is its parent's plus
+    its own bone error (``own``), a seen joint's decays; a hidden root drifts on its own."""
+    # Root: no bone; a hidden root drifts on its own (pulled back like a bone).
+    excess[0] = np.where(
+        h[0],
+        (1.0 - model.approach_rate) * excess[0] + kick,
+        model.recovery * excess[0],
+    )
+    for level, parents in zip(_LEVELS, _LEVEL_PARENTS, strict=True):
+        excess[level] = np.where(
+            h[level, None], excess[parents] + own[level], model.recovery * excess[level]
+        )
+
+
 def occlusion_effects(
     model: OcclusionModel,
     rng: np.random.Generator,
@@ -368,23 +550,7 @@ def occlusion_effects(
         Where a snapping joint lands (the occluder's surface).
     """
     count, joints = hidden.shape
-    # Random draws up front (same seed, same stream; no per-frame generator calls).
-    u_mode = rng.random((count, joints))
-    u_snap = rng.random((count, joints))
-    shrink_draw = rng.uniform(*model.collapse_shrink, size=(count, joints))
-    angle_draw = np.radians(rng.uniform(*model.swing_deg, size=(count, joints)))
-    axis_draw = rng.normal(size=(count, joints, 3))
-    u_not_tracked = rng.random((count, joints))
-    after_draw = rng.integers(
-        model.not_tracked_after[0], model.not_tracked_after[1] + 1, size=(count, joints)
-    )
-    kicks = rng.normal(size=(count, joints, 3)) * model.drift_sigma
-    # Limb joints glitch (their bone turns); torso, head, shoulders and hips are held still.
-    glitch = (rng.random((count, joints)) < model.glitch_probability) & _LIMB
-    glitch_axis = rng.normal(size=(count, joints, 3))
-    glitch_angle = np.radians(rng.normal(size=(count, joints)) * model.glitch_deg)
-    vibration = rng.normal(size=(count, joints, 3)) * model.inferred_sigma
-    flicker = _flicker(rng, model, count, joints) if model.flicker_rate > 0 else None
+    draws = _OcclusionDraws.make(model, rng, count, joints)
     parent = np.where(skeleton.PARENTS >= 0, skeleton.PARENTS, np.arange(joints))
     bones = truth - truth[:, parent]  # (T, 20, 3): joint minus parent, zero for the root
     near = np.linalg.norm(hits - truth, axis=-1) < model.snap_max_distance
@@ -393,94 +559,40 @@ def occlusion_effects(
     lost = (~hidden).sum(axis=1) < model.min_visible_joints
     out = np.empty_like(reported)
     states = np.full((count, joints), TRACKED, dtype=np.int8)
-    never = np.iinfo(np.intp).max
     excess = np.zeros((joints, 3))  # occlusion error on top of the sensor noise
-    bone_rep = np.zeros((joints, 3))  # reported bone of hidden joints
-    frozen = np.zeros((joints, 3))
-    turn = np.tile(np.eye(3), (joints, 1, 1))
-    mode = np.zeros(joints, dtype=np.intp)
-    shrink = np.ones(joints)
-    run = np.zeros(joints, dtype=np.intp)
-    limit = np.full(joints, never)
+    episode = _HiddenEpisodes.start(joints)
     snaps = 0
     for t in range(count):
         h = hidden[t]
         bone_t = bones[t]
-        begin = h & (run == 0)
+        begin = h & (episode.run == 0)
         if begin.any():
             previous = out[t - 1] - out[t - 1, parent] if t > 0 else bone_t
-            u = u_mode[t]
-            mode = np.where(
-                begin,
-                np.where(
-                    can_snap_all[t] & (u_snap[t] < model.snap_probability),
-                    _SNAP,
-                    np.where(
-                        u < model.freeze_probability,
-                        _FREEZE,
-                        np.where(
-                            u < model.freeze_probability + model.swing_probability,
-                            _SWING,
-                            _COLLAPSE,
-                        ),
-                    ),
-                ),
-                mode,
-            )
-            bone_rep = np.where(begin[:, None], previous, bone_rep)
-            frozen = np.where(begin[:, None], previous, frozen)
-            axis = np.cross(bone_t, axis_draw[t])
-            norm = np.linalg.norm(axis, axis=-1, keepdims=True)
-            axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
-            turn = np.where(begin[:, None, None], axis_angle_matrix(axis, angle_draw[t]), turn)
-            shrink = np.where(begin, shrink_draw[t], shrink)
-            limit = np.where(
-                begin,
-                np.where(u_not_tracked[t] < model.not_tracked_probability, after_draw[t], never),
-                limit,
-            )
-        run = np.where(h, run + 1, 0)
+            episode.begin(model, draws, t, begin, previous, bone_t, can_snap_all[t])
+        episode.run = np.where(h, episode.run + 1, 0)
         target = np.where(
-            (mode == _FREEZE)[:, None],
-            frozen,
+            (episode.mode == _FREEZE)[:, None],
+            episode.frozen,
             np.where(
-                (mode == _SWING)[:, None],
-                np.einsum("jab,jb->ja", turn, bone_t),
-                shrink[:, None] * bone_t,
+                (episode.mode == _SWING)[:, None],
+                np.einsum("jab,jb->ja", episode.turn, bone_t),
+                episode.shrink[:, None] * bone_t,
             ),
         )
-        bone_rep = np.where(
-            h[:, None], bone_rep + model.approach_rate * (target - bone_rep) + kicks[t], bone_t
+        episode.bone_rep = np.where(
+            h[:, None],
+            episode.bone_rep + model.approach_rate * (target - episode.bone_rep) + draws.kicks[t],
+            bone_t,
         )
-        jumps = glitch[t] & h
-        if jumps.any():
-            axis = np.cross(bone_rep[jumps], glitch_axis[t, jumps])
-            norm = np.linalg.norm(axis, axis=-1, keepdims=True)
-            axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
-            turned = np.einsum(
-                "jab,jb->ja", axis_angle_matrix(axis, glitch_angle[t, jumps]), bone_rep[jumps]
-            )
-            bone_rep[jumps] = turned
-        own = bone_rep - bone_t  # this joint's own bone error
-        # Root: no bone; a hidden root drifts on its own (pulled back like a bone).
-        excess[0] = np.where(
-            h[0], (1.0 - model.approach_rate) * excess[0] + kicks[t, 0], model.recovery * excess[0]
-        )
-        for level, parents in zip(_LEVELS, _LEVEL_PARENTS, strict=True):
-            excess[level] = np.where(
-                h[level, None], excess[parents] + own[level], model.recovery * excess[level]
-            )
-        snap_here = h & (mode == _SNAP) & (blocker[t] >= 0)
+        episode.glitch(draws, t, draws.glitch[t] & h)
+        _propagate(model, excess, episode.bone_rep - bone_t, h, draws.kicks[t, 0])
+        snap_here = h & (episode.mode == _SNAP) & (blocker[t] >= 0)
         excess = np.where(snap_here[:, None], hits[t] - truth[t], excess)
-        shake = np.where((h & (mode != _SNAP))[:, None], vibration[t], 0.0)
+        shake = np.where((h & (episode.mode != _SNAP))[:, None], draws.vibration[t], 0.0)
         out[t] = reported[t] + excess + shake
-        states[t] = np.where(
-            h,
-            np.where(mode == _SNAP, TRACKED, np.where(run > limit, NOT_TRACKED, INFERRED)),
-            TRACKED,
-        )
-        if flicker is not None:  # a seen joint reported inferred for a few frames
-            states[t] = np.where(flicker[t] & ~h, INFERRED, states[t])
+        states[t] = episode.states(h)
+        if draws.flicker is not None:  # a seen joint reported inferred for a few frames
+            states[t] = np.where(draws.flicker[t] & ~h, INFERRED, states[t])
         if model.inferred_calm > 0 and t > 0:  # inferred joints move calmly (smoothed)
             calm = (states[t] == INFERRED) & (states[t - 1] == INFERRED)
             out[t] = np.where(
