@@ -230,6 +230,91 @@ def read_kinect_v2(path: str | Path) -> Recording:
 # --------------------------------------------------------------------------- NTU RGB+D
 
 
+class _NtuLines:
+    """The lines of an NTU ``.skeleton`` file read in order (blank lines skipped), with checks
+    that name the file and the line."""
+
+    def __init__(self, path: Path, lines: list[str]) -> None:
+        self.path = path
+        self.lines = lines
+        self.position = 0
+
+    def next_fields(self, what: str) -> tuple[int, list[str]]:
+        """The next non-blank line's number and fields (``what``: the expected line)."""
+        lines = self.lines
+        while self.position < len(lines) and not lines[self.position].strip():
+            self.position += 1
+        if self.position >= len(lines):
+            raise DataFormatError(
+                self.path, f"file ends early: expected {what}", line=self.position + 1
+            )
+        self.position += 1
+        return self.position, lines[self.position - 1].split()
+
+    def integer(self, fields: list[str], number: int, what: str) -> int:
+        """A line holding one integer."""
+        if len(fields) != 1:
+            raise DataFormatError(
+                self.path, f"expected {what} (one integer), got {len(fields)} fields", line=number
+            )
+        try:
+            return int(fields[0])
+        except ValueError:
+            raise DataFormatError(
+                self.path, f"expected {what}, got {fields[0]!r}", line=number
+            ) from None
+
+    def remaining(self) -> int:
+        """Non-blank lines left."""
+        return sum(1 for text in self.lines[self.position :] if text.strip())
+
+    def joints(self) -> np.ndarray:
+        """A body's joint-count line and its joint lines: ``(25, 12)`` values."""
+        number, count_fields = self.next_fields("the joint count")
+        joint_count = self.integer(count_fields, number, "the joint count")
+        if joint_count != _V2_JOINTS:
+            raise DataFormatError(
+                self.path,
+                f"expected {_V2_JOINTS} joints (Kinect v2), got {joint_count}",
+                line=number,
+            )
+        joints = np.empty((_V2_JOINTS, _NTU_JOINT_FIELDS))
+        for joint in range(_V2_JOINTS):
+            number, fields = self.next_fields(f"joint line {joint + 1}")
+            values = parse_numbers(fields) if len(fields) == _NTU_JOINT_FIELDS else None
+            if values is None or not np.all(np.isfinite(values)):
+                raise DataFormatError(
+                    self.path,
+                    f"expected {_NTU_JOINT_FIELDS} finite numbers (x y z depthX depthY colorX "
+                    "colorY orientationW X Y Z trackingState)"
+                    + (f", got {len(fields)} fields" if len(fields) != _NTU_JOINT_FIELDS else ""),
+                    line=number,
+                )
+            if implausible(values[:3]):
+                raise DataFormatError(
+                    self.path,
+                    f"a coordinate beyond ±{MAX_COORDINATE_M:g} m ({' '.join(fields[:3])})",
+                    line=number,
+                )
+            if values[-1] not in skeleton.TRACKING_STATES:
+                raise DataFormatError(
+                    self.path, f"tracking state must be 0, 1 or 2, got {values[-1]:g}", line=number
+                )
+            joints[joint] = values
+        return joints
+
+    def check_end(self, frame_count: int) -> None:
+        """Refuse content after the declared frames."""
+        while self.position < len(self.lines):
+            if self.lines[self.position].strip():
+                raise DataFormatError(
+                    self.path,
+                    f"unexpected content after the {frame_count} declared frames",
+                    line=self.position + 1,
+                )
+            self.position += 1
+
+
 def read_ntu(path: str | Path, body: int = 0) -> Recording:
     """Read an NTU RGB+D ``.skeleton`` file; ``body`` picks the k-th distinct bodyID.
 
@@ -242,35 +327,12 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
     path = Path(path)
     if body < 0:
         raise ValueError(f"body: expected a non-negative index, got {body}")
-    lines = read_text(path)
-    position = 0
-
-    def next_fields(what: str) -> tuple[int, list[str]]:
-        nonlocal position
-        while position < len(lines) and not lines[position].strip():
-            position += 1
-        if position >= len(lines):
-            raise DataFormatError(path, f"file ends early: expected {what}", line=position + 1)
-        position += 1
-        return position, lines[position - 1].split()
-
-    def integer(fields: list[str], number: int, what: str) -> int:
-        if len(fields) != 1:
-            raise DataFormatError(
-                path, f"expected {what} (one integer), got {len(fields)} fields", line=number
-            )
-        try:
-            return int(fields[0])
-        except ValueError:
-            raise DataFormatError(
-                path, f"expected {what}, got {fields[0]!r}", line=number
-            ) from None
-
-    number, fields = next_fields("the frame count")
-    frame_count = integer(fields, number, "the frame count")
+    reader = _NtuLines(path, read_text(path))
+    number, fields = reader.next_fields("the frame count")
+    frame_count = reader.integer(fields, number, "the frame count")
     if frame_count < 1:
         raise DataFormatError(path, f"frame count must be positive, got {frame_count}", line=number)
-    remaining = sum(1 for text in lines[position:] if text.strip())
+    remaining = reader.remaining()
     if frame_count > remaining:
         raise DataFormatError(
             path,
@@ -284,12 +346,12 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
     present = np.zeros(frame_count, dtype=bool)
     frames_by_body: dict[str, list[tuple[int, np.ndarray]]] = {}
     for frame in range(frame_count):
-        number, fields = next_fields(f"the body count of frame {frame + 1}")
-        body_count = integer(fields, number, "the body count")
+        number, fields = reader.next_fields(f"the body count of frame {frame + 1}")
+        body_count = reader.integer(fields, number, "the body count")
         if body_count < 0:
             raise DataFormatError(path, f"negative body count {body_count}", line=number)
         for _ in range(body_count):
-            number, fields = next_fields("a body line")
+            number, fields = reader.next_fields("a body line")
             if len(fields) != _NTU_BODY_FIELDS:
                 raise DataFormatError(
                     path,
@@ -300,50 +362,8 @@ def read_ntu(path: str | Path, body: int = 0) -> Recording:
             if body_id not in frames_by_body:
                 frames_by_body[body_id] = []
                 body_order.append(body_id)
-            number, count_fields = next_fields("the joint count")
-            joint_count = integer(count_fields, number, "the joint count")
-            if joint_count != _V2_JOINTS:
-                raise DataFormatError(
-                    path,
-                    f"expected {_V2_JOINTS} joints (Kinect v2), got {joint_count}",
-                    line=number,
-                )
-            joints = np.empty((_V2_JOINTS, _NTU_JOINT_FIELDS))
-            for joint in range(_V2_JOINTS):
-                number, fields = next_fields(f"joint line {joint + 1}")
-                values = parse_numbers(fields) if len(fields) == _NTU_JOINT_FIELDS else None
-                if values is None or not np.all(np.isfinite(values)):
-                    raise DataFormatError(
-                        path,
-                        f"expected {_NTU_JOINT_FIELDS} finite numbers (x y z depthX depthY colorX "
-                        "colorY orientationW X Y Z trackingState)"
-                        + (
-                            f", got {len(fields)} fields"
-                            if len(fields) != _NTU_JOINT_FIELDS
-                            else ""
-                        ),
-                        line=number,
-                    )
-                if implausible(values[:3]):
-                    raise DataFormatError(
-                        path,
-                        f"a coordinate beyond ±{MAX_COORDINATE_M:g} m ({' '.join(fields[:3])})",
-                        line=number,
-                    )
-                if values[-1] not in skeleton.TRACKING_STATES:
-                    raise DataFormatError(
-                        path, f"tracking state must be 0, 1 or 2, got {values[-1]:g}", line=number
-                    )
-                joints[joint] = values
-            frames_by_body[body_id].append((frame, joints))
-    while position < len(lines):
-        if lines[position].strip():
-            raise DataFormatError(
-                path,
-                f"unexpected content after the {frame_count} declared frames",
-                line=position + 1,
-            )
-        position += 1
+            frames_by_body[body_id].append((frame, reader.joints()))
+    reader.check_end(frame_count)
     if body >= len(body_order):
         raise DataFormatError(
             path,
