@@ -259,6 +259,25 @@ def _confidence_states(value: Any, count: int) -> np.ndarray | None:
     return states
 
 
+def _azure_joints(path: Path, data: dict[str, Any]) -> tuple[np.ndarray, int]:
+    """The file's column of each Kinect-20 joint (from ``joint_names``, else the 32 Azure
+    Kinect joints in SDK order) and its number of joints."""
+    names = data.get("joint_names", list(AZURE_KINECT_JOINT_NAMES))
+    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
+        raise DataFormatError(path, "'joint_names': expected a list of joint names")
+    index = {n.upper().removeprefix("K4ABT_JOINT_"): i for i, n in enumerate(names)}
+    lacking = [a for a in AZURE_KINECT_TO_KINECT20.values() if a not in index]
+    if lacking:
+        raise DataFormatError(
+            path,
+            f"'joint_names' lacks {lacking[:4]}; expected the 32 Azure Kinect joint names "
+            "(PELVIS, SPINE_NAVEL, ...)",
+        )
+    source = np.array([index[AZURE_KINECT_TO_KINECT20[n]] for n in skeleton.JOINT_NAMES])
+    count = len(names)
+    return source, count
+
+
 def read_azure_kinect(path: str | Path, body: int = 0) -> Recording:
     """Read the Azure Kinect offline processor's JSON (see the module docstring).
 
@@ -279,19 +298,7 @@ def read_azure_kinect(path: str | Path, body: int = 0) -> Recording:
     data = _load_json(path)
     if not isinstance(data, dict) or not isinstance(data.get("frames"), list):
         raise DataFormatError(path, "expected a JSON object with a 'frames' list (Azure Kinect)")
-    names = data.get("joint_names", list(AZURE_KINECT_JOINT_NAMES))
-    if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
-        raise DataFormatError(path, "'joint_names': expected a list of joint names")
-    index = {n.upper().removeprefix("K4ABT_JOINT_"): i for i, n in enumerate(names)}
-    lacking = [a for a in AZURE_KINECT_TO_KINECT20.values() if a not in index]
-    if lacking:
-        raise DataFormatError(
-            path,
-            f"'joint_names' lacks {lacking[:4]}; expected the 32 Azure Kinect joint names "
-            "(PELVIS, SPINE_NAVEL, ...)",
-        )
-    source = np.array([index[AZURE_KINECT_TO_KINECT20[n]] for n in skeleton.JOINT_NAMES])
-    count = len(names)
+    source, count = _azure_joints(path, data)
 
     log = _FrameLog()
     body_ids: list[Any] = []
