@@ -120,6 +120,40 @@ def _read_text(path: Path) -> str:
     return decode_text(read_input_bytes(path), path, latin1=True)
 
 
+def _offset(path: Path, tokens: list[str], number: int) -> list[float]:
+    """An OFFSET line's three finite, plausible numbers."""
+    try:
+        values = [float(v) for v in tokens[1:4]]
+    except ValueError:
+        raise DataFormatError(path, "OFFSET needs three numbers", line=number) from None
+    if len(values) != 3 or not np.all(np.isfinite(values)):
+        raise DataFormatError(path, "OFFSET needs three finite numbers", line=number)
+    if max(abs(v) for v in values) > MAX_CHANNEL_VALUE:
+        raise DataFormatError(
+            path,
+            f"OFFSET beyond the plausible range ±{MAX_CHANNEL_VALUE:g} file units",
+            line=number,
+        )
+    return values
+
+
+def _channels(path: Path, tokens: list[str], number: int) -> tuple[str, ...]:
+    """A CHANNELS line's channel names (as many as its count says, each a known channel)."""
+    try:
+        count = int(tokens[1])
+    except (IndexError, ValueError):
+        raise DataFormatError(path, "CHANNELS needs a count", line=number) from None
+    names_here = tuple(tokens[2:])
+    if len(names_here) != count or not set(names_here) <= _CHANNEL_NAMES:
+        raise DataFormatError(
+            path,
+            f"CHANNELS {count} must be followed by {count} of "
+            f"{sorted(_CHANNEL_NAMES)}, got {list(names_here)}",
+            line=number,
+        )
+    return names_here
+
+
 def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[BvhHierarchy, int]:
     """Parse up to the MOTION line; return the hierarchy and the index of the MOTION line."""
     names: list[str] = []
@@ -190,34 +224,11 @@ def _parse_hierarchy(path: Path, lines: list[str]) -> tuple[BvhHierarchy, int]:
         elif keyword in ("OFFSET", "CHANNELS") and not names:
             raise DataFormatError(path, f"{keyword} before any ROOT or JOINT", line=number)
         elif keyword == "OFFSET":
-            try:
-                values = [float(v) for v in tokens[1:4]]
-            except ValueError:
-                raise DataFormatError(path, "OFFSET needs three numbers", line=number) from None
-            if len(values) != 3 or not np.all(np.isfinite(values)):
-                raise DataFormatError(path, "OFFSET needs three finite numbers", line=number)
-            if max(abs(v) for v in values) > MAX_CHANNEL_VALUE:
-                raise DataFormatError(
-                    path,
-                    f"OFFSET beyond the plausible range ±{MAX_CHANNEL_VALUE:g} file units",
-                    line=number,
-                )
+            values = _offset(path, tokens, number)
             if not in_end_site:
                 offsets[-1] = values
         elif keyword == "CHANNELS":
-            try:
-                count = int(tokens[1])
-            except (IndexError, ValueError):
-                raise DataFormatError(path, "CHANNELS needs a count", line=number) from None
-            names_here = tuple(tokens[2:])
-            if len(names_here) != count or not set(names_here) <= _CHANNEL_NAMES:
-                raise DataFormatError(
-                    path,
-                    f"CHANNELS {count} must be followed by {count} of "
-                    f"{sorted(_CHANNEL_NAMES)}, got {list(names_here)}",
-                    line=number,
-                )
-            channels[-1] = names_here
+            channels[-1] = _channels(path, tokens, number)
         else:
             raise DataFormatError(path, f"unexpected {keyword!r} in the hierarchy", line=number)
     raise DataFormatError(path, "no MOTION section (truncated file?)", line=len(lines))
