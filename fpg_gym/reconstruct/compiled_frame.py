@@ -76,6 +76,40 @@ def whitened_axes(centred, values, vectors, dim, min_std, max_condition):
 
 
 @numba.njit(cache=True, nogil=True)
+def _neighbour_coordinates(mean, basis, neighbours):
+    """Es (Eq. 12): the neighbours' squared distances to the mean ``(K,)``, their coordinates
+    ``y (K, d)`` in the space, ``|y_n|^2`` and the squared residuals outside the space ``(K,)``."""
+    d, size = basis.shape
+    k = neighbours.shape[0]
+    centred = np.empty((k, size))
+    centred_sq = np.zeros(k)
+    for n in range(k):
+        for c in range(size):
+            v = neighbours[n, c] - mean[c]
+            centred[n, c] = v
+            centred_sq[n] += v * v
+    y = np.zeros((k, d))  # coordinates in the space (loops: no BLAS to compile)
+    residual = centred.copy()
+    for n in range(k):
+        for a in range(d):
+            dot = 0.0
+            for c in range(size):
+                dot += centred[n, c] * basis[a, c]
+            y[n, a] = dot
+        for a in range(d):
+            for c in range(size):
+                residual[n, c] -= y[n, a] * basis[a, c]
+    y_sq = np.zeros(k)
+    r_sq = np.zeros(k)
+    for n in range(k):
+        for a in range(d):
+            y_sq[n] += y[n, a] * y[n, a]
+        for c in range(size):
+            r_sq[n] += residual[n, c] * residual[n, c]
+    return centred_sq, y, y_sq, r_sq
+
+
+@numba.njit(cache=True, nogil=True)
 def energy_setup(
     mean, basis, std, sensor, reliability, neighbours, lengths, target, weights, child, parent
 ):
@@ -102,32 +136,7 @@ def energy_setup(
     for j in range(joints):
         for c in range(3):
             joint_weights[3 * j + c] = reliability[j]
-    # Es (Eq. 12): neighbours' coordinates y_n in the space and squared residuals outside it.
-    centred = np.empty((k, size))
-    centred_sq = np.zeros(k)
-    for n in range(k):
-        for c in range(size):
-            v = neighbours[n, c] - mean[c]
-            centred[n, c] = v
-            centred_sq[n] += v * v
-    y = np.zeros((k, d))  # coordinates in the space (loops: no BLAS to compile)
-    residual = centred.copy()
-    for n in range(k):
-        for a in range(d):
-            dot = 0.0
-            for c in range(size):
-                dot += centred[n, c] * basis[a, c]
-            y[n, a] = dot
-        for a in range(d):
-            for c in range(size):
-                residual[n, c] -= y[n, a] * basis[a, c]
-    y_sq = np.zeros(k)
-    r_sq = np.zeros(k)
-    for n in range(k):
-        for a in range(d):
-            y_sq[n] += y[n, a] * y[n, a]
-        for c in range(size):
-            r_sq[n] += residual[n, c] * residual[n, c]
+    centred_sq, y, y_sq, r_sq = _neighbour_coordinates(mean, basis, neighbours)
     # Ec (Eq. 11) and Em (Eq. 14) as z^T A z + g.z + c.
     weighted = np.empty(size)
     c0 = 0.0
