@@ -13,14 +13,9 @@ import pytest
 from fpg_gym.cli import main
 from fpg_gym.core import skeleton
 from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.skeleton import AZURE_KINECT_JOINT_NAMES, AZURE_KINECT_TO_KINECT20
 from fpg_gym.io import read_recording
-from fpg_gym.io.trackers import (
-    AZURE_KINECT_JOINT_NAMES,
-    AZURE_KINECT_TO_KINECT20,
-    JointMap,
-    read_azure_kinect,
-    read_mapped,
-)
+from fpg_gym.io.trackers import JointMap, read_azure_kinect, read_mapped
 
 AZURE_INDEX = np.array(
     [AZURE_KINECT_JOINT_NAMES.index(AZURE_KINECT_TO_KINECT20[n]) for n in skeleton.JOINT_NAMES]

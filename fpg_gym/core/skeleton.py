@@ -115,6 +115,7 @@ BONE_OF_JOINT: Final[npt.NDArray[np.intp]] = np.full(NUM_JOINTS, -1, dtype=np.in
 BONE_OF_JOINT[BONES[:, 1]] = np.arange(NUM_BONES)
 BONE_OF_JOINT.flags.writeable = False
 
+
 def _depth_levels() -> tuple[npt.NDArray[np.intp], ...]:
     depth = np.zeros(NUM_JOINTS, dtype=np.intp)
     for joint in range(1, NUM_JOINTS):  # parents have smaller indices
@@ -208,6 +209,64 @@ FROM_KINECT_V2: Final[npt.NDArray[np.intp]] = np.array(
     dtype=np.intp,
 )
 FROM_KINECT_V2.flags.writeable = False
+
+#: Azure Kinect Body Tracking joints (``k4abt_joint_id_t``), in SDK order.
+AZURE_KINECT_JOINT_NAMES: Final[tuple[str, ...]] = (
+    "PELVIS",
+    "SPINE_NAVEL",
+    "SPINE_CHEST",
+    "NECK",
+    "CLAVICLE_LEFT",
+    "SHOULDER_LEFT",
+    "ELBOW_LEFT",
+    "WRIST_LEFT",
+    "HAND_LEFT",
+    "HANDTIP_LEFT",
+    "THUMB_LEFT",
+    "CLAVICLE_RIGHT",
+    "SHOULDER_RIGHT",
+    "ELBOW_RIGHT",
+    "WRIST_RIGHT",
+    "HAND_RIGHT",
+    "HANDTIP_RIGHT",
+    "THUMB_RIGHT",
+    "HIP_LEFT",
+    "KNEE_LEFT",
+    "ANKLE_LEFT",
+    "FOOT_LEFT",
+    "HIP_RIGHT",
+    "KNEE_RIGHT",
+    "ANKLE_RIGHT",
+    "FOOT_RIGHT",
+    "HEAD",
+    "NOSE",
+    "EYE_LEFT",
+    "EAR_LEFT",
+    "EYE_RIGHT",
+    "EAR_RIGHT",
+)
+
+#: Kinect-20 joint -> the Azure Kinect joint it is read from.
+AZURE_KINECT_TO_KINECT20: Final[dict[str, str]] = {
+    "HipCenter": "PELVIS",
+    "Spine": "SPINE_NAVEL",
+    "ShoulderCenter": "NECK",
+    "Head": "HEAD",
+    **{
+        f"{part}{side}": f"{azure}_{side.upper()}"
+        for side in ("Left", "Right")
+        for part, azure in (
+            ("Shoulder", "SHOULDER"),
+            ("Elbow", "ELBOW"),
+            ("Wrist", "WRIST"),
+            ("Hand", "HAND"),
+            ("Hip", "HIP"),
+            ("Knee", "KNEE"),
+            ("Ankle", "ANKLE"),
+            ("Foot", "FOOT"),
+        )
+    },
+}
 
 #: For each Kinect-20 joint, its index in MSRC-12 / Kinect SDK v1 files (the same order).
 FROM_KINECT_V1: Final[npt.NDArray[np.intp]] = np.arange(NUM_JOINTS, dtype=np.intp)

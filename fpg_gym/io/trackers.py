@@ -23,11 +23,11 @@
     ``units`` and ``axes`` turn the source's coordinates into metres in Kinect camera space
     (:meth:`JointMap.load` reads them from JSON or from ``name=KinectName`` lines).
 
-Joint maps to Kinect-20 (:data:`AZURE_KINECT_TO_KINECT20`; docs/input.md has the table): PELVIS
--> HipCenter, SPINE_NAVEL -> Spine, NECK -> ShoulderCenter, HEAD -> Head, and the limbs by name
-(SHOULDER/ELBOW/WRIST/HAND, HIP/KNEE/ANKLE/FOOT, each side); SPINE_CHEST, the clavicles, hand
-tips, thumbs, nose, eyes and ears are dropped. Like every joint-set map this moves body points
-by a few centimetres (Azure's NECK sits higher than a Kinect v1 ShoulderCenter): fit a
+Joint maps to Kinect-20 (:data:`fpg_gym.core.skeleton.AZURE_KINECT_TO_KINECT20`; docs/input.md has
+the table): PELVIS -> HipCenter, SPINE_NAVEL -> Spine, NECK -> ShoulderCenter, HEAD -> Head, and
+the limbs by name (SHOULDER/ELBOW/WRIST/HAND, HIP/KNEE/ANKLE/FOOT, each side); SPINE_CHEST, the
+clavicles, hand tips, thumbs, nose, eyes and ears are dropped. Like every joint-set map this moves
+body points by a few centimetres (Azure's NECK sits higher than a Kinect v1 ShoulderCenter): fit a
 definition map (``fpg-gym fit-map``) where it matters.
 
 Bad frames (a missing field, a wrong shape, a non-finite or implausible value, a timestamp going
@@ -59,71 +59,11 @@ from fpg_gym.io.plausibility import MAX_COORDINATE_M, check_recording
 from fpg_gym.io.recording import INFERRED, NOT_TRACKED, TRACKED, Recording
 
 __all__ = [
-    "AZURE_KINECT_JOINT_NAMES",
-    "AZURE_KINECT_TO_KINECT20",
     "JointMap",
     "is_azure_kinect_json",
     "read_azure_kinect",
     "read_mapped",
 ]
-
-#: Azure Kinect Body Tracking joints (``k4abt_joint_id_t``), in SDK order.
-AZURE_KINECT_JOINT_NAMES: tuple[str, ...] = (
-    "PELVIS",
-    "SPINE_NAVEL",
-    "SPINE_CHEST",
-    "NECK",
-    "CLAVICLE_LEFT",
-    "SHOULDER_LEFT",
-    "ELBOW_LEFT",
-    "WRIST_LEFT",
-    "HAND_LEFT",
-    "HANDTIP_LEFT",
-    "THUMB_LEFT",
-    "CLAVICLE_RIGHT",
-    "SHOULDER_RIGHT",
-    "ELBOW_RIGHT",
-    "WRIST_RIGHT",
-    "HAND_RIGHT",
-    "HANDTIP_RIGHT",
-    "THUMB_RIGHT",
-    "HIP_LEFT",
-    "KNEE_LEFT",
-    "ANKLE_LEFT",
-    "FOOT_LEFT",
-    "HIP_RIGHT",
-    "KNEE_RIGHT",
-    "ANKLE_RIGHT",
-    "FOOT_RIGHT",
-    "HEAD",
-    "NOSE",
-    "EYE_LEFT",
-    "EAR_LEFT",
-    "EYE_RIGHT",
-    "EAR_RIGHT",
-)
-
-#: Kinect-20 joint -> the Azure Kinect joint it is read from.
-AZURE_KINECT_TO_KINECT20: dict[str, str] = {
-    "HipCenter": "PELVIS",
-    "Spine": "SPINE_NAVEL",
-    "ShoulderCenter": "NECK",
-    "Head": "HEAD",
-    **{
-        f"{part}{side}": f"{azure}_{side.upper()}"
-        for side in ("Left", "Right")
-        for part, azure in (
-            ("Shoulder", "SHOULDER"),
-            ("Elbow", "ELBOW"),
-            ("Wrist", "WRIST"),
-            ("Hand", "HAND"),
-            ("Hip", "HIP"),
-            ("Knee", "KNEE"),
-            ("Ankle", "ANKLE"),
-            ("Foot", "FOOT"),
-        )
-    },
-}
 
 #: ``k4abt_joint_confidence_level_t`` -> tracking state.
 CONFIDENCE_STATES: dict[str, int] = {
@@ -262,18 +202,18 @@ def _confidence_states(value: Any, count: int) -> np.ndarray | None:
 def _azure_joints(path: Path, data: dict[str, Any]) -> tuple[np.ndarray, int]:
     """The file's column of each Kinect-20 joint (from ``joint_names``, else the 32 Azure
     Kinect joints in SDK order) and its number of joints."""
-    names = data.get("joint_names", list(AZURE_KINECT_JOINT_NAMES))
+    names = data.get("joint_names", list(skeleton.AZURE_KINECT_JOINT_NAMES))
     if not isinstance(names, list) or not all(isinstance(n, str) for n in names):
         raise DataFormatError(path, "'joint_names': expected a list of joint names")
     index = {n.upper().removeprefix("K4ABT_JOINT_"): i for i, n in enumerate(names)}
-    lacking = [a for a in AZURE_KINECT_TO_KINECT20.values() if a not in index]
+    lacking = [a for a in skeleton.AZURE_KINECT_TO_KINECT20.values() if a not in index]
     if lacking:
         raise DataFormatError(
             path,
             f"'joint_names' lacks {lacking[:4]}; expected the 32 Azure Kinect joint names "
             "(PELVIS, SPINE_NAVEL, ...)",
         )
-    source = np.array([index[AZURE_KINECT_TO_KINECT20[n]] for n in skeleton.JOINT_NAMES])
+    source = np.array([index[skeleton.AZURE_KINECT_TO_KINECT20[n]] for n in skeleton.JOINT_NAMES])
     count = len(names)
     return source, count
 
