@@ -69,6 +69,7 @@ __all__ = [
     "fit_sensor_maps",
     "fit_to_database",
     "joint_frames",
+    "load_map",
     "packaged_map",
     "packaged_map_names",
     "sensor_to_output_map",
@@ -586,6 +587,14 @@ def sensor_to_output_map(options: Any) -> PoseMap | None:
     if not maps:
         return None
     return maps[0] if len(maps) == 1 else ComposedMap(maps)
+
+
+def load_map(name: str | Path) -> DefinitionMap:
+    """A definition map from a JSON file, or a packaged map by name (``kinect-v2-to-vicon``,
+    :func:`packaged_map`)."""
+    if not Path(name).suffix and str(name) in packaged_map_names():
+        return packaged_map(str(name))
+    return DefinitionMap.load(name)
 
 
 def packaged_map_names() -> tuple[str, ...]:

@@ -39,6 +39,7 @@ __all__ = [
     "TRUTH_TARGETS",
     "ImitationData",
     "collect_imitation_data",
+    "frame_caps",
     "truth_latent",
 ]
 
@@ -188,7 +189,7 @@ def _chunks(
     ]
 
 
-def _frame_caps(recordings: Sequence[Any], frames: int | None) -> list[int]:
+def frame_caps(recordings: Sequence[Any], frames: int | None) -> list[int]:
     """Frames collected per recording: all of them, in order, until ``frames`` in total."""
     caps, left = [], None if frames is None else max(int(frames), 0)
     for recording in recordings:
@@ -434,7 +435,7 @@ def collect_imitation_data(
         "max_evaluations": None,
     }
     job = _Collection(spec, target, follow, options)
-    caps = _frame_caps(recordings, frames)
+    caps = frame_caps(recordings, frames)
     for episode in skip:
         if not 0 <= episode < len(recordings):
             raise ValueError(f"skip: episode {episode} is not in 0..{len(recordings) - 1}")

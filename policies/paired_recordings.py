@@ -5,8 +5,14 @@ Kinect stream recorded with a mocap reference, such as ``fpg-gym import-uiprmd``
 instead of simulated streams of mocap clips. Recordings are grouped (by default each is its own
 group; ``group_pattern``, a regular expression on the file name whose first group names the
 group, puts a subject's recordings together): a seeded share of the groups is held out for the
-final evaluation, and the cross-validation of :func:`policies.pose_sampler.fit_linear` leaves
-whole groups out, so no setting is chosen on a group its fit saw.
+final evaluation (none with ``val_share=0``: every group trains), and the cross-validation of
+:func:`policies.pose_sampler.fit_linear` leaves whole groups out, so no setting is chosen on a
+group its fit saw.
+
+Cross-fitting (:func:`group_databases`): a held-out subject is reconstructed with a graph and a
+sensor map that never saw it, so each training group's data is collected with a graph and a map
+built the same way from the other training groups' recordings (their ground truth as the
+graph's clips, their pairs for the map), not with ones that contain it.
 """
 
 from __future__ import annotations
@@ -20,10 +26,19 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.core.errors import DataFormatError
-from fpg_gym.io import expand_inputs, read_recording
+from fpg_gym.definitions import DefinitionMap
+from fpg_gym.graph import FilteredPoseGraph
+from fpg_gym.io import Clip, expand_inputs, read_recording
 from fpg_gym.io.files import file_digest
 
-__all__ = ["PairedRecordings", "group_pattern", "paired_recordings", "recording_paths"]
+__all__ = [
+    "GroupDatabase",
+    "PairedRecordings",
+    "group_databases",
+    "group_pattern",
+    "paired_recordings",
+    "recording_paths",
+]
 
 
 def recording_paths(items: Sequence[str | Path]) -> list[Path]:
@@ -71,14 +86,18 @@ class PairedRecordings:
     train : list of (str, Recording)
         The training recordings with their group.
     validation : list of Recording
-        Recordings of the held-out groups, spread over them (at most ``episodes``).
+        Recordings of the held-out groups, spread over them (at most ``episodes``; none with
+        ``val_share=0``).
     info : dict
         Files, groups and the split, for the model's ``training`` record.
+    names : list of str
+        The training recordings' names (file stems), in the order of ``train``.
     """
 
     train: list[tuple[str, Any]]
     validation: list[Any]
     info: dict[str, Any]
+    names: list[str]
 
 
 def paired_recordings(
@@ -103,8 +122,8 @@ def paired_recordings(
         recording's group. None: each recording is its own group (named by its file name, or
         by its path when files in two folders share a name).
     val_share : float
-        Share of the groups held out (at least one; at least two groups stay for the
-        cross-validation).
+        Share of the groups held out (at least one, and at least two groups stay for the
+        cross-validation; 0: none, every group trains).
     episodes : int
         Held-out recordings kept for the evaluation, spread over the held-out ones.
     max_frames : int, optional
@@ -120,8 +139,11 @@ def paired_recordings(
     DataFormatError
         A recording without ground truth.
     ValueError
-        A file name the pattern does not match, or fewer than 3 groups.
+        A file name the pattern does not match, fewer than 3 groups (2 with ``val_share=0``),
+        or ``val_share`` outside [0, 1).
     """
+    if not 0.0 <= val_share < 1.0:
+        raise ValueError(f"val_share: expected a share in [0, 1), got {val_share}")
     compiled = group_pattern(pattern)
     say = log or (lambda _text: None)
     loaded: list[tuple[str, Path, Any]] = []
@@ -154,15 +176,21 @@ def paired_recordings(
             group = match.group(1)
         loaded.append((group, path, recording.head(max_frames)))
     groups = sorted({group for group, _, _ in loaded})
-    if len(groups) < 3:
+    needed = 3 if val_share > 0 else 2
+    if len(groups) < needed:
         raise ValueError(
-            f"recordings: {len(groups)} group(s) ({', '.join(groups)}); a held-out group and "
-            "cross-validation over the others need at least 3"
+            f"recordings: {len(groups)} group(s) ({', '.join(groups)}); "
+            + (
+                "a held-out group and cross-validation over the others need at least 3"
+                if val_share > 0
+                else "cross-validation needs at least 2"
+            )
         )
-    held = min(max(1, round(val_share * len(groups))), len(groups) - 2)
+    held = min(max(1, round(val_share * len(groups))), len(groups) - 2) if val_share > 0 else 0
     rng = np.random.default_rng(seed)
     held_out = sorted(str(g) for g in rng.choice(groups, size=held, replace=False))
     train = [(group, recording) for group, _, recording in loaded if group not in held_out]
+    names = [path.stem for group, path, _ in loaded if group not in held_out]
     candidates = [recording for group, _, recording in loaded if group in held_out]
     step = max(1, len(candidates) // max(episodes, 1))
     validation = candidates[::step][:episodes]
@@ -172,4 +200,88 @@ def paired_recordings(
         "training_groups": [g for g in groups if g not in held_out],
         "validation_groups": held_out,
     }
-    return PairedRecordings(train, validation, info)
+    return PairedRecordings(train, validation, info, names)
+
+
+@dataclass
+class GroupDatabase:
+    """The graph and sensor map one training group's data is collected with.
+
+    Attributes
+    ----------
+    group : str
+    graph : FilteredPoseGraph
+    sensor_map : DefinitionMap or None
+    """
+
+    group: str
+    graph: FilteredPoseGraph
+    sensor_map: DefinitionMap | None
+
+
+def group_databases(
+    paired: PairedRecordings,
+    graph: FilteredPoseGraph,
+    sensor_map: DefinitionMap | None,
+    *,
+    source: str | Path = "graph",
+) -> list[GroupDatabase]:
+    """Per training group, a graph and a sensor map built without it (cross-fitting).
+
+    ``graph`` (the evaluation's database, built from the ground truth of these recordings)
+    and ``sensor_map`` (fitted on their pairs) saw every training group; a new subject's never
+    do. So each group's graph is built, with ``graph``'s parameters (``thres1``, ``thres2``,
+    mirroring), from the ground truth of the other training groups' recordings (in their
+    order, each a clip named by its file stem), and its map is fitted, as ``fpg-gym fit-map``
+    fits one, on their pairs.
+
+    Raises
+    ------
+    ValueError
+        If ``graph`` was not built from these recordings (none of its clips is named as a
+        training recording), or ``sensor_map`` goes into a database's definitions (fitted with
+        ``fit-map --graph``), which this does not refit.
+    """
+    if not set(graph.clip_names) & set(paired.names):
+        raise ValueError(
+            f"{source}: no clip of the graph is one of the training recordings (by file name); "
+            "cross-fitting builds each group's graph from the other groups' ground truth, as "
+            "the graph of these recordings' ground truth is built (fpg-gym build-graph of "
+            "import-uiprmd's clips): give that graph, or do not cross-fit (--no-cross-fit)"
+        )
+    if sensor_map is not None and (sensor_map.inverted or "database_map" in sensor_map.info):
+        raise ValueError(
+            "sensor map: cross-fitting refits a map from the sensor into the ground truth's "
+            "definitions; this one goes into a database's (fit-map --graph): do not cross-fit "
+            "(--no-cross-fit)"
+        )
+    groups = sorted({group for group, _ in paired.train})
+    params = graph.params
+    out = []
+    for group in groups:
+        others = [
+            (name, recording)
+            for (member, recording), name in zip(paired.train, paired.names, strict=True)
+            if member != group
+        ]
+        clips = [
+            Clip(name, np.asarray(recording.ground_truth, dtype=np.float32), recording.fps)
+            for name, recording in others
+        ]
+        built = FilteredPoseGraph.build(
+            clips,
+            thres1=float(params.get("thres1", graph.thres1)),
+            thres2=params.get("thres2"),
+            mirror=bool(params.get("mirror", False)),
+            progress=False,
+        )
+        fitted = None
+        if sensor_map is not None:
+            fitted = DefinitionMap.fit(
+                np.concatenate([r.positions for _, r in others]),
+                np.concatenate([r.ground_truth for _, r in others]),
+                source=sensor_map.source,
+                target=sensor_map.target,
+            )
+        out.append(GroupDatabase(group, built, fitted))
+    return out

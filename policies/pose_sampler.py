@@ -55,7 +55,6 @@ kind ``"linear"``; the correction's settings in ``hyperparameters["output_correc
 
 from __future__ import annotations
 
-import copy
 import os
 import zipfile
 import zlib
@@ -90,7 +89,6 @@ __all__ = [
     "SELECTION",
     "LinearPoseSampler",
     "fit_linear",
-    "out_of_group_samplers",
 ]
 
 #: Observation fields the linear sampler reads (its :class:`~policies.sampler.FeatureMap`):
@@ -366,35 +364,6 @@ def _regression_data(
     fields = _fields(feature_map, feature_map.transform(observations)[0])
     targets = _decode(fields, actions, spec.action_scale) - fields["anchor_pose"]
     return fields, _regressors(fields), targets
-
-
-def out_of_group_samplers(
-    sampler: LinearPoseSampler, groups: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]
-) -> list[LinearPoseSampler]:
-    """For each of :func:`fit_linear`'s ``groups``, ``sampler`` fitted without it: the same
-    penalty, pose weight, spread and selection, the ridge fitted on the other groups.
-
-    Cross-fitting: a stage after the sampler (its output correction,
-    :mod:`policies.output_correction`) learns from the sampler's outputs of each group as a
-    sampler that never saw the group gives them, as on a held-out subject; the sampler's own
-    outputs of its training data are closer to the truth than that.
-    """
-    spec = sampler.spec
-    feature_map = spec.feature_map()
-    penalty = float(spec.hyperparameters["penalty"])
-    sums = []
-    for observations, actions, _ in groups:
-        _, regressors, targets = _regression_data(spec, feature_map, observations, actions)
-        sums.append(ridge_sums(regressors, targets))
-    bare = copy.deepcopy(spec)
-    bare.hyperparameters.pop("output_correction", None)
-    return [
-        LinearPoseSampler(
-            copy.deepcopy(bare),
-            {**fit_ridge(sums[:g] + sums[g + 1 :], penalty), "std": sampler.arrays["std"]},
-        )
-        for g in range(len(groups))
-    ]
 
 
 def fit_linear(

@@ -37,7 +37,7 @@ from tqdm.auto import tqdm
 
 from fpg_gym.core.errors import DataFormatError
 from fpg_gym.core.outputs import atomic_path
-from fpg_gym.env import KinectPoseEnv
+from fpg_gym.env import REWARD_MODES, KinectPoseEnv
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from policies.sampler import (
     DEFAULT_FEATURES,
@@ -49,7 +49,16 @@ from policies.sampler import (
     model_paths,
 )
 
-__all__ = ["ALGOS", "RL_DEFAULTS", "RLSampler", "make_training_env", "train_rl"]
+__all__ = [
+    "ALGOS",
+    "RL_DEFAULTS",
+    "RL_REWARDS",
+    "UNTRAINED_CHECKPOINT",
+    "RLSampler",
+    "make_training_env",
+    "train_rl",
+    "zero_action",
+]
 
 #: Supported algorithms.
 ALGOS: tuple[str, ...] = ("ppo", "sac")
@@ -82,6 +91,11 @@ RL_DEFAULTS: dict[str, dict[str, Any]] = {
     },
 }
 _POLICY_KEYS = ("net_arch", "log_std_init")
+#: The rewards an RL sampler trains on: the env's (:data:`fpg_gym.env.REWARD_MODES`) and
+#: ``"energy-gain"`` (:class:`EnergyGain`).
+RL_REWARDS: tuple[str, ...] = (*REWARD_MODES, "energy-gain")
+#: The checkpoint of the untrained policy among :func:`train_rl`'s (``checkpoints/NAME``).
+UNTRAINED_CHECKPOINT = "step-00000000"
 
 
 def _algo_class(algo: str) -> Any:
@@ -199,6 +213,20 @@ class RLSampler(GaussianSampler):
         return self.spec.save(json_path)
 
 
+def zero_action(sampler: RLSampler) -> RLSampler:
+    """A copy of ``sampler`` whose mean action is zero in every state (the Gaussian centred on
+    its anchor, or on ``x0`` without one) with the same spread: the reference a trained
+    policy's proposals must beat."""
+    torch = import_learn("torch")
+    policy = RLSampler.build_policy(sampler.spec)
+    policy.load_state_dict(sampler.policy.state_dict())
+    head = policy.action_net if sampler.spec.algo == "ppo" else policy.actor.mu
+    with torch.no_grad():
+        head.weight.zero_()
+        head.bias.zero_()
+    return RLSampler(sampler.spec, policy)
+
+
 class _Constant:
     """A constant schedule (the policy's learning rate, unused when sampling)."""
 
@@ -207,6 +235,20 @@ class _Constant:
 
     def __call__(self, _progress: float) -> float:
         return self.value
+
+
+class EnergyGain(gym.Wrapper):
+    """The ``"energy-gain"`` reward: ``log(E(x0) / E(z))``, how many times the chosen point
+    lowers the energy (Shum Eq. 10) of the search's start ``x0`` (the previous reconstruction
+    projected), instead of ``-E(z)``. The same best point in every frame, but a reward on one
+    scale whatever the frame's energy (which spans orders of magnitude between frames), so the
+    policy gradient is not dominated by the frames that are hard for every action."""
+
+    def step(self, action: Any) -> tuple[Any, float, bool, bool, dict[str, Any]]:
+        """Step; the reward is the log energy ratio."""
+        observation, _, terminated, truncated, info = self.env.step(action)
+        gain = np.log(max(info["energy_x0"], 1e-12) / max(info["energy"], 1e-12))
+        return observation, float(gain), terminated, truncated, info
 
 
 def make_training_env(
@@ -224,13 +266,15 @@ def make_training_env(
     smooth_weight: float = 0.002,
 ) -> Any:
     """The training env: ``KinectPoseEnv`` with the ``reward_mode`` reward (the energy by
-    default; ``"error"``, ``"combined"`` with ``error_weight`` or ``"smooth"`` with
-    ``smooth_weight`` learn the simulated ground truth), no ragdoll (the compared methods run
-    without one), episodes from ``clips`` x
+    default, or its gain over ``x0``, :class:`EnergyGain`; ``"error"``, ``"combined"`` with
+    ``error_weight`` or ``"smooth"`` with ``smooth_weight`` learn the simulated ground truth),
+    no ragdoll (the compared methods run without one), episodes from ``clips`` x
     ``scenarios``, unclipped actions (the policy's action is added to the sampler's anchor,
     :meth:`FeatureMap.wrap`)."""
 
-    return KinectPoseEnv(
+    if reward_mode not in RL_REWARDS:
+        raise ValueError(f"reward_mode: expected one of {RL_REWARDS}, got {reward_mode!r}")
+    env = KinectPoseEnv(
         graph,
         clips=list(clips),
         scenarios=list(scenarios),
@@ -238,13 +282,14 @@ def make_training_env(
         latent_dim=latent_dim,
         action_scale=action_scale,
         action_mode=action_mode,
-        reward_mode=reward_mode,
+        reward_mode="energy" if reward_mode == "energy-gain" else reward_mode,
         error_weight=error_weight,
         smooth_weight=smooth_weight,
         clip_actions=False,
         ragdoll=False,
         max_episode_steps=max_frames,
     )
+    return EnergyGain(env) if reward_mode == "energy-gain" else env
 
 
 def train_rl(
@@ -294,9 +339,10 @@ def train_rl(
         an offset from it.
     hyperparameters : dict, optional
         Overrides of :data:`RL_DEFAULTS`.
-    reward_mode : {"energy", "error", "combined", "smooth"}
-        The env's reward (:class:`~fpg_gym.env.KinectPoseEnv`); ``error_weight`` weighs the
-        error in ``"combined"``, ``smooth_weight`` the output's acceleration in ``"smooth"``.
+    reward_mode : {"energy", "energy-gain", "error", "combined", "smooth"}
+        The env's reward (:class:`~fpg_gym.env.KinectPoseEnv`; ``"energy-gain"``:
+        :class:`EnergyGain`); ``error_weight`` weighs the error in ``"combined"``,
+        ``smooth_weight`` the output's acceleration in ``"smooth"``.
     error_weight, smooth_weight : float
     evaluate : callable, optional
         ``evaluate(sampler) -> {"mean": {...}}`` run every ``eval_every`` steps (a checkpoint
@@ -313,8 +359,8 @@ def train_rl(
     sampler : RLSampler
     history : list of dict
         ``{"timesteps", "reward_per_step"}`` every twentieth of the run (the mean reward of
-        the steps since the last record) and the periodic evaluations (``eval_*``, the first
-        at step 0, before any training).
+        the steps since the last record) and the periodic evaluations (``eval_*``, between
+        updates: the first at step 0, before any training, the last of the returned policy).
     """
     sb3 = import_learn("stable_baselines3")
     from stable_baselines3.common.callbacks import BaseCallback
@@ -373,17 +419,30 @@ def train_rl(
     checkpoint_dir = None if checkpoints is None else Path(checkpoints)
 
     class _Callback(BaseCallback):
+        """Records the reward and evaluates the policy between updates: at the start of the
+        first rollout after each ``eval_every`` steps, and once more at the end of training,
+        so that every evaluated policy is one that updates left as it is, and the last
+        evaluation is of the policy :func:`train_rl` returns (a PPO update follows every
+        rollout: an evaluation during the rollout would score a policy the run then changes)."""
+
         def __init__(self) -> None:
             super().__init__()
             self.bar: Any = None
             self.rewards: list[float] = []
             self.started = time.perf_counter()
+            self.evaluated_at: int | None = None
 
         def _on_training_start(self) -> None:
             if evaluate is not None and eval_every:
                 self._evaluate(0)  # the untrained policy: the reference of the curve
             if progress:
                 self.bar = tqdm(total=timesteps, desc=f"train {algo}", unit="step", leave=False)
+
+        def _on_rollout_start(self) -> None:
+            steps = int(self.num_timesteps)
+            if evaluate is not None and eval_every:
+                if (self.evaluated_at or 0) // eval_every < steps // eval_every:
+                    self._evaluate(steps)
 
         def _on_step(self) -> bool:
             self.rewards.extend(float(r) for r in np.ravel(self.locals.get("rewards", [])))
@@ -401,19 +460,18 @@ def train_rl(
                 if self.bar is not None:
                     self.bar.set_postfix({"reward/step": f"{history[-1]['reward_per_step']:.4f}"})
                 self.rewards = []
-            if evaluate is not None and eval_every and steps % eval_every == 0:
-                self._evaluate(steps)
             return True
 
         def _evaluate(self, steps: int) -> None:
             assert evaluate is not None
+            self.evaluated_at = steps
             table = evaluate(sampler)["mean"]
             record = {"timesteps": steps, **{f"eval_{k}": v for k, v in table.items()}}
             history.append(record)
             self.logger.record("eval/mean_energy", table["mean_energy"])
             self.logger.record("eval/mean_error", table["mean_error"])
             name = ""
-            if checkpoint_dir is not None and steps > 0:
+            if checkpoint_dir is not None:  # step 0: the untrained policy, for reference
                 name = sampler.save(checkpoint_dir / f"step-{steps:08d}").name
             say(
                 f"step {steps}: held-out mean action: energy {table['mean_energy']:.4f}, "
@@ -423,6 +481,9 @@ def train_rl(
         def _on_training_end(self) -> None:
             if self.bar is not None:
                 self.bar.close()
+            steps = int(self.num_timesteps)
+            if evaluate is not None and eval_every and self.evaluated_at != steps:
+                self._evaluate(steps)  # the policy the run returns (after its last update)
 
     del sb3
     model.learn(total_timesteps=timesteps, callback=_Callback(), tb_log_name=f"sampler_{algo}")

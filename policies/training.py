@@ -19,6 +19,8 @@ import importlib.util
 import time
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
+from dataclasses import fields as dataclass_fields
+from dataclasses import replace as dataclass_replace
 from pathlib import Path
 from typing import Any
 
@@ -28,9 +30,8 @@ from fpg_gym.core import metrics
 from fpg_gym.core.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.core.poses import mirror
 from fpg_gym.core.validation import check_integer, check_number
-from fpg_gym.definitions import DefinitionMap
-from fpg_gym.env import REWARD_MODES
-from fpg_gym.graph import load_graph
+from fpg_gym.definitions import load_map
+from fpg_gym.graph import GRAPH_NAMES, load_graph
 from fpg_gym.io import DEFAULT_CLIP_NAMES, Clip, find_mocap_files, resolve_clips
 from fpg_gym.io.files import file_digest
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
@@ -38,6 +39,7 @@ from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.runtime.ray_session import check_address, require_ray
 from fpg_gym.simulate import simulate_clips
+from optimizers.local_search import LocalSearch
 from optimizers.random_search import RandomSearch
 from policies.checkpoints import RunCheckpoints
 from policies.imitation import (
@@ -47,12 +49,16 @@ from policies.imitation import (
     TRUTH_TARGETS,
     ImitationData,
     collect_imitation_data,
+    frame_caps,
     truth_latent,
 )
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
+from policies.loading import load_sampler
 from policies.output_correction import CorrectionSource, learn_correction
 from policies.paired_recordings import (
+    GroupDatabase,
     PairedRecordings,
+    group_databases,
     group_pattern,
     paired_recordings,
     recording_paths,
@@ -63,7 +69,7 @@ from policies.pose_sampler import (
     describe_fit,
     fit_linear,
 )
-from policies.rl import train_rl
+from policies.rl import RL_REWARDS, UNTRAINED_CHECKPOINT, train_rl, zero_action
 from policies.sampler import (
     DEFAULT_FEATURES,
     AnchorSampler,
@@ -328,9 +334,9 @@ class TrainConfig:
         What the supervised data's stream continues from (:func:`collect_imitation_data`;
         ``"anchor"`` and ``"truth"`` need target ``"truth"`` or ``"bones"`` and run no
         search).
-    reward : {"energy", "error", "combined", "smooth"}
+    reward : {"energy", "energy-gain", "error", "combined", "smooth"}
         The RL env's reward (rl; the error modes learn the simulated ground truth; see
-        :class:`~fpg_gym.env.KinectPoseEnv`).
+        :class:`~fpg_gym.env.KinectPoseEnv` and :class:`policies.rl.EnergyGain`).
     error_weight : float
         Weight of the error in the ``"combined"`` reward.
     smooth_weight : float
@@ -376,7 +382,13 @@ class TrainConfig:
     recordings : list of str, optional
         Kind ``"linear"``: learn from these paired recordings (files or folders of sensor
         streams with ground truth, :mod:`policies.paired_recordings`) instead of simulated
-        streams of clips; a seeded ``val_share`` of their groups is held out.
+        streams of clips; a seeded ``val_share`` of their groups is held out (0: none, every
+        group trains and there is no final evaluation).
+    cross_fit : bool
+        With ``recordings``: collect each training group's data (and its output correction's)
+        with a graph and a sensor map built from the other training groups' recordings, as a
+        new subject's are built without it (:func:`policies.paired_recordings.group_databases`;
+        True); False: with ``graph`` and ``sensor_map``, which contain every group.
     group_pattern : str, optional
         With ``recordings``: regular expression on the file names whose first group names a
         recording's group (e.g. its subject); each recording is its own group otherwise.
@@ -431,6 +443,7 @@ class TrainConfig:
     sensor_map: str | None = None
     sensor_blend: float = 0.0
     correction: bool = True
+    cross_fit: bool = True
 
     def __post_init__(self) -> None:
         if self.kind not in ("supervised", "rl", "linear"):
@@ -460,8 +473,8 @@ class TrainConfig:
                 "or 'bones'), "
                 f"got {self.follow!r} with target {self.target!r}"
             )
-        if self.reward not in REWARD_MODES:
-            raise ValueError(f"reward: expected one of {REWARD_MODES}, got {self.reward!r}")
+        if self.reward not in RL_REWARDS:
+            raise ValueError(f"reward: expected one of {RL_REWARDS}, got {self.reward!r}")
         if self.timesteps is not None and self.timesteps < 1:
             raise ValueError(f"timesteps: expected >= 1, got {self.timesteps}")
         if self.epochs < 1:
@@ -472,6 +485,11 @@ class TrainConfig:
             raise ValueError(f"max_frames: expected >= 2, got {self.max_frames}")
         if self.workers < 1:
             raise ValueError(f"workers: expected >= 1, got {self.workers}")
+        if not (0.0 < self.val_share < 1.0 or (self.val_share == 0.0 and self.recordings)):
+            raise ValueError(
+                f"val_share: expected a share in (0, 1) (0 only with recordings), got "
+                f"{self.val_share}"
+            )
         if self.backend not in BACKENDS:
             raise ValueError(f"backend: expected one of {BACKENDS}, got {self.backend!r}")
         if self.recordings is not None:
@@ -520,10 +538,10 @@ class TrainConfig:
 
     def reconstructor_options(self) -> dict[str, Any]:
         """The reconstructor settings of the data and the evaluation: ``sensor_blend`` and the
-        ``sensor_map`` read from its file."""
+        ``sensor_map`` read from its file (or a packaged map by name)."""
         options: dict[str, Any] = {"sensor_blend": self.sensor_blend}
         if self.sensor_map is not None:
-            options["sensor_map"] = DefinitionMap.load(self.sensor_map)
+            options["sensor_map"] = load_map(self.sensor_map)
         return options
 
     @property
@@ -573,8 +591,9 @@ def _content_digests(
 
 
 def _load_graph(name: str) -> Any:
-
-    if name != "default" and not Path(name).is_file():
+    """``--graph``: a file, ``default`` (the embedded graph without the held-out clips) or a
+    packaged graph by name (:data:`fpg_gym.graph.GRAPH_NAMES`)."""
+    if name not in GRAPH_NAMES and not Path(name).is_file():
         raise FileNotFoundError(f"--graph: {name}: no such file")
     return load_graph(name, exclude=DEFAULT_HOLDOUT_CLIPS)
 
@@ -598,7 +617,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
         Bad settings, or training clips that are the default protocol's evaluation clips.
     optimizers.MissingDependency
         torch / stable-baselines3 missing (``pip install 'fpg-gym[learn]'``).
-    fpg_gym.runtime.ray_session.RayUnavailable
+    fpg_gym.ray_session.RayUnavailable
         ``backend="ray"`` without Ray (``pip install 'fpg-gym[distributed]'``).
     """
 
@@ -616,6 +635,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     graph = _load_graph(config.graph)
     options = config.reconstructor_options()
     paired = None
+    databases: list[GroupDatabase] | None = None
     if config.recordings is not None:
         paired = paired_recordings(
             config.recordings,
@@ -627,14 +647,29 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             log=say,
         )
         validation = paired.validation
+        held = (
+            f"{len(validation)} held-out recordings of the groups "
+            f"{', '.join(paired.info['validation_groups'])}"
+            if validation
+            else "no group held out (--val-share 0: no final evaluation)"
+        )
         say(
             f"train-sampler: linear (target {config.target}), "
             f"{len(paired.train)} training recordings in "
-            f"{len(paired.info['training_groups'])} groups, {len(validation)} held-out "
-            f"recordings of the groups {', '.join(paired.info['validation_groups'])}, "
-            f"seed {config.seed}"
+            f"{len(paired.info['training_groups'])} groups, {held}, "
+            + ("each group's data with a graph and sensor map without it, " * config.cross_fit)
+            + f"seed {config.seed}"
         )
-        training_data: dict[str, Any] = dict(paired.info)
+        training_data: dict[str, Any] = {**paired.info, "cross_fit": config.cross_fit}
+        if config.cross_fit:  # before any other work: a graph that cannot be cross-fitted
+            t0 = time.perf_counter()
+            databases = group_databases(
+                paired, graph, options.get("sensor_map"), source=config.graph
+            )
+            say(
+                f"cross-fitting: {len(databases)} graphs and sensor maps, each without its "
+                f"group ({time.perf_counter() - t0:.1f} s)"
+            )
     else:
         clips = training_clips(config.clips, units=config.units, progress=config.progress)
         if config.val_clips:
@@ -709,7 +744,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     if run is not None and config.kind == "linear":
         source = paired if paired is not None else train_clips
         sampler, history = _train_linear(
-            config, graph, source, scenarios, options, run, seconds, say
+            config, graph, source, scenarios, options, run, seconds, say, databases
         )
     elif run is not None:
         sampler, history = _train_supervised(
@@ -761,6 +796,14 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             training_info["smooth_weight"] = config.smooth_weight
     sampler.spec.training = {**training_info, "seconds": dict(seconds), "history": history}
     t0 = time.perf_counter()
+    if not validation:  # every group trained (val_share 0): nothing left to score
+        seconds["total"] = time.perf_counter() - started
+        sampler.spec.training["seconds"] = dict(seconds)
+        path = sampler.save(out_json)
+        if run is not None:
+            run.finish()
+        say(f"saved {path} ({sampler.spec.weights}); no held-out group, no final evaluation")
+        return TrainResult(str(path), sampler, history, {}, seconds)
 
     final = evaluate(
         sampler,
@@ -777,6 +820,7 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
                 if getattr(sampler, "output_correction", None) is not None
                 else {}
             ),
+            **(_policy_references(sampler, checkpoints) if config.kind == "rl" else {}),
         },
     )
     seconds["evaluate"] = time.perf_counter() - t0
@@ -789,6 +833,20 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
     say(f"saved {path} ({sampler.spec.weights})")
     say(f"final evaluation on {len(validation)} held-out episodes:\n" + format_evaluation(final))
     return TrainResult(str(path), sampler, history, final, seconds)
+
+
+def _policy_references(sampler: Any, checkpoints: Path) -> dict[str, Any]:
+    """What an RL sampler's proposals must beat, at the same 200 evaluations: the local
+    search alone, and ``learned+search`` with the untrained policy (its step-0 checkpoint) and
+    with the zero action (:func:`policies.rl.zero_action`)."""
+    rows: dict[str, Any] = {
+        "local-search (200)": LocalSearch(iterations=2),
+        "zero action, learned+search (200)": LearnedSearch(zero_action(sampler)),
+    }
+    untrained = checkpoints / f"{UNTRAINED_CHECKPOINT}.json"
+    if untrained.is_file():
+        rows["untrained, learned+search (200)"] = LearnedSearch(load_sampler(untrained))
+    return rows
 
 
 def _imitation_spec(
@@ -843,11 +901,10 @@ def _imitation_pairs(
     clip_of_episode = (order // len(scenarios)) % len(train_clips)
     data = _collect_pairs(
         config,
-        graph,
+        [(np.arange(len(recordings)), graph, options)],
         recordings,
         spec,
         run,
-        options,
         frames=config.total_timesteps,
         started=t0,
         seconds=seconds,
@@ -858,45 +915,63 @@ def _imitation_pairs(
 
 def _collect_pairs(
     config: TrainConfig,
-    graph: Any,
+    setups: Sequence[tuple[np.ndarray, Any, dict[str, Any]]],
     recordings: Sequence[Any],
     spec: SamplerSpec,
     run: RunCheckpoints,
-    options: dict[str, Any],
     *,
     frames: int | None,
     started: float,
     seconds: dict[str, float],
     say: Callable[[str], None],
 ) -> ImitationData:
-    """Imitation pairs of ``recordings`` (at most ``frames``), collected as ``config`` says
-    with the reconstructor ``options``, or read back from a stopped run's checkpoints."""
+    """Imitation pairs of ``recordings`` (at most ``frames``, in recording order), collected
+    as ``config`` says, each ``(episodes, graph, reconstructor options)`` of ``setups`` its
+    recordings with its graph and options; or read back from a stopped run's checkpoints.
+    Episodes are numbered by their index in ``recordings``."""
     collected = run.collected_episodes()
     if collected:
         say(f"{run.folder}: going on from {len(collected)} collected episodes")
-    data = collect_imitation_data(
-        graph,
-        recordings,
-        spec,
-        target=config.target,
-        follow=config.follow,
-        frames=frames,
-        seed=config.seed,
-        progress=config.progress,
-        reconstructor_options=options,
-        workers=config.workers,
-        backend=config.backend,
-        address=config.address,
-        skip=collected,
-        on_chunk=run.save_chunk,
-    )
-    data = run.merged_data(data)
+    caps = frame_caps(recordings, frames)
+    parts = []
+    for episodes, graph, options in setups:
+        episodes = np.asarray(episodes, dtype=np.int64)
+
+        def save(chunk: Sequence[int], pairs: ImitationData, ids: np.ndarray = episodes) -> Any:
+            """A chunk's pairs saved under the episodes' numbers in ``recordings``."""
+            pairs = dataclass_replace(pairs, episodes=ids[pairs.episodes])
+            return run.save_chunk(ids[np.asarray(chunk)].tolist(), pairs)
+
+        part = collect_imitation_data(
+            graph,
+            [recordings[e].head(max(caps[e], 1)) for e in episodes],
+            spec,
+            target=config.target,
+            follow=config.follow,
+            seed=config.seed,
+            progress=config.progress,
+            reconstructor_options=options,
+            workers=config.workers,
+            backend=config.backend,
+            address=config.address,
+            skip=[i for i, e in enumerate(episodes) if e in collected or caps[e] == 0],
+            on_chunk=save,
+        )
+        parts.append(dataclass_replace(part, episodes=episodes[part.episodes]))
+    data = run.merged_data(_in_episode_order(parts))
     seconds["data"] = time.perf_counter() - started
     say(
         f"imitation data: {len(data)} frames from {len(set(data.episodes.tolist()))} episodes "
         f"in {seconds['data']:.1f} s"
     )
     return data
+
+
+def _in_episode_order(parts: Sequence[ImitationData]) -> ImitationData:
+    """The pairs of ``parts`` ordered by episode (each episode's frames in order)."""
+    merged = ImitationData.concatenate(parts)
+    order = np.argsort(merged.episodes, kind="stable")
+    return ImitationData(*(getattr(merged, f.name)[order] for f in dataclass_fields(merged)))
 
 
 def _train_linear(
@@ -908,29 +983,42 @@ def _train_linear(
     run: RunCheckpoints,
     seconds: dict[str, float],
     say: Callable[[str], None],
+    databases: Sequence[GroupDatabase] | None = None,
 ) -> tuple[GaussianSampler, list[dict[str, Any]]]:
     """The linear pose-space sampler (:mod:`policies.pose_sampler`) on the training
     recordings of paired ``source``, its settings chosen by cross-validation over their
-    groups, or on simulated streams of the clips ``source``, over groups of whole clips; with
-    ``config.correction``, its output correction learnt from its own outputs of the same
-    recordings, cross-validated over the same groups."""
+    groups (one per group; with ``databases``, each group's data collected with its graph and
+    sensor map, :func:`policies.paired_recordings.group_databases`), or on simulated streams
+    of the clips ``source``, over groups of whole clips; with ``config.correction``, its
+    output correction learnt from its own outputs of the same recordings, reconstructed as
+    their data were, cross-validated over the same groups."""
 
     spec = _imitation_spec(config, "linear", "ridge", LINEAR_FEATURES)
     if isinstance(source, PairedRecordings):
+        names = np.array([group for group, _ in source.train])
         recordings = [recording for _, recording in source.train]
+        if databases is not None:
+            setups = [
+                (names == db.group, db.graph, {**options, "sensor_map": db.sensor_map})
+                for db in databases
+            ]
+        else:
+            setups = [(np.ones(len(names), dtype=bool), graph, options)]
         data = _collect_pairs(
             config,
-            graph,
+            [(np.flatnonzero(mine), own, opts) for mine, own, opts in setups],
             recordings,
             spec,
             run,
-            options,
             frames=config.timesteps,
             started=time.perf_counter(),
             seconds=seconds,
             say=say,
         )
-        unit = np.array([group for group, _ in source.train])[data.episodes]
+        unit = names[data.episodes]
+        # Cross-validation over the recordings' own groups (subjects: each left out whole).
+        sampler, history, groups = _fit_linear_groups(spec, data, unit, seconds, say, None)
+        setup_of = {int(e): setup for setup in setups for e in np.flatnonzero(setup[0])}
     else:
         data, clip_of_episode, recordings = _imitation_pairs(
             config, graph, source, scenarios, options, spec, run, seconds, say
@@ -939,22 +1027,22 @@ def _train_linear(
         # cross-validation scores each setting on motions its fit did not see.
         group_of_clip = np.array([c.name.removesuffix("~mirror") for c in source])
         unit = group_of_clip[clip_of_episode[data.episodes]]
-    sampler, history, groups = _fit_linear_groups(spec, data, unit, seconds, say)
+        sampler, history, groups = _fit_linear_groups(spec, data, unit, seconds, say, LINEAR_GROUPS)
+        setup_of = {int(e): (None, graph, options) for e in np.unique(data.episodes)}
     if config.correction:
-        # The correction's groups are the sampler's, reconstructed by the sampler.
+        # The correction's groups are the sampler's, its recordings reconstructed by the
+        # sampler with the graph and options their data were collected with.
         t0 = time.perf_counter()
         first = np.unique(data.episodes, return_index=True)
         episode_group = dict(zip(first[0].tolist(), groups[first[1]].tolist(), strict=True))
         optimizer = LearnedSampler(sampler, samples=1, correct_output=False)
-        sources = [
-            CorrectionSource(
-                graph,
-                options,
-                [recordings[e] for e, g in episode_group.items() if g == chosen],
-                optimizer,
+        sources = []
+        for chosen in np.unique(groups).tolist():
+            episodes = [e for e, g in episode_group.items() if g == chosen]
+            _, own, opts = setup_of[episodes[0]]  # a group's episodes share their setup
+            sources.append(
+                CorrectionSource(own, opts, [recordings[e] for e in episodes], optimizer)
             )
-            for chosen in np.unique(groups).tolist()
-        ]
         correction, report = learn_correction(sources, progress=config.progress, log=say)
         sampler.with_correction(correction, report)
         seconds["correction"] = time.perf_counter() - t0
@@ -981,13 +1069,14 @@ def _fit_linear_groups(
     unit: np.ndarray,
     seconds: dict[str, float],
     say: Callable[[str], None],
+    most: int | None,
 ) -> tuple[LinearPoseSampler, list[dict[str, Any]], np.ndarray]:
-    """:func:`fit_linear` on ``data``, cross-validated over ``LINEAR_GROUPS`` groups of whole
-    units (``unit``: each frame's clip or recording group, a label), dealt in sorted order;
-    also each frame's group."""
+    """:func:`fit_linear` on ``data``, cross-validated over groups of whole units (``unit``:
+    each frame's clip or recording group, a label): one per unit, or at most ``most``, the
+    units dealt in sorted order; also each frame's group."""
     units, index = np.unique(unit, return_inverse=True)
     _check_linear_units(units.tolist())
-    group = index % min(LINEAR_GROUPS, len(units))
+    group = index % min(most or len(units), len(units))
     groups = [
         (data.observations[take], data.actions[take], data.episodes[take])
         for take in (group == g for g in np.unique(group))

@@ -31,17 +31,23 @@ diagnostic rows run through the Python API: the sampler's anchor alone and its m
   ``learned+search:`` (200 evaluations) and its mean alone (1; a linear sampler's three with
   the output correction it learns from its own outputs of the training subjects,
   :mod:`policies.output_correction`, and ``uncorrected``: ``learned:`` without it;
-  ``--no-correction``, ``--cross-fit``), beside ``closed-form`` (the
+  ``--no-correction``), beside ``closed-form`` (the
   anchor, 1), ``local-search`` (2,000), the raw sensor and two oracles that see the truth (its
   latent point by joints and by bones); 95 % confidence intervals by a bootstrap over episodes.
 * ``sim``: the simulated held-out Bandai protocol (:func:`sim_protocol`), the same models and
   rows.
+* ``rl``: an RL sampler as a search accelerator (:func:`rl_protocol`): PPO trained on the
+  energy's gain without the closed form (:data:`RL_ACCELERATOR`), then ``learned+search:`` (200
+  evaluations) against the local search at 2,000 and 200, the untrained policy and the zero
+  action, paired per episode, on the embedded held-out clips (``--rl-model PATH``: evaluate
+  that model instead of training one).
 
 Usage::
 
     python scripts/learned_samplers.py --out runs/learned [--protocols embedded,bandai]
     python scripts/learned_samplers.py --protocols uiprmd --workers 2 --out runs/learned
     python scripts/learned_samplers.py --protocols sim --out runs/learned
+    python scripts/learned_samplers.py --protocols rl --out runs/learned
 """
 
 from __future__ import annotations
@@ -65,6 +71,8 @@ import real_kinect  # scripts/real_kinect.py: the UI-PRMD leave-subjects-out mac
 import optimizers
 from fpg_gym.core import metrics
 from fpg_gym.core.holdout import split_takes
+from fpg_gym.definitions import DefinitionMap
+from fpg_gym.filters import make_filter
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import load_clips
 from fpg_gym.io.recording import load_recording
@@ -72,19 +80,22 @@ from fpg_gym.methods import MethodRunner
 from fpg_gym.reconstruct import Reconstructor
 from policies.learned_optimizers import LearnedSampler
 from policies.output_correction import CorrectionSource, describe_correction, learn_correction
-from policies.pose_sampler import (
-    LINEAR_FEATURES,
-    describe_fit,
-    fit_linear,
-    out_of_group_samplers,
-)
+from policies.pose_sampler import LINEAR_FEATURES, describe_fit, fit_linear
 from policies.sampler import FEATURE_SETS, SamplerSpec
 from policies.supervised import SupervisedSampler, fit_supervised
-from policies.training import collect_imitation_data, simulate_episodes, truth_latent
+from policies.training import (
+    TrainConfig,
+    collect_imitation_data,
+    simulate_episodes,
+    train_sampler,
+    truth_latent,
+)
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = REPO.parent / "shared" / "data" / "bandai_namco"
 SCENARIOS = "front-many,left45-many,right45-many"
+#: A UI-PRMD recording's subject in its file name (``mMM_sSS_eEE``): train-sampler's groups.
+SUBJECT_PATTERN = "_(s[0-9]+)_"
 
 
 def sh(args: list[str], log: Path) -> float:
@@ -397,8 +408,7 @@ def _train_linear(
     cross-validation over ``groups`` (imitation data of the training subjects, or of the
     simulated protocol's folds); deterministic (one model whatever the seeds); with
     ``sources`` and ``task["correct"]``, its output correction learnt from its outputs of the
-    training groups (:func:`policies.output_correction.learn_correction`; with
-    ``task["cross_fit"]`` each group's outputs come from the sampler fitted without it); saved as
+    training groups (:func:`policies.output_correction.learn_correction`); saved as
     ``{out}/sampler_{name}_linear``."""
 
     t0 = time.process_time()
@@ -408,20 +418,10 @@ def _train_linear(
     if sources and task.get("correct", True):
         t1 = time.process_time()
         bare = LearnedSampler(sampler, samples=1, correct_output=False)
-        samplers = (  # cross-fitted: each group's outputs by the sampler fitted without it
-            [
-                LearnedSampler(alone, samples=1)
-                for alone in out_of_group_samplers(
-                    sampler, [(d.observations, d.actions, d.episodes) for d in groups]
-                )
-            ]
-            if task.get("cross_fit")
-            else [bare] * len(groups)
-        )
         correction, correction_report = learn_correction(
             [
-                CorrectionSource(graph, options, recordings, samplers[g])
-                for graph, options, recordings, g in sources
+                CorrectionSource(graph, options, recordings, bare)
+                for graph, options, recordings, _ in sources
             ]
         )
         sampler.with_correction(correction, correction_report)
@@ -446,11 +446,30 @@ def _train_linear(
     }
 
 
+def _row(truth: np.ndarray, poses: np.ndarray, recording: Any) -> dict[str, float]:
+    """One episode's figures: FPG Eq. 13 (``error``), MPJPE absolute, root-relative and
+    Procrustes-aligned, jitter, the largest settled bone range (mm) and the mean bone-length
+    error against the truth (mm)."""
+    spread = metrics.settled_bone_spread(poses, timestamps=recording.timestamps)
+    return {
+        "error": float(metrics.frame_error(truth, poses).mean()),
+        "mpjpe": metrics.mpjpe(truth, poses),
+        "mpjpe_root": metrics.mpjpe(truth, poses, "root"),
+        "mpjpe_pa": metrics.mpjpe(truth, poses, "procrustes"),
+        "jitter": float(np.nanmean(metrics.jitter(poses, timestamps=recording.timestamps))),
+        "spread_mm": float(1000 * np.nanmax(spread)) if np.isfinite(spread).any() else np.nan,
+        "bone_error_mm": float(1000 * metrics.bone_length_error(truth, poses).mean()),
+    }
+
+
 def _score(
     graph: Any, options: dict[str, Any], models: dict[str, str], episodes: list[tuple[str, Any]]
 ) -> list[dict[str, Any]]:
-    """Every method (raw, closed-form, local-search, each model's mean alone, ``learned:`` and
-    ``learned+search:``, the oracle) on every ``(name, recording)``: error, jitter, CPU."""
+    """Every method on every ``(name, recording)``: the sensor's baselines (raw, the SDK's
+    Holt filter, the sensor through the sensor map and that filtered by Holt), closed-form,
+    local-search, each model's ``learned:`` and ``learned+search:`` (and a linear model's
+    ``uncorrected``, an MLP's mean alone) and the bones oracle: :func:`_row`'s figures and CPU
+    ms per frame."""
 
     def mean_only(path: str, **_: Any) -> Any:
         return LearnedSampler(path, samples=1)
@@ -460,21 +479,32 @@ def _score(
 
     optimizers.register_prefix("mean-only", mean_only, overwrite=True)
     optimizers.register_prefix("uncorrected", uncorrected, overwrite=True)
-    methods = ["raw", "fpg:closed-form", "fpg:local-search"]
+    methods = ["raw", "holt", "fpg:closed-form", "fpg:local-search"]
     for path in models.values():
-        methods += [f"fpg:mean-only:{path}", f"fpg:learned:{path}", f"fpg:learned+search:{path}"]
-        if LearnedSampler(path).sampler.spec.kind == "linear":  # with or without a correction
-            methods.append(f"fpg:uncorrected:{path}")
+        methods += [f"fpg:learned:{path}", f"fpg:learned+search:{path}"]
+        linear = LearnedSampler(path).sampler.spec.kind == "linear"
+        # A linear model's mean alone is its learned: (the posterior picks the mean).
+        methods.append(f"fpg:uncorrected:{path}" if linear else f"fpg:mean-only:{path}")
+    sensor_map = options.get("sensor_map")
     rows = []
     with MethodRunner(graph, budget=2000, reconstructor_options=options) as runner:
         for name, recording in episodes:
             truth = recording.ground_truth
             assert truth is not None
-            for method in [*methods, "oracle", "oracle-bones"]:
+            baselines: dict[str, Any] = {}
+            if sensor_map is not None:  # the sensor in the truth's definitions, no database
+                mapped = sensor_map.apply(recording.positions)
+                holt = make_filter("holt")
+                baselines["mapped"] = mapped
+                baselines["mapped+holt"] = holt.filter_sequence(
+                    mapped, recording.states, recording.timestamps
+                )
+            for method in [*methods, *baselines, "oracle-bones"]:
                 c0 = time.process_time()
-                if method.startswith("oracle"):
-                    metric = "bones" if method == "oracle-bones" else "joints"
-                    poses = _oracle(graph, options, recording, metric)
+                if method == "oracle-bones":
+                    poses = _oracle(graph, options, recording, "bones")
+                elif method in baselines:
+                    poses = baselines[method]
                 else:
                     poses = runner.run(method, recording, seed=0).poses
                 cpu = 1000 * (time.process_time() - c0) / recording.num_frames
@@ -482,12 +512,72 @@ def _score(
                     {
                         "episode": name,
                         "method": method,
-                        "error": float(metrics.frame_error(truth, poses).mean()),
-                        "jitter": float(np.nanmean(metrics.jitter(poses, fps=recording.fps))),
+                        **_row(truth, poses, recording),
                         "cpu_ms": cpu,
                     }
                 )
     return rows
+
+
+def _uiprmd_linear(
+    task: dict[str, Any],
+    imported: Path,
+    subjects: dict[str, list[Path]],
+    held_out: str,
+    train_subjects: list[str],
+) -> tuple[dict[str, Any], Any, Any]:
+    """One fold's linear sampler, trained as ``fpg-gym train-sampler --kind linear --target
+    bones --follow anchor --recordings ... --group-pattern '_(s[0-9]+)_' --val-share 0``
+    trains it (:func:`policies.training.train_sampler`, the same code): on the training
+    subjects' recordings, with the fold's graph and sensor map written to files (the
+    evaluation's; each training subject's data and output correction collected with a graph and
+    map of the other training subjects, cross-fitted). Returns the trained models' record,
+    the graph and the sensor map (as the file holds it)."""
+    folder = Path(task["out"]) / f"fold_{held_out}"
+    folder.mkdir(parents=True, exist_ok=True)
+    excluded = set(task["exclude_training"])
+    graph = real_kinect.uiprmd_graph(imported, {held_out, *excluded}, task["thres1"])
+    graph_path = graph.save(folder / "graph.npz")
+    train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
+    sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, train_recs, True, False)
+    assert sensor_map is not None
+    map_path = folder / "sensor_map.json"
+    sensor_map.save(map_path)
+    reps = task["train_reps"]
+    # In file-name order, as a folder or a shell pattern gives them to train-sampler.
+    paths = sorted(p for s in train_subjects for p in real_kinect.repetitions(subjects[s], reps))
+    config = TrainConfig(
+        kind="linear",
+        out=str(folder / "sampler_linear"),
+        graph=str(graph_path),
+        recordings=[str(p) for p in paths],
+        group_pattern=SUBJECT_PATTERN,
+        sensor_map=str(map_path),
+        sensor_blend=task["blend"],
+        val_share=0.0,
+        target="bones",
+        follow="anchor",
+        correction=task["correct"],
+        progress=False,
+    )
+    t0 = time.process_time()
+    result = train_sampler(
+        config, log=lambda line: print(f"{held_out}: {line}", file=sys.stderr, flush=True)
+    )
+    cpu = time.process_time() - t0
+    result.sampler.spec.training["command"] = task["command"]
+    result.sampler.save(result.model)
+    history = result.history[0]
+    trained = {
+        "models": {"linear": result.model},
+        "train_cpu_s": {"linear": cpu},
+        "mean_scale": {},
+        "frames": history["linear"]["frames"],
+        "linear": history["linear"],
+        "correction": history.get("correction", {}),
+        "seconds": result.seconds,
+    }
+    return trained, graph, DefinitionMap.load(map_path)
 
 
 def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
@@ -504,40 +594,37 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
     # The validation subject: the first training subject after the held-out one (cyclic).
     val_subject = train_subjects[next((i for i, s in enumerate(train_subjects) if s > held_out), 0)]
     options: dict[str, Any] = {"sensor_blend": task["blend"]}
-    spec = _spec(task)
-    t0 = time.process_time()
-    collected = {
-        s: _uiprmd_data(
-            imported, subjects, held_out, s, spec, options, task["train_reps"], thres1, excluded
+    if task["model"] == "linear":
+        trained, graph, sensor_map = _uiprmd_linear(
+            task, imported, subjects, held_out, train_subjects
         )
-        for s in train_subjects
-    }
-    data = {s: part[0] for s, part in collected.items()}
-    data_cpu = time.process_time() - t0
-    info = {
-        "protocol": "uiprmd leave-subjects-out",
-        "held_out": held_out,
-        "validation_subject": val_subject,
-        "train_subjects": [s for s in train_subjects if s != val_subject],
-        "excluded_from_training": sorted(excluded),
-    }
-    trained = _train_seeds(
-        spec,
-        [data[s] for s in train_subjects if s != val_subject],
-        data[val_subject],
-        task,
-        held_out,
-        info,
-        # The correction's groups in the sampler's order (training subjects, then validation).
-        [
-            (*collected[s][1], g)
-            for g, s in enumerate([s for s in train_subjects if s != val_subject] + [val_subject])
-        ],
-    )
-    collected.clear()  # the nested graphs
-    graph = real_kinect.uiprmd_graph(imported, {held_out, *excluded}, thres1)
-    train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
-    sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, train_recs, True, False)
+        data_cpu = 0.0  # counted in the training's CPU (train-sampler collects its data)
+    else:
+        spec = _spec(task)
+        t0 = time.process_time()
+        collected = {
+            s: _uiprmd_data(
+                imported, subjects, held_out, s, spec, options, task["train_reps"], thres1, excluded
+            )
+            for s in train_subjects
+        }
+        data = {s: part[0] for s, part in collected.items()}
+        data_cpu = time.process_time() - t0
+        info = {
+            "protocol": "uiprmd leave-subjects-out",
+            "held_out": held_out,
+            "validation_subject": val_subject,
+            "train_subjects": [s for s in train_subjects if s != val_subject],
+            "excluded_from_training": sorted(excluded),
+        }
+        trained = _train_seeds(
+            spec, [data[s] for s in train_subjects if s != val_subject], data[val_subject], task,
+            held_out, info,
+        )  # fmt: skip
+        collected.clear()  # the nested graphs
+        graph = real_kinect.uiprmd_graph(imported, {held_out, *excluded}, thres1)
+        train_recs = [load_recording(p) for s in train_subjects for p in subjects[s]]
+        sensor_map, _, _ = real_kinect.fold_maps("uiprmd", graph, train_recs, True, False)
     episodes = [
         (path.stem, load_recording(path))
         for path in real_kinect.repetitions(subjects[held_out], task["reps"])
@@ -545,7 +632,7 @@ def _uiprmd_fold(task: dict[str, Any]) -> dict[str, Any]:
     rows = _score(graph, {**options, "sensor_map": sensor_map}, trained["models"], episodes)
     result = {
         "subject": held_out,
-        "validation_subject": val_subject,
+        "validation_subject": None if task["model"] == "linear" else val_subject,
         "data_cpu_s": data_cpu,
         **trained,
         "rows": rows,
@@ -593,7 +680,6 @@ def sim_protocol(args: argparse.Namespace) -> str:
         "features": args.features,
         "model": args.model,
         "correct": args.correction,
-        "cross_fit": args.cross_fit,
         "sim_scenarios": args.sim_train_scenarios.split(","),
         "train_frames": args.sim_train_frames,
         "command": "python scripts/learned_samplers.py "
@@ -640,8 +726,7 @@ def sim_protocol(args: argparse.Namespace) -> str:
         "scenarios": task["sim_scenarios"],
     }
     # The correction's groups: each fold's training and validation parts, each reconstructed
-    # with the graph of the other folds (with --cross-fit, by the sampler fitted without the
-    # part's group).
+    # with the graph of the other folds.
     sources = [(*source, g) for g, source in enumerate(train_sources)]
     sources += [(*source, len(train_parts)) for source in val_sources]
     trained = _train_seeds(spec, train_parts, val, task, "bandai", info, sources)
@@ -674,105 +759,165 @@ def _method_kind(method: str, models: dict[str, dict[str, str]]) -> tuple[str, s
     return method.removeprefix("fpg:"), None
 
 
-def uiprmd_table(results: list[dict[str, Any]]) -> str:
-    """The UI-PRMD table: per method, mean error with its 95 % CI (episodes), the change
-    against closed-form with its CI (paired), jitter, CPU ms per frame; learned rows pool the
-    seeds (one row per seed below, when there are several)."""
-    rows = [r for result in results for r in result["rows"]]
+#: Figures of a row (:func:`_row`) the tables pool per episode.
+FIGURES = ("error", "mpjpe", "mpjpe_root", "mpjpe_pa", "jitter", "spread_mm", "bone_error_mm")
+#: Evaluations per frame of each row's method (200 for the learned ones).
+EVALUATIONS = {
+    "raw": "–",
+    "holt": "–",
+    "mapped": "–",
+    "mapped+holt": "–",
+    "closed-form": "1",
+    "local-search": "2,000",
+    "mean-only": "1",
+    "oracle-bones": "– (sees the truth)",
+}
+
+
+def _by_method(results: list[dict[str, Any]]) -> dict[str, dict[str, dict[str, float]]]:
+    """``{row name: {episode: {figure: value}}}``: each figure of :data:`FIGURES` (NaN where a
+    fold file lacks it) and ``cpu_ms``, averaged over the seeds of one method; a row per seed
+    too (``"NAME (seed S)"``) when there are several."""
     models = {res["subject"]: res["models"] for res in results}
-    # One row per seed only when there are several (the linear sampler has one model).
     several = len({seed for fold in models.values() for seed in fold}) > 1
-    rng = np.random.default_rng(2016)
-    by: dict[str, dict[str, dict[str, Any]]] = {}
-    for row in rows:
-        name, seed = _method_kind(row["method"], models)
-        for key in [name] + ([f"{name} (seed {seed})"] if seed is not None and several else []):
-            episodes = by.setdefault(key, {})
-            slot = episodes.setdefault(row["episode"], {"error": [], "jitter": [], "cpu": []})
-            slot["error"].append(row["error"])
-            slot["jitter"].append(row["jitter"])
-            slot["cpu"].append(row["cpu_ms"])
-    base = by["closed-form"]
-    order = sorted(base)
-    lines = [
-        "| method | evaluations/frame | mean error (m) [95 % CI] | vs closed-form [95 % CI] "
-        "| vs local-search | jitter (m/s²) | CPU ms/frame |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
-    ]
-    evaluations = {
-        "raw": "–",
-        "closed-form": "1",
-        "local-search": "2,000",
-        "mean-only": "1",
-        "oracle": "– (sees the truth)",
-        "oracle-bones": "– (sees the truth)",
+    by: dict[str, dict[str, dict[str, list[float]]]] = {}
+    for result in results:
+        for row in result["rows"]:
+            name, seed = _method_kind(row["method"], models)
+            keys = [name] + ([f"{name} (seed {seed})"] if seed is not None and several else [])
+            for key in keys:
+                slot = by.setdefault(key, {}).setdefault(row["episode"], {})
+                for figure in (*FIGURES, "cpu_ms"):
+                    slot.setdefault(figure, []).append(float(row.get(figure, np.nan)))
+    return {
+        name: {
+            episode: {figure: float(np.mean(values)) for figure, values in slot.items()}
+            for episode, slot in episodes.items()
+        }
+        for name, episodes in by.items()
     }
-    local = np.array([np.mean(by["local-search"][e]["error"]) for e in order])
-    anchor = np.array([np.mean(base[e]["error"]) for e in order])
-    for name, episodes in by.items():
-        err = np.array([np.mean(episodes[e]["error"]) for e in order])
-        lo, hi = metrics.bootstrap_mean_ci(err, rng=rng)
-        rlo, rhi = metrics.bootstrap_mean_ci(err, base=anchor, rng=rng)
-        jit = np.mean([np.mean(episodes[e]["jitter"]) for e in order])
-        cpu = np.median([np.median(episodes[e]["cpu"]) for e in order])
+
+
+def _change(values: np.ndarray, base: np.ndarray, rng: np.random.Generator) -> str:
+    """The change of the mean of ``values`` against ``base`` (paired episodes) with its 95 %
+    bootstrap interval."""
+    low, high = metrics.bootstrap_mean_ci(values, base=base, rng=rng)
+    return f"{100 * (values.mean() / base.mean() - 1):+.1f} % [{100 * low:+.1f}, {100 * high:+.1f}]"
+
+
+def uiprmd_table(results: list[dict[str, Any]], episodes: list[str] | None = None) -> str:
+    """The table of every method over the episodes (``episodes``: a subset of them): FPG
+    Eq. 13 and MPJPE with their 95 % CIs and their changes against closed-form (paired CIs),
+    root-relative and Procrustes-aligned MPJPE, jitter, the largest settled bone range over
+    the episodes, the bone-length error against the truth, CPU ms per frame; learned rows pool
+    the seeds (one row per seed below, when there are several)."""
+    by = _by_method(results)
+    order = sorted(by["closed-form"]) if episodes is None else sorted(episodes)
+    rng = np.random.default_rng(2016)
+
+    def figure(name: str, key: str) -> np.ndarray:
+        return np.array([by[name][e][key] for e in order])
+
+    lines = [
+        "| method | evaluations/frame | Eq. 13 (m) [95 % CI] | vs closed-form [95 % CI] | "
+        "MPJPE (m) [95 % CI] | vs closed-form [95 % CI] | root-relative MPJPE (m) | PA-MPJPE "
+        "(m) | jitter (m/s²) | settled bone range, max (mm) | bone length error (mm) | CPU "
+        "ms/frame |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
+    ]
+    for name in by:
+        cells = []
+        for key in ("error", "mpjpe"):
+            values, base = figure(name, key), figure("closed-form", key)
+            lo, hi = metrics.bootstrap_mean_ci(values, rng=rng)
+            cells += [f"{values.mean():.4f} [{lo:.4f}, {hi:.4f}]", _change(values, base, rng)]
+        cells += [
+            f"{figure(name, 'mpjpe_root').mean():.4f}",
+            f"{figure(name, 'mpjpe_pa').mean():.4f}",
+            f"{figure(name, 'jitter').mean():.2f}",
+            f"{np.nanmax(figure(name, 'spread_mm')):.1f}",
+            f"{figure(name, 'bone_error_mm').mean():.1f}",
+            f"{np.median(figure(name, 'cpu_ms')):.2f}",
+        ]
         kind = name.split(" ")[0]
-        lines.append(
-            f"| {name} | {evaluations.get(kind, '200')} | {err.mean():.4f} [{lo:.4f}, {hi:.4f}] "
-            f"| {100 * (err.mean() / anchor.mean() - 1):+.1f} % [{100 * rlo:+.1f}, "
-            f"{100 * rhi:+.1f}] | {100 * (err.mean() / local.mean() - 1):+.1f} % | {jit:.2f} | "
-            f"{cpu:.2f} |"
-        )
+        lines.append(f"| {name} | {EVALUATIONS.get(kind, '200')} | " + " | ".join(cells) + " |")
     return "\n".join(lines)
 
 
 def _subject_errors(result: dict[str, Any]) -> dict[str, dict[str, np.ndarray]]:
-    """One fold's episode means by method (seeds pooled): ``{method: {"error", "jitter"}}``,
+    """One fold's episode figures by method (seeds pooled): ``{method: {figure: (episodes,)}}``,
     episodes in the same (sorted) order for every method."""
-    models = {result["subject"]: result["models"]}
-    by: dict[str, dict[str, list[float]]] = {}
-    for row in result["rows"]:
-        name, _ = _method_kind(row["method"], models)
-        slot = by.setdefault(name, {}).setdefault(row["episode"], [])
-        slot.append((row["error"], row["jitter"]))
-    out = {}
-    for name, episodes in by.items():
-        values = np.array([np.mean(episodes[e], axis=0) for e in sorted(episodes)])
-        out[name] = {"error": values[:, 0], "jitter": values[:, 1]}
-    return out
+    by = _by_method([result])
+    return {
+        name: {key: np.array([episodes[e][key] for e in sorted(episodes)]) for key in FIGURES}
+        for name, episodes in by.items()
+    }
 
 
 SUBJECT_METHODS = ("closed-form", "local-search", "learned", "learned+search", "oracle-bones")
 
 
 def uiprmd_subject_table(results: list[dict[str, Any]]) -> str:
-    """Per held-out subject: each method's mean error (seeds pooled) and ``learned:``'s
-    change against closed-form with its paired 95 % CI over the subject's episodes; jitter."""
+    """Per held-out subject: closed-form's and ``learned:``'s Eq. 13 and MPJPE, ``learned:``'s
+    changes against closed-form with their paired 95 % CIs over the subject's episodes, the
+    jitter of both and ``learned:``'s largest settled bone range."""
     rng = np.random.default_rng(2016)
     lines = [
-        "| held out | episodes | "
-        + " | ".join(f"{m} (m)" for m in SUBJECT_METHODS)
-        + " | learned vs closed-form [95 % CI] | jitter closed-form → learned (m/s²) |",
-        "| --- | --- | " + " | ".join("---" for _ in SUBJECT_METHODS) + " | --- | --- |",
+        "| held out | episodes | closed-form Eq. 13 (m) | learned Eq. 13 (m) | change [95 % CI] "
+        "| closed-form MPJPE (m) | learned MPJPE (m) | change [95 % CI] | jitter closed-form "
+        "→ learned (m/s²) | learned settled bone range, max (mm) |",
+        "| --- | --- | --- | --- | --- | --- | --- | --- | --- | --- |",
     ]
     for result in sorted(results, key=lambda r: r["subject"]):
         errors = _subject_errors(result)
         base, learned = errors["closed-form"], errors.get("learned")
-        cells = [
-            f"{errors[m]['error'].mean():.4f}" if m in errors else "–" for m in SUBJECT_METHODS
-        ]
-        change = jitter = "–"
-        if learned is not None:
-            low, high = metrics.bootstrap_mean_ci(learned["error"], base=base["error"], rng=rng)
-            change = (
-                f"{100 * (learned['error'].mean() / base['error'].mean() - 1):+.1f} % "
-                f"[{100 * low:+.1f}, {100 * high:+.1f}]"
-            )
-            jitter = f"{base['jitter'].mean():.2f} → {learned['jitter'].mean():.2f}"
+        if learned is None:
+            continue
+        cells = []
+        for key in ("error", "mpjpe"):
+            cells += [
+                f"{base[key].mean():.4f}",
+                f"{learned[key].mean():.4f}",
+                _change(learned[key], base[key], rng),
+            ]
         lines.append(
-            f"| {result['subject']} | {len(base['error'])} | {' | '.join(cells)} | {change} "
-            f"| {jitter} |"
+            f"| {result['subject']} | {len(base['error'])} | {' | '.join(cells)} | "
+            f"{base['jitter'].mean():.2f} → {learned['jitter'].mean():.2f} | "
+            f"{np.nanmax(learned['spread_mm']):.1f} |"
         )
     return "\n".join(lines)
+
+
+#: Disjoint sets of UI-PRMD repetitions (``eNN`` of a recording's name): the repetitions
+#: scored stand in for seeds where training is deterministic.
+REPETITION_SETS = (("e01", "e04", "e07", "e10"), ("e02", "e05", "e08"), ("e03", "e06", "e09"))
+
+
+def repetition_table(results: list[dict[str, Any]]) -> str:
+    """``learned:`` against closed-form (Eq. 13 and MPJPE, paired 95 % CIs) on each set of
+    :data:`REPETITION_SETS` that has two episodes or more (empty when none has)."""
+    by = _by_method(results)
+    if "learned" not in by:
+        return ""
+    rng = np.random.default_rng(2016)
+    lines = [
+        "| repetitions | episodes | learned vs closed-form, Eq. 13 [95 % CI] | MPJPE [95 % CI] |",
+        "| --- | --- | --- | --- |",
+    ]
+    for chosen in REPETITION_SETS:
+        order = sorted(e for e in by["closed-form"] if e.rsplit("_", 1)[-1] in chosen)
+        if len(order) < 2:
+            continue
+        cells = [
+            _change(
+                np.array([by["learned"][e][key] for e in order]),
+                np.array([by["closed-form"][e][key] for e in order]),
+                rng,
+            )
+            for key in ("error", "mpjpe")
+        ]
+        lines.append(f"| {', '.join(chosen)} | {len(order)} | {' | '.join(cells)} |")
+    return "\n".join(lines) if len(lines) > 2 else ""
 
 
 def plot_subjects(results: list[dict[str, Any]], path: Path) -> Path:
@@ -843,7 +988,6 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
             "features": args.features,
             "model": args.model,
             "correct": args.correction,
-            "cross_fit": args.cross_fit,
             "command": command,
         }
         for subject in args.subjects.split(",")
@@ -871,6 +1015,7 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
         f"seeds {args.seeds}, sensor blend {args.sensor_blend}, temporal defaults"
         f"{', trained without ' + args.exclude_training if args.exclude_training else ''})\n\n"
         f"{uiprmd_table(results)}\n\nPer held-out subject:\n\n{uiprmd_subject_table(results)}"
+        f"\n\nBy repetitions scored:\n\n{repetition_table(results)}"
         f"\n\nWall time {wall:.0f} s ({args.workers} workers); "
         f"training CPU per sampler: "
         f"{np.mean([v for res in results for v in res['train_cpu_s'].values()]):.0f} s, data "
@@ -878,6 +1023,127 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
     )
     (folder / "table.md").write_text(report)
     plot_subjects(results, folder / "per_subject.png")
+    print(report, flush=True)
+    return report
+
+
+#: ``train-sampler`` settings of the RL search accelerator (``--protocols rl``): no closed
+#: form (the Gaussian centred on the search's start), the energy's gain as the reward, the
+#: latent coordinates of the sensor, prediction and start with the reliabilities as features,
+#: and PPO settings for a one-frame problem (no discount).
+RL_ACCELERATOR: dict[str, Any] = {
+    "kind": "rl",
+    "algo": "ppo",
+    "graph": "default",
+    "anchor": "none",
+    "action_mode": "delta",
+    "reward": "energy-gain",
+    "features": ["x0", "z_kinect", "z_prediction", "reliability", "latent_std", "latent_mask"],
+    "hyperparameters": {
+        "learning_rate": 1e-3,
+        "n_steps": 2048,
+        "batch_size": 256,
+        "n_epochs": 10,
+        "gamma": 0.0,
+        "gae_lambda": 0.0,
+        "net_arch": [64, 64],
+    },
+    "timesteps": 300_000,
+    "eval_every": 75_000,
+}
+
+
+def rl_protocol(args: argparse.Namespace) -> str:
+    """An RL sampler's proposals against the local search (module docstring): train one
+    (unless ``--rl-model``), then every agent on the embedded held-out clips x the ``*-many``
+    scenarios x ``--rl-eval-seeds``, each episode with the per-frame problem (temporal stage
+    off, as the env's), errors paired against ``local-search`` (2,000) and against the
+    untrained policy and the zero action."""
+    import optimizers.local_search as local
+    from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.graph import load_graph
+    from fpg_gym.reconstruct import TemporalConfig
+    from policies.learned_optimizers import LearnedSearch
+    from policies.loading import load_sampler
+    from policies.rl import UNTRAINED_CHECKPOINT, zero_action
+    from policies.training import training_clips
+
+    folder = args.out / "rl"
+    folder.mkdir(parents=True, exist_ok=True)
+    model = args.rl_model
+    trained_note = f"model {model}"
+    if model is None:
+        model = str(folder / "sampler_rl")
+        c0, w0 = time.process_time(), time.perf_counter()
+        train_sampler(TrainConfig(out=model, seed=args.rl_seed, progress=False, **RL_ACCELERATOR))
+        trained_note = (
+            f"trained in {time.process_time() - c0:.0f} s CPU, {time.perf_counter() - w0:.0f} s "
+            f"wall (seed {args.rl_seed})"
+        )
+    trained = load_sampler(model)
+    untrained = load_sampler(f"{model}.checkpoints/{UNTRAINED_CHECKPOINT}")
+    agents: dict[str, Any] = {
+        "local-search": (2000, local.LocalSearch()),
+        "local-search (200)": (200, local.LocalSearch(iterations=2)),
+        "closed-form": (1, "closed-form"),
+        "learned+search": (200, LearnedSearch(trained)),
+        "learned": (200, LearnedSampler(trained)),
+        "mean alone": (1, LearnedSampler(trained, samples=1)),
+        "untrained, learned+search": (200, LearnedSearch(untrained)),
+        "zero action, learned+search": (200, LearnedSearch(zero_action(trained))),
+    }
+    graph = load_graph("default", exclude=DEFAULT_HOLDOUT_CLIPS)
+    clips = training_clips(list(DEFAULT_HOLDOUT_CLIPS))
+    seeds = [int(s) for s in args.rl_eval_seeds.split(",")]
+    recordings = simulate_episodes(clips, SCENARIOS.split(","), seeds)
+    errors: dict[str, list[float]] = {name: [] for name in agents}
+    energies: dict[str, list[float]] = {name: [] for name in agents}
+    c0 = time.process_time()
+    for i, recording in enumerate(recordings):
+        with Reconstructor(graph, ragdoll=False, temporal=TemporalConfig.off()) as reconstructor:
+            for name, (_, agent) in agents.items():
+                result = reconstructor.reconstruct(recording, agent, rng=i)
+                errors[name].append(
+                    float(metrics.frame_error(recording.ground_truth, result.poses).mean())
+                )
+                energies[name].append(float(result.arrays()["energy"].mean()))
+    rng = np.random.default_rng(2016)
+    base = np.array(errors["local-search"])
+    lines = [
+        "| method | evaluations/frame | mean error (m) [95 % CI] | vs local-search [95 % CI] "
+        "| lower than local-search on | mean energy |",
+        "| --- | --- | --- | --- | --- | --- |",
+    ]
+    for name, (evaluations, _) in agents.items():
+        values = np.array(errors[name])
+        low, high = metrics.bootstrap_mean_ci(values, rng=rng)
+        lines.append(
+            f"| {name} | {evaluations:,} | {values.mean():.4f} [{low:.4f}, {high:.4f}] | "
+            f"{_change(values, base, rng)} | {(values < base).sum()} of {len(values)} | "
+            f"{np.mean(energies[name]):.4f} |"
+        )
+    learned = np.array(errors["learned+search"])
+    against = [
+        f"against {name}: {_change(learned, np.array(errors[name]), rng)}, lower on "
+        f"{(learned < np.array(errors[name])).sum()} of {len(learned)}"
+        for name in (
+            "untrained, learned+search",
+            "zero action, learned+search",
+            "local-search (200)",
+        )
+    ]
+    report = (
+        f"### RL sampler as a search accelerator ({len(recordings)} episodes: the embedded "
+        f"held-out clips x {SCENARIOS} x seeds {args.rl_eval_seeds}, "
+        f"{sum(r.num_frames for r in recordings)} frames; {trained_note}; evaluation "
+        f"{time.process_time() - c0:.0f} s CPU)\n\n"
+        + "\n".join(lines)
+        + "\n\n`learned+search` "
+        + "; ".join(against)
+        + ".\n"
+    )
+    (folder / "table.md").write_text(report)
+    (folder / "errors.json").write_text(json.dumps({"errors": errors, "energies": energies}))
     print(report, flush=True)
     return report
 
@@ -891,6 +1157,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-frames", type=int, default=150)
     parser.add_argument("--sup-timesteps", type=int, default=20_000)
     parser.add_argument("--rl-timesteps", type=int, default=100_000)
+    group = parser.add_argument_group("rl protocol")
+    group.add_argument("--rl-model", default=None, help="evaluate this model (default: train one)")
+    group.add_argument("--rl-seed", type=int, default=0, help="training seed (0)")
+    group.add_argument(
+        "--rl-eval-seeds", default="0,1,2", help="simulator seeds of the evaluated episodes"
+    )
     group = parser.add_argument_group("uiprmd protocol")
     group.add_argument("--work", type=Path, default=Path("runs/real_kinect"), help="import folder")
     group.add_argument("--subjects", default="s01,s02,s03,s04,s05,s06,s07,s08")
@@ -922,13 +1194,6 @@ def main(argv: list[str] | None = None) -> int:
         help="the linear sampler learns an output correction from its own outputs of the "
         "training groups (default: yes; scored also without it, as 'uncorrected')",
     )
-    group.add_argument(
-        "--cross-fit",
-        action="store_true",
-        help="the correction learns from each training group's outputs by the sampler fitted "
-        "without that group (policies.pose_sampler.out_of_group_samplers) instead of the "
-        "sampler's own outputs of its training data",
-    )
     group.add_argument("--uiprmd-thres1", type=float, default=0.1)
     group.add_argument("--sensor-blend", type=float, default=0.5)
     group.add_argument("--workers", type=int, default=1)
@@ -954,11 +1219,14 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{len(results)} fold(s): {', '.join(r['subject'] for r in results)}\n")
         print(uiprmd_table(results))
         print(f"\nPer held-out subject:\n\n{uiprmd_subject_table(results)}")
+        print(f"\nBy repetitions scored:\n\n{repetition_table(results)}")
         if results:
             print(f"\n{plot_subjects(results, args.out / 'uiprmd' / 'per_subject.png')}")
         return 0
     if "sim" in wanted:
         reports.append(sim_protocol(args))
+    if "rl" in wanted:
+        reports.append(rl_protocol(args))
     if "uiprmd" in wanted:
         reports.append(uiprmd_protocol(args))
     if "embedded" in wanted:

@@ -528,6 +528,16 @@ def test_compare_with_a_calibrated_output_runs_and_is_its_own_setting(tmp_path: 
     )
     assert calibrated.tuning_options()["calibrate_output"] is True
     assert plain.resume_key() != calibrated.resume_key()  # rows of one never resume the other
+    # A packaged graph and map by name are keys themselves (no file to hash).
+    named = _config(
+        tmp_path / "named",
+        methods=["fpg:none"],
+        clips=["default:walk"],
+        graph="uiprmd",
+        sensor_map="kinect-v2-to-vicon",
+    )
+    key = named.resume_key()
+    assert key["graph"] == "uiprmd" and key["sensor_map"] == "packaged:kinect-v2-to-vicon"
     errors = {}
     for name, config in (("plain", plain), ("calibrated", calibrated)):
         outcome = run_compare(config, progress=False, plots=False)

@@ -12,12 +12,15 @@ from fpg_gym.core import metrics, poses, skeleton
 from fpg_gym.core.errors import DataFormatError
 from fpg_gym.core.rotations import axis_rotation
 from fpg_gym.definitions import (
+    KINECT_V2_TO_VICON,
     TRUNK_JOINTS,
     DefinitionMap,
     OnlineDefinitionFit,
     fit_sensor_maps,
     fit_to_database,
     joint_frames,
+    load_map,
+    packaged_map,
 )
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import Clip, Recording
@@ -117,6 +120,12 @@ def test_files_round_trip_and_bad_files(tmp_path, rng):
         DefinitionMap.load(tmp_path / "other.json")
     with pytest.raises(ValueError, match=r"more than 0\.5 m"):
         DefinitionMap(np.full((20, 3), 0.6), source="a", target="b")
+    # load_map: a file, or a packaged map by name (every command's --sensor-map).
+    np.testing.assert_array_equal(load_map(path).offsets, again.offsets)
+    named = load_map(KINECT_V2_TO_VICON)
+    np.testing.assert_array_equal(named.offsets, packaged_map(KINECT_V2_TO_VICON).offsets)
+    with pytest.raises(FileNotFoundError):
+        load_map("no-such-map")
 
 
 def test_database_fit_finds_a_trunk_definition_change(rng):

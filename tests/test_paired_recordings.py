@@ -1,20 +1,29 @@
 """Training the linear sampler on paired recordings (``train-sampler --recordings``): groups
-held out and cross-validated whole, bad input named."""
+held out and cross-validated whole, each group's data collected with a graph and a sensor map
+built without it, bad input named."""
 
 from __future__ import annotations
 
 import json
 import shutil
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
 
 from fpg_gym.core.errors import DataFormatError
-from fpg_gym.io import load_default_clips, write_recording
-from fpg_gym.io.recording import Recording
+from fpg_gym.definitions import DefinitionMap
+from fpg_gym.graph import FilteredPoseGraph
+from fpg_gym.io import Clip, load_default_clips, write_recording
+from fpg_gym.io.recording import Recording, load_recording
 from fpg_gym.simulate import simulate
-from policies.paired_recordings import group_pattern, paired_recordings, recording_paths
+from policies.paired_recordings import (
+    group_databases,
+    group_pattern,
+    paired_recordings,
+    recording_paths,
+)
 
 #: Embedded clips standing in for three "subjects" (the default graph is built from them; the
 #: sampler learns the simulated sensor's error, not the poses).
@@ -41,6 +50,56 @@ def test_groups_are_held_out_whole(tmp_path: Path) -> None:
     # Without a pattern each recording is its own group.
     alone = paired_recordings([folder], val_share=0.2)
     assert len(alone.info["training_groups"]) + len(alone.info["validation_groups"]) == 6
+    # val_share 0: every group trains, none is held out.
+    every = paired_recordings([folder], pattern=r"_(s\d+)_", val_share=0.0)
+    assert every.info["validation_groups"] == [] and every.validation == []
+    assert len(every.train) == 6 and every.names == sorted(p.stem for p in folder.iterdir())
+    with pytest.raises(ValueError, match="val_share"):
+        paired_recordings([folder], val_share=1.0)
+
+
+def _truth_graph(folder: Path) -> FilteredPoseGraph:
+    """The graph of the recordings' ground truth, as build-graph builds it from an import's
+    clips (one clip per recording, named by its file stem)."""
+    clips = []
+    for path in sorted(folder.glob("*.npz")):
+        recording = load_recording(path)
+        clips.append(Clip(path.stem, np.asarray(recording.ground_truth), recording.fps))
+    return FilteredPoseGraph.build(clips, thres1=0.1, progress=False)
+
+
+def test_each_group_gets_a_graph_and_map_built_without_it(tmp_path: Path) -> None:
+    folder = _write(tmp_path / "recordings")
+    paired = paired_recordings([folder], pattern=r"_(s\d+)_", val_share=0.0)
+    recordings = {p.stem: load_recording(p) for p in sorted(folder.glob("*.npz"))}
+    every = DefinitionMap.fit(
+        np.concatenate([r.positions for r in recordings.values()]),
+        np.concatenate([r.ground_truth for r in recordings.values()]),
+        source="kinect-sim",
+        target="truth",
+    )
+    databases = group_databases(paired, _truth_graph(folder), every)
+    assert [db.group for db in databases] == sorted(SUBJECTS)
+    for db in databases:
+        others = [n for n in recordings if f"_{db.group}_" not in n]
+        assert set(db.graph.clip_names) == set(others)
+        assert db.graph.thres1 == 0.1
+        expected = DefinitionMap.fit(
+            np.concatenate([recordings[n].positions for n in others]),
+            np.concatenate([recordings[n].ground_truth for n in others]),
+            source="kinect-sim",
+            target="truth",
+        )
+        assert db.sensor_map is not None and db.sensor_map.target == "truth"
+        np.testing.assert_array_equal(db.sensor_map.offsets, expected.offsets)
+    assert group_databases(paired, _truth_graph(folder), None)[0].sensor_map is None
+    # A graph of other data (the embedded default) cannot be rebuilt without a group.
+    from fpg_gym.graph import default_graph
+
+    with pytest.raises(ValueError, match="no clip of the graph"):
+        group_databases(paired, default_graph(), every)
+    with pytest.raises(ValueError, match="database"):
+        group_databases(paired, _truth_graph(folder), every.inverse())
 
 
 def test_bad_recordings_and_patterns_are_named(tmp_path: Path) -> None:
@@ -68,9 +127,11 @@ def test_bad_recordings_and_patterns_are_named(tmp_path: Path) -> None:
     assert "m09_s09_e01.npz" in str(error.value)
 
 
-def test_train_sampler_learns_from_recordings(tmp_path: Path) -> None:
+def test_train_sampler_learns_from_recordings(tmp_path: Path, capsys: Any) -> None:
     """``fpg-gym train-sampler --kind linear --recordings``: a model that loads, trained on the
-    training groups only, with the held-out group in its record."""
+    training groups only, with the held-out group in its record; cross-fitted by default (its
+    graph must be the recordings' truth's), with --no-cross-fit on any graph, on every group
+    with --val-share 0."""
     from fpg_gym.cli import main
     from policies.loading import load_sampler
     from policies.pose_sampler import LinearPoseSampler
@@ -82,26 +143,41 @@ def test_train_sampler_learns_from_recordings(tmp_path: Path) -> None:
         "--graph", "default", "--recordings", str(folder), "--group-pattern", r"_(s\d+)_",
         "--sensor-blend", "0.5", "--eval-episodes", "2", "--quiet", "--out", str(out),
     ]  # fmt: skip
-    assert main(command) == 0
+    assert main(command) == 2  # named, before any work
+    assert "no clip of the graph" in capsys.readouterr().err
+    assert not (tmp_path / "real.checkpoints").exists()
+    assert main([*command, "--no-cross-fit"]) == 0
     sampler = load_sampler(out)
     assert isinstance(sampler, LinearPoseSampler)
     training = json.loads((tmp_path / "real.json").read_text())["training"]
     assert training["sensor_blend"] == 0.5 and len(training["validation_groups"]) == 1
     assert set(training["training_groups"]).isdisjoint(training["validation_groups"])
     assert all(name.endswith(".npz") for name in training["recordings"])
+    assert training["cross_fit"] is False and training["evaluation"]
+    # Cross-fitted, on every group: the graph of the recordings' truth, no final evaluation.
+    graph = _truth_graph(folder).save(tmp_path / "truth.npz")
+    every = [*command, "--graph", str(graph), "--val-share", "0", "--out", str(tmp_path / "all")]
+    assert main(every) == 0
+    training = json.loads((tmp_path / "all.json").read_text())["training"]
+    assert training["cross_fit"] is True and training["validation_groups"] == []
+    assert sorted(training["training_groups"]) == sorted(SUBJECTS)
+    assert "evaluation" not in training
     with pytest.raises(ValueError, match="only kind 'linear'"):
         from policies.training import TrainConfig
 
         TrainConfig(kind="supervised", out=str(out), recordings=[str(folder)])
     with pytest.raises(ValueError, match="only used with recordings"):
         TrainConfig(kind="linear", target="bones", out=str(out), group_pattern="(s)")
+    with pytest.raises(ValueError, match="val_share"):
+        TrainConfig(kind="linear", target="bones", out=str(out), val_share=0.0)
 
 
 def test_train_sampler_json_summarises_the_recordings(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     """Issue 39: ``--json`` with recordings given one by one (a shell glob gives hundreds: a
-    30 KB line) lists them as a count, their folder and a hash."""
+    30 KB line) lists them as a count, their folder and a hash. A packaged graph and map are
+    taken by name, as every command takes them (issue 35)."""
     from fpg_gym.cli import main
 
     folder = _write(tmp_path / "recordings", frames=20)
@@ -110,7 +186,9 @@ def test_train_sampler_json_summarises_the_recordings(
     files = sorted(str(p) for p in folder.glob("*.npz"))
     command = [
         "train-sampler", "--kind", "linear", "--target", "bones", "--follow", "anchor",
-        "--graph", "default", "--recordings", *files, "--group-pattern", r"_(s\d+)_",
+        "--graph", "uiprmd", "--sensor-map", "kinect-v2-to-vicon", "--no-cross-fit",
+        "--recordings", *files,
+        "--group-pattern", r"_(s\d+)_",
         "--eval-episodes", "2", "--quiet", "--json", "--out", str(tmp_path / "model"),
     ]  # fmt: skip
     assert main(command) == 0
@@ -120,3 +198,4 @@ def test_train_sampler_json_summarises_the_recordings(
     assert len(summary["sha256"]) == 64 and "items" not in summary
     assert not any(name in line for name in files)
     assert json.loads(line)["config"]["clips"] is None
+    assert json.loads(line)["config"]["graph"] == "uiprmd"

@@ -424,6 +424,49 @@ def test_rl_training_improves_the_return_and_round_trips(graph: Any, tmp_path: P
     env.close()
 
 
+def test_rl_evaluations_score_the_policy_between_updates(graph: Any, tmp_path: Path) -> None:
+    """Issue 35: the last periodic evaluation is of the policy the run returns (PPO updates
+    after each rollout; an evaluation during one scored a policy the run then changed), and the
+    untrained policy is kept as the step-0 checkpoint; the zero action's mean is zero."""
+    pytest.importorskip("stable_baselines3")
+    from policies.rl import UNTRAINED_CHECKPOINT, make_training_env, train_rl, zero_action
+
+    clips = load_default_clips(["run"])
+    env = make_training_env(graph, clips, ["front-many"], action_mode="absolute", **SMALL)
+    obs, _ = env.reset(seed=3)
+    seen: list[float] = []
+
+    def evaluate(sampler: Any) -> dict[str, Any]:
+        mean = float(np.abs(sampler.gaussian(obs)[0]).sum())  # what the weights say here
+        seen.append(mean)
+        return {"mean": {"mean_energy": mean, "mean_error": mean}}
+
+    sampler, history = train_rl(
+        graph=graph,
+        clips=clips,
+        scenarios=["front-many"],
+        timesteps=300,  # three rollouts of 128 steps: 384 steps, updates at 128, 256, 384
+        seed=0,
+        action_mode="absolute",
+        hyperparameters={"n_steps": 128, "batch_size": 64, "n_epochs": 2, "net_arch": [16]},
+        evaluate=evaluate,
+        eval_every=200,
+        checkpoints=tmp_path / "checkpoints",
+        **SMALL,
+    )
+    steps = [r["timesteps"] for r in history if "eval_mean_error" in r]
+    assert steps == [0, 256, 384]  # at step 0, after the update that passed 200, at the end
+    assert history[-1]["eval_mean_error"] == evaluate(sampler)["mean"]["mean_error"]
+    assert len(set(seen[:3])) == 3  # each evaluation saw other weights
+    untrained = load_sampler(tmp_path / "checkpoints" / UNTRAINED_CHECKPOINT)
+    assert float(np.abs(untrained.gaussian(obs)[0]).sum()) == seen[0]
+    zero = zero_action(sampler)
+    mean, std = zero.gaussian_features(zero.features(obs[None]))  # relative to the anchor
+    np.testing.assert_array_equal(mean, 0.0)
+    np.testing.assert_allclose(std[0], sampler.gaussian(obs)[1])
+    env.close()
+
+
 def test_rl_training_env_takes_the_error_reward(graph: Any) -> None:
     """``--reward error``: the RL sampler's env rewards minus the ground truth's error."""
     from policies.rl import make_training_env
@@ -439,6 +482,29 @@ def test_rl_training_env_takes_the_error_reward(graph: Any) -> None:
             assert reward == pytest.approx(-info["frame_error"]) and info["frame_error"] > 0
     finally:
         env.close()
+
+
+def test_rl_training_env_takes_the_energy_gain_reward(graph: Any) -> None:
+    """``--reward energy-gain``: log(E(x0) / E(z)), positive where the point beats the
+    search's start."""
+    from policies.rl import make_training_env
+
+    clips = load_default_clips(["run"])
+    env = make_training_env(
+        graph, clips, ["front-many"], action_mode="delta", reward_mode="energy-gain", **SMALL
+    )
+    try:
+        env.reset(seed=0)
+        for _ in range(3):
+            _, reward, _, _, info = env.step(np.zeros(env.action_space.shape))  # x0 itself
+            assert reward == pytest.approx(np.log(info["energy_x0"] / info["energy"]))
+            assert reward == pytest.approx(0.0, abs=1e-9)
+        _, reward, _, _, info = env.step(np.full(env.action_space.shape, 2.0))  # far off
+        assert reward < 0 and info["energy"] > info["energy_x0"]
+    finally:
+        env.close()
+    with pytest.raises(ValueError, match="reward_mode"):
+        make_training_env(graph, clips, ["front-many"], reward_mode="gain", **SMALL)
 
 
 def test_rl_training_env_takes_the_smooth_reward(graph: Any) -> None:

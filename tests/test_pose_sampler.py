@@ -16,7 +16,7 @@ from fpg_gym.io import load_default_clips
 from fpg_gym.io.recording import Recording
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
 from fpg_gym.reconstruct.output_correction import (
-    apply_correction,
+    corrected_outputs,
     correction_features,
     smooth_corrections,
 )
@@ -28,12 +28,7 @@ from policies.output_correction import (
     correction_data,
     learn_correction,
 )
-from policies.pose_sampler import (
-    LINEAR_FEATURES,
-    LinearPoseSampler,
-    fit_linear,
-    out_of_group_samplers,
-)
+from policies.pose_sampler import LINEAR_FEATURES, LinearPoseSampler, fit_linear
 from policies.ridge import fit_ridge, ridge_sums
 from policies.sampler import SamplerSpec
 from policies.training import collect_imitation_data
@@ -104,29 +99,6 @@ def sampler(groups: Any) -> LinearPoseSampler:
     return _fit(groups)
 
 
-def test_out_of_group_samplers_are_the_fit_without_each_group(
-    groups: Any, sampler: LinearPoseSampler
-) -> None:
-    """Cross-fitting: sampler g is what fit_linear gives, at the chosen settings, on the
-    other groups (its ridge), with the full model's spread and selection."""
-    settings = sampler.spec.hyperparameters
-    samplers = out_of_group_samplers(sampler, groups)
-    assert len(samplers) == len(groups)
-    for g, alone in enumerate(samplers):
-        others = groups[:g] + groups[g + 1 :]
-        refit, _ = fit_linear(
-            _spec(), others, penalties=[settings["penalty"]], pose_weights=[settings["pose_weight"]]
-        )
-        for name in ("regressor_mean", "regressor_scale", "weights", "bias"):
-            np.testing.assert_allclose(
-                alone.arrays[name], refit.arrays[name], rtol=1e-9, atol=1e-12
-            )
-        np.testing.assert_array_equal(alone.arrays["std"], sampler.arrays["std"])
-        assert alone.pose_weight == sampler.pose_weight
-        assert alone.spec.hyperparameters["selection"] == settings["selection"]
-        assert not np.allclose(alone.arrays["weights"], sampler.arrays["weights"])
-
-
 def _error(graph: Any, optimizer: Any, recording: Recording) -> float:
     with Reconstructor(graph, ragdoll=False, temporal=TemporalConfig.off()) as reconstructor:
         poses = reconstructor.reconstruct(recording, optimizer, rng=0).poses
@@ -191,16 +163,13 @@ def test_files_round_trip_and_bad_arrays_are_refused(sampler: Any, tmp_path: Pat
 def test_a_correction_travels_with_the_model_and_learned_applies_it(
     graph: Any, groups: Any, sampler: Any, tmp_path: Path
 ) -> None:
-    """The output correction is learnt from the sampler's outputs (cross-fitted), saved in its
-    files (arrays and JSON), and ``learned:`` brings it to the reconstructor;
-    ``correct_output=False`` leaves it out."""
+    """The output correction is learnt from the sampler's outputs, saved in its files (arrays
+    and JSON), and ``learned:`` brings it to the reconstructor; ``correct_output=False`` leaves
+    it out."""
     options = {"temporal": TemporalConfig.off()}
     recordings = [_recording(name, 45) for name in ("run", "jump", "dance_a")]
-    samplers = out_of_group_samplers(sampler, groups)
-    sources = [
-        CorrectionSource(graph, options, [recording], LearnedSampler(alone, samples=1))
-        for recording, alone in zip(recordings, samplers, strict=True)
-    ]
+    bare = LearnedSampler(sampler, samples=1, correct_output=False)
+    sources = [CorrectionSource(graph, options, [recording], bare) for recording in recordings]
     chosen, report = learn_correction(sources)
     frames = sum(len(recording.positions) for recording in recordings)
     assert report["groups"] == 3 and report["frames"] == frames
@@ -211,6 +180,11 @@ def test_a_correction_travels_with_the_model_and_learned_applies_it(
     # A correction of these outputs (one setting, no cross-validation) for the file round trip.
     with Reconstructor(graph, ragdoll=False, **options) as reconstructor:
         data = correction_data(reconstructor, recordings, LearnedSampler(sampler, samples=1))
+        anchor = reconstructor.reconstruct(recordings[1], "closed-form", rng=0).poses
+    # The steadiness a correction must keep: the anchor's jitter on each recording.
+    assert len(data.reference_jitter) == 3
+    expected = np.nanmean(metrics.jitter(anchor, timestamps=recordings[1].timestamps))
+    assert data.reference_jitter[1] == pytest.approx(expected)
     correction = RidgeOutputCorrection(
         fit_ridge([ridge_sums(data.features, data.targets)], 100.0), 0.5, 100.0
     )
@@ -237,7 +211,8 @@ def test_a_correction_travels_with_the_model_and_learned_applies_it(
     offsets = smooth_corrections(
         loaded.output_correction.predict(rows), np.zeros(len(rows)), correction.smoothing
     )
-    np.testing.assert_allclose(fixed.poses, apply_correction(local, placement, offsets), atol=2e-5)
+    expected = corrected_outputs(local, placement, offsets, np.zeros(len(rows)), stream.timestamps)
+    np.testing.assert_allclose(fixed.poses, expected, atol=2e-5)
     # A file whose JSON names a correction its arrays lack is refused.
     arrays = dict(np.load(tmp_path / "corrected.npz", allow_pickle=False))
     arrays.pop("correction_weights")

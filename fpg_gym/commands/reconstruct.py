@@ -185,6 +185,8 @@ def definition_maps(
         raise ValueError("--calibrate-output and --output-map: give one (both set the output map)")
     if calibration_map and not calibrate_output:
         raise ValueError("--calibration-map: only used with --calibrate-output")
+    from fpg_gym.definitions import load_map
+
     maps: dict[str, Any] = {}
     if sensor_map:
         maps["sensor_map"] = load_map(sensor_map)
@@ -195,16 +197,6 @@ def definition_maps(
     if calibration_map:
         maps["calibration_map"] = load_map(calibration_map)
     return maps
-
-
-def load_map(name: str) -> Any:
-    """A definition map from a JSON file, or a packaged map by name (``kinect-v2-to-vicon``,
-    :func:`fpg_gym.definitions.packaged_map`)."""
-    from fpg_gym.definitions import DefinitionMap, packaged_map, packaged_map_names
-
-    if not Path(name).suffix and name in packaged_map_names():
-        return packaged_map(name)
-    return DefinitionMap.load(name)
 
 
 def choose_pipeline(

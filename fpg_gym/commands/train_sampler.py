@@ -30,7 +30,10 @@ Use it with
 hold-out: train on the takes the graph is built from, never on evaluated takes. --graph default
 (the embedded graph without the held-out clips walk, punch, kick, dance_b) trains on the other
 embedded clips; --clips default means those. A seeded share of the clips (--val-share) is held
-out for the periodic evaluation unless --val-clips is given.
+out for the periodic evaluation unless --val-clips is given. With --recordings, each training
+group's data is collected with a graph and sensor map built from the other groups (as a new
+subject's never contain it; --no-cross-fit: with --graph and --sensor-map), and --val-share 0
+trains on every group.
 
 examples:
   fpg-gym train-sampler --kind supervised --graph default --out runs/sampler_sup
@@ -47,6 +50,7 @@ examples:
       --recordings runs/ui_prmd/recordings --group-pattern '_(s[0-9]+)_' \\
       --sensor-map runs/kinect.json --sensor-blend 0.5 --out runs/sampler_real
                                      # real paired data, subjects held out whole
+                                     # (--val-share 0: train on every subject)
 
 The samplers of docs/methods.md (ground truth of real UI-PRMD subjects, left out in turn, and of
 simulated Bandai takes) come from
@@ -57,6 +61,19 @@ and each model's JSON records the command that wrote it (training.command).
 
 def _list(text: str) -> list[str]:
     return [item.strip() for item in text.split(",") if item.strip()]
+
+
+def _settings(text: str) -> dict[str, object]:
+    """A JSON object of settings (``--hyperparameters``)."""
+    import json
+
+    try:
+        value = json.loads(text)
+    except json.JSONDecodeError as error:
+        raise argparse.ArgumentTypeError(f"not JSON ({error})") from None
+    if not isinstance(value, dict):
+        raise argparse.ArgumentTypeError(f"expected a JSON object, got {text!r}")
+    return value
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -77,7 +94,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--graph",
         default="default",
         metavar="FILE",
-        help="pose graph .npz, or 'default' (embedded, without the held-out clips)",
+        help="pose graph .npz, 'default' (embedded, without the held-out clips) or a packaged "
+        "graph by name ('uiprmd')",
     )
     parser.add_argument(
         "--clips",
@@ -99,7 +117,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=0.2,
         metavar="S",
-        help="share of --clips (or of the --recordings' groups) held out for evaluation (0.2)",
+        help="share of --clips (or of the --recordings' groups) held out for evaluation (0.2); "
+        "with --recordings 0 trains on every group (settings by cross-validation over them, no "
+        "final evaluation)",
     )
     parser.add_argument(
         "--recordings",
@@ -121,7 +141,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--sensor-map",
         metavar="MAP.json",
         default=None,
-        help="joint-definition map of the sensor (fpg-gym fit-map) for the training data and "
+        help="joint-definition map of the sensor (fpg-gym fit-map, or a packaged map by name) "
+        "for the training data and "
         "the evaluation: give the one reconstruct --sensor-map will use",
     )
     parser.add_argument(
@@ -131,6 +152,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="F",
         help="the reconstructor's sensor blend for the training data and the evaluation (0): "
         "give the one reconstruct --sensor-blend will use",
+    )
+    parser.add_argument(
+        "--no-cross-fit",
+        action="store_true",
+        help="with --recordings: collect every group's data with --graph and --sensor-map "
+        "(which contain it) instead of a graph and map built from the other training groups' "
+        "recordings, as a new subject's are built without it (the default; --graph must then "
+        "be the graph of these recordings' ground truth)",
     )
     parser.add_argument(
         "--no-correction",
@@ -174,9 +203,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument(
         "--reward",
-        choices=["energy", "error", "combined", "smooth"],
+        choices=["energy", "energy-gain", "error", "combined", "smooth"],
         default="energy",
-        help="RL reward: the energy (default), the simulated ground truth's error, "
+        help="RL reward: the energy (default), its gain over the search's start x0 "
+        "(log E(x0)/E), the simulated ground truth's error, "
         "energy + --error-weight x error, or error + --smooth-weight x the output's "
         "acceleration (m/s^2)",
     )
@@ -188,6 +218,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=float,
         default=0.002,
         help="acceleration weight of --reward smooth (0.002: 10 m/s^2 weighs as 2 cm of error)",
+    )
+    parser.add_argument(
+        "--hyperparameters",
+        type=_settings,
+        default=None,
+        metavar="JSON",
+        help="network and algorithm settings as a JSON object, e.g. "
+        '\'{"learning_rate": 0.001, "gamma": 0}\' (rl: overrides policies.rl.RL_DEFAULTS; '
+        "unknown keys are refused)",
     )
     parser.add_argument(
         "--epochs", type=types.integer(1), default=40, help="supervised epochs (40)"
@@ -300,6 +339,8 @@ def run(args: argparse.Namespace) -> int:
     """Train, save and print the final evaluation."""
     from fpg_gym.commands.output import emit_json
     from fpg_gym.core.outputs import check_output
+    from fpg_gym.definitions import packaged_map_names
+    from fpg_gym.graph import GRAPH_NAMES
     from policies.pose_sampler import LINEAR_WEIGHTS_SUFFIX
     from policies.sampler import FEATURE_SETS, WEIGHTS_SUFFIX, model_paths
     from policies.training import TrainConfig, config_dict, train_sampler
@@ -316,10 +357,12 @@ def run(args: argparse.Namespace) -> int:
         ]
         if item
     ]
+    # Graphs and maps by name (--graph uiprmd, --sensor-map kinect-v2-to-vicon) are no files.
+    names = {*GRAPH_NAMES, *packaged_map_names()}
     json_path, stem = model_paths(args.out)
     suffix = LINEAR_WEIGHTS_SUFFIX if args.kind == "linear" else WEIGHTS_SUFFIX
     for target in (json_path, stem.with_name(stem.name + suffix)):
-        check_output(target, [i for i in inputs if i != "default"])
+        check_output(target, [i for i in inputs if i not in names])
 
     features = (
         list(FEATURE_SETS[args.features]) if args.features in FEATURE_SETS else _list(args.features)
@@ -350,6 +393,7 @@ def run(args: argparse.Namespace) -> int:
         action_mode=args.action_mode,
         anchor=args.anchor,
         features=features,
+        hyperparameters=dict(args.hyperparameters or {}),
         mirror=not args.no_mirror,
         tensorboard=args.tensorboard,
         units=args.units,
@@ -363,6 +407,7 @@ def run(args: argparse.Namespace) -> int:
         sensor_map=args.sensor_map,
         sensor_blend=args.sensor_blend,
         correction=not args.no_correction,
+        cross_fit=not args.no_cross_fit,
     )
     result = train_sampler(config)
     if args.json:

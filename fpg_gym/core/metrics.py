@@ -81,6 +81,10 @@ __all__ = [
 MAX_LAG_FRAMES = 10
 #: Seconds at the start of a stream that :func:`settled_bone_spread` leaves out.
 SETTLE_S = 1.0
+#: Rounding a frame time may carry (``k / 30`` s is not exact in floating point): a frame within
+#: it of ``settle_s`` is past the settling period (:func:`settled_bone_spread`,
+#: :class:`fpg_gym.reconstruct.bones.OutputLengths`).
+TIME_TOLERANCE_S = 1e-9
 
 #: The threshold of Err0.2 (FPG Table 2), metres.
 ERR_THRESHOLD_M = 0.2
@@ -677,7 +681,7 @@ def settled_bone_spread(
     times = _times(len(pos), fps, timestamps)
     if settle_s < 0:
         raise ValueError(f"settle_s: expected >= 0, got {settle_s}")
-    use = times - times[0] >= settle_s - 1e-9
+    use = times - times[0] >= settle_s - TIME_TOLERANCE_S
     if valid is not None:
         ok = np.asarray(valid, dtype=bool)
         if ok.shape != (len(pos),):

@@ -9,7 +9,8 @@ from pathlib import Path
 from typing import Any
 
 from fpg_gym.core.defaults import DEFAULT_EPISODE_SCENARIOS
-from fpg_gym.definitions import DefinitionMap, packaged_map, packaged_map_names
+from fpg_gym.definitions import load_map, packaged_map_names
+from fpg_gym.graph import GRAPH_NAMES
 from fpg_gym.io.files import file_digest
 from fpg_gym.methods import BASELINE, parse_method
 from fpg_gym.simulate import PlannedEpisode
@@ -201,7 +202,7 @@ class CompareConfig:
         """Settings that must match for a rerun to reuse finished rows: files by their
         content (the graph, the maps), not by their path."""
         return {
-            "graph": self.graph if self.graph == "default" else _file_digest(self.graph),
+            "graph": self.graph if self.graph in GRAPH_NAMES else _file_digest(self.graph),
             "budget": self.budget,
             "k": self.k,
             "max_frames": self.max_frames,
@@ -237,21 +238,14 @@ class CompareConfig:
         if self.sensor_blend is not None:
             options["sensor_blend"] = self.sensor_blend
         if self.sensor_map:
-            options["sensor_map"] = _load_map(self.sensor_map)
+            options["sensor_map"] = load_map(self.sensor_map)
         if self.output_map:
-            options["output_map"] = _load_map(self.output_map)
+            options["output_map"] = load_map(self.output_map)
         if self.calibrate_output:
             options["calibrate_output"] = True
         if self.calibration_map:
-            options["calibration_map"] = _load_map(self.calibration_map)
+            options["calibration_map"] = load_map(self.calibration_map)
         return options
-
-
-def _load_map(name: str) -> DefinitionMap:
-    """A map file, or a packaged map by name (:func:`fpg_gym.definitions.packaged_map`)."""
-    if not Path(name).suffix and name in packaged_map_names():
-        return packaged_map(name)
-    return DefinitionMap.load(name)
 
 
 def _file_digest(path: str | None) -> str | None:

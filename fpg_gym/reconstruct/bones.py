@@ -19,18 +19,26 @@ lengths, with or without the ragdoll):
 Every frame's lengths, the end of settling and every later change are reported
 (:attr:`BoneSettler.events`, summarised by :meth:`BoneSettler.report`). A stream restart after a
 gap keeps the settled lengths (the same user); :meth:`reset` forgets them.
+
+A stage after the reconstruction that moves joints (a definition map, a learned output
+correction) changes the lengths again; :class:`OutputLengths` settles them by the same rule: the
+output passes unchanged for the first ``settle_s`` seconds while the mean of its lengths is
+gathered, then it is retargeted to lengths that start at that mean and follow the running mean
+within :class:`BoneSettler`'s bounds (:func:`settled_output_lengths` for whole streams).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
 
+from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
+from fpg_gym.core.metrics import TIME_TOLERANCE_S
 
-__all__ = ["BoneSettler", "BoneSettlingConfig"]
+__all__ = ["BoneSettler", "BoneSettlingConfig", "OutputLengths", "settled_output_lengths"]
 
 
 @dataclass(frozen=True)
@@ -162,3 +170,66 @@ class BoneSettler:
             "settled_lengths_m": None if self._settled is None else self._settled.tolist(),
             "lengths_m": None if self._lengths is None else self._lengths.tolist(),
         }
+
+
+class OutputLengths:
+    """The settling rule for an output whose lengths a later stage changed (module docstring).
+
+    Parameters
+    ----------
+    config : BoneSettlingConfig, optional
+        ``settle_s`` and the bounds; disabled: the output passes unchanged.
+    """
+
+    def __init__(self, config: BoneSettlingConfig | None = None) -> None:
+        self.config = config or BoneSettlingConfig()
+        # Settles at once on the mean gathered before it is used.
+        self._settler = BoneSettler(replace(self.config, settle_s=0.0))
+        self.reset()
+
+    def reset(self) -> None:
+        """A new stream: gather its mean afresh."""
+        self._settler.reset()
+        self._sum = np.zeros(skeleton.NUM_BONES)
+        self._count = 0
+        self._start: float | None = None
+
+    def lengths(self, lengths: np.ndarray, timestamp: float) -> np.ndarray | None:
+        """The lengths ``(19,)`` the frame at ``timestamp`` gets, given its own ``lengths``;
+        None while the stream settles (or with the rule disabled): the frame keeps its own."""
+        self._sum += lengths
+        self._count += 1
+        if self._start is None:
+            self._start = float(timestamp)
+        settling = timestamp - self._start < self.config.settle_s - TIME_TOLERANCE_S
+        if not self.config.enabled or settling:
+            return None
+        return self._settler.update(self._sum / self._count, timestamp)
+
+    def settle(self, pose: np.ndarray, timestamp: float) -> np.ndarray:
+        """The pose ``(20, 3)`` with settled lengths (unchanged while settling)."""
+        lengths = self.lengths(pose_utils.bone_lengths(pose), timestamp)
+        return pose if lengths is None else pose_utils.retarget(pose, lengths)
+
+
+def settled_output_lengths(
+    lengths: np.ndarray,
+    streams: np.ndarray,
+    timestamps: np.ndarray,
+    config: BoneSettlingConfig | None = None,
+) -> np.ndarray:
+    """:class:`OutputLengths` over whole streams: each frame's settled lengths ``(n, 19)``, NaN
+    while its stream settles (the frame keeps its own), for frames' own ``lengths``
+    ``(n, 19)``, ``streams`` ``(n,)`` (consecutive frames with the same label are one stream)
+    and ``timestamps`` (seconds)."""
+    lengths = np.asarray(lengths, dtype=np.float64)
+    labels = np.asarray(streams)
+    out = np.full_like(lengths, np.nan)
+    rule = OutputLengths(config)
+    for t in range(len(lengths)):
+        if t == 0 or labels[t] != labels[t - 1]:
+            rule.reset()
+        settled = rule.lengths(lengths[t], float(timestamps[t]))
+        if settled is not None:
+            out[t] = settled
+    return out

@@ -1,27 +1,34 @@
-"""A learned correction of the output pose (beyond the papers; issue 19).
+"""A learned correction of the output pose (beyond the papers; issues 19 and 35).
 
 The papers' output is a point of the frame's local PCA space (Shum et al. 2013 Eq. 9) given the
 frame's bone lengths; on real sensors it keeps a systematic miss, because the database's joints
 are not the sensor's. A correction model maps what a frame's output and input say, in the
 output's own normalised frame (root at the origin, facing +Z, :func:`fpg_gym.core.poses.normalise`),
-to an offset of the output's root-relative joints (:func:`correction_features`):
+to an offset of the output's joints (:func:`correction_features`):
 
 * the output pose (60 values);
 * the raw sensor frame seen from that frame, its joints not tracked zeroed (60);
 * the reliability of each joint (20, Shum Eq. 4);
 * the sensor's tracking state of each joint, one-hot (60).
 
+The targets (:func:`correction_targets`) are the truth seen from the output's frame minus the
+output, every joint the root included: the root's offset is where the output is placed, which
+FPG Eq. 13 (bone vectors) does not see and the absolute joint error (MPJPE) does. A correction
+of joints relative to the root would carry the root's own miss to every joint.
+
 The predicted offsets are smoothed causally per stream (:class:`CorrectionState`,
 ``c_t = alpha p_t + (1 - alpha) c_{t-1}``, starting at ``c_0 = p_0``), because an offset
-predicted frame by frame adds jitter, then added to the output in its normalised frame; the root
-does not move (the targets are root-relative), so FPG Eq. 13, which scores bone vectors, sees
-the whole correction.
+predicted frame by frame adds jitter, then added to the output in its normalised frame. The
+offsets move joints independently, so the corrected bones would change length from frame to
+frame; the corrected output is therefore retargeted to settled lengths
+(:class:`fpg_gym.reconstruct.bones.OutputLengths`: its own lengths' running mean, bounded as
+the reconstructor's are after the first second), keeping each bone's corrected direction.
+:func:`corrected_outputs` does the same for whole streams.
 
-This module defines the features, the targets a model learns (:func:`correction_targets`) and
-how a correction is applied; the model (:class:`OutputCorrection`, e.g. the ridge model of
-:mod:`policies.output_correction`) comes with the optimiser: the reconstructor applies one when
-the optimiser that searched the frame has an ``output_correction`` (``learned:`` with a linear
-sampler trained with one).
+This module defines the features, the targets a model learns and how a correction is applied;
+the model (:class:`OutputCorrection`, e.g. the ridge model of :mod:`policies.output_correction`)
+comes with the optimiser: the reconstructor applies one when the optimiser that searched the
+frame has an ``output_correction`` (``learned:`` with a linear sampler trained with one).
 """
 
 from __future__ import annotations
@@ -32,16 +39,19 @@ import numpy as np
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
+from fpg_gym.reconstruct.bones import BoneSettlingConfig, OutputLengths, settled_output_lengths
 
 __all__ = [
     "CORRECTION_FEATURES",
     "CorrectionState",
     "OutputCorrection",
     "apply_correction",
+    "corrected_outputs",
     "correction_features",
     "correction_frames",
     "correction_targets",
     "output_correction_of",
+    "settle_lengths",
     "smooth_corrections",
 ]
 
@@ -62,8 +72,8 @@ class OutputCorrection(Protocol):
     smoothing: float
 
     def predict(self, features: np.ndarray) -> np.ndarray:
-        """Offsets ``(n, 60)`` of the output's root-relative joints (metres, in its normalised
-        frame) for feature rows ``(n, CORRECTION_FEATURES)``."""
+        """Offsets ``(n, 60)`` of the output's joints (metres, in its normalised frame) for
+        feature rows ``(n, CORRECTION_FEATURES)``."""
         ...
 
 
@@ -120,11 +130,10 @@ def correction_features(
 def correction_targets(
     local: np.ndarray, placement: pose_utils.Placement, truth: np.ndarray
 ) -> np.ndarray:
-    """What a model learns ``(n, 60)``: the truth's root-relative joints seen from each output's
-    frame minus the output's normalised pose ``local`` (:func:`correction_features`)."""
-    seen = pose_utils.into_placement(truth, placement)
-    target = seen - seen[:, skeleton.ROOT : skeleton.ROOT + 1]
-    return (target - local).reshape(len(local), -1)
+    """What a model learns ``(n, 60)``: the truth seen from each output's frame minus the
+    output's normalised pose ``local`` (:func:`correction_features`), every joint the root
+    included."""
+    return (pose_utils.into_placement(truth, placement) - local).reshape(len(local), -1)
 
 
 def correction_frames(
@@ -172,21 +181,62 @@ def smooth_corrections(
 def apply_correction(
     local: np.ndarray, placement: pose_utils.Placement, offsets: np.ndarray
 ) -> np.ndarray:
-    """The outputs corrected ``(n, 20, 3)``, float32: normalised poses ``local`` plus
-    ``offsets`` ``(n, 60)``, put back with ``placement``."""
+    """The outputs moved ``(n, 20, 3)``, float32: normalised poses ``local`` plus ``offsets``
+    ``(n, 60)``, put back with ``placement`` (before their lengths settle)."""
     moved = np.asarray(local, dtype=np.float64) + np.asarray(offsets).reshape(np.shape(local))
     return pose_utils.denormalise(moved, placement)
 
 
-class CorrectionState:
-    """One stream's causal smoothing of a correction's offsets (module docstring)."""
+def settle_lengths(
+    poses: np.ndarray,
+    streams: np.ndarray,
+    timestamps: np.ndarray,
+    bones: BoneSettlingConfig | None = None,
+) -> np.ndarray:
+    """Moved poses ``(n, 20, 3)`` of whole streams with settled lengths, as
+    :class:`CorrectionState` settles them frame by frame
+    (:func:`fpg_gym.reconstruct.bones.settled_output_lengths`: frames with the same
+    ``streams`` label in a row are one stream, ``timestamps`` in seconds)."""
+    out = np.array(poses, dtype=np.float64)
+    lengths = settled_output_lengths(pose_utils.bone_lengths(out), streams, timestamps, bones)
+    settled = ~np.isnan(lengths[:, 0])  # frames still settling keep their own lengths
+    out[settled] = pose_utils.retarget(out[settled], lengths[settled])
+    return out
 
-    def __init__(self) -> None:
+
+def corrected_outputs(
+    local: np.ndarray,
+    placement: pose_utils.Placement,
+    offsets: np.ndarray,
+    streams: np.ndarray,
+    timestamps: np.ndarray,
+    bones: BoneSettlingConfig | None = None,
+) -> np.ndarray:
+    """Whole streams corrected as :class:`CorrectionState` corrects them frame by frame
+    ``(n, 20, 3)``: :func:`apply_correction` with the (already smoothed) ``offsets``, then
+    :func:`settle_lengths`."""
+    return settle_lengths(apply_correction(local, placement, offsets), streams, timestamps, bones)
+
+
+class CorrectionState:
+    """One stream's causal smoothing of a correction's offsets and the settling of the
+    corrected output's lengths (module docstring).
+
+    Parameters
+    ----------
+    bones : BoneSettlingConfig, optional
+        The settling rule (the reconstructor's).
+    """
+
+    def __init__(self, bones: BoneSettlingConfig | None = None) -> None:
         self.offset: np.ndarray | None = None
+        self.lengths = OutputLengths(bones)
 
     def reset(self) -> None:
-        """A new stream: the next offset starts the smoothing afresh."""
+        """A new stream: the next offset starts the smoothing afresh, and the lengths settle
+        anew."""
         self.offset = None
+        self.lengths.reset()
 
     def correct(
         self,
@@ -195,8 +245,10 @@ class CorrectionState:
         sensor: np.ndarray,
         states: np.ndarray,
         reliability: np.ndarray,
+        timestamp: float,
     ) -> np.ndarray:
-        """One frame's output ``(20, 3)`` corrected by ``model`` (camera space, float32)."""
+        """One frame's output ``(20, 3)`` corrected by ``model`` (camera space, float32), at
+        ``timestamp`` seconds."""
         features, local, placement = correction_features(
             output[None], sensor[None], states[None], reliability[None]
         )
@@ -206,4 +258,5 @@ class CorrectionState:
         else:
             alpha = float(model.smoothing)
             self.offset = alpha * predicted + (1.0 - alpha) * self.offset
-        return apply_correction(local, placement, self.offset[None])[0]
+        moved = apply_correction(local, placement, self.offset[None])[0]
+        return self.lengths.settle(moved, timestamp).astype(np.float32)

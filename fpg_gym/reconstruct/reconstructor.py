@@ -84,7 +84,7 @@ from fpg_gym.core import skeleton
 from fpg_gym.core.poses import FloorShift, RecordingLike
 from fpg_gym.core.seeding import as_generator
 from fpg_gym.definitions import OnlineDefinitionFit, sensor_to_output_map
-from fpg_gym.reconstruct.bones import BoneSettler
+from fpg_gym.reconstruct.bones import BoneSettler, OutputLengths
 from fpg_gym.reconstruct.config import RagdollFactory, RagdollLike, ReconstructorConfig
 from fpg_gym.reconstruct.energy import (
     TERM_NAMES,
@@ -239,11 +239,11 @@ class Reconstructor:
         )
         self._output_smoother = OutputSmoother(config.temporal) if config.temporal.output else None
         self.bones = BoneSettler(config.bones)
-        self._correction = CorrectionState()
+        self._correction = CorrectionState(config.bones)
         self._calibration = OnlineDefinitionFit() if config.calibrate_output else None
         mapped_output = config.output_map is not None or config.calibrate_output
-        self._output_bones = (  # settles at once on the mean gathered before it is used
-            BoneSettler(replace(config.bones, settle_s=0.0))
+        self._output_bones = (
+            OutputLengths(config.bones)
             if mapped_output and config.bones.enabled and not config.fusion.enabled
             else None
         )
@@ -316,9 +316,6 @@ class Reconstructor:
             self._calibration.reset()
         if self._output_bones is not None:
             self._output_bones.reset()
-        self._output_length_sum = np.zeros(skeleton.NUM_BONES)
-        self._output_length_count = 0
-        self._output_start: float | None = None
         self._restart_temporal()
 
     def _restart_temporal(self) -> None:
@@ -694,6 +691,7 @@ class Reconstructor:
                 np.asarray(pending.sensor, dtype=np.float64),
                 np.asarray(pending.sensor_states),
                 terms.reliability,
+                pending.timestamp,
             )
             spent = 1e3 * (time.perf_counter() - t4)
             record.ms["finish"] += spent
@@ -775,20 +773,11 @@ class Reconstructor:
         """The mapped output with settled bone lengths.
 
         A definition map moves each joint in the frame of its own body part, which stretches
-        the bones between parts as the body turns. For the first ``bones.settle_s`` seconds the
-        output passes unchanged while the mean of its bone lengths is gathered; then it is
-        retargeted to lengths that start at that mean and follow the running mean within the
-        bounds of :class:`BoneSettler` (the rule the database-side lengths obey).
+        the bones between parts as the body turns; :class:`OutputLengths` settles them (the
+        rule the database-side lengths obey).
         """
         assert self._output_bones is not None
-        self._output_length_sum += pose_utils.bone_lengths(pose)
-        self._output_length_count += 1
-        if self._output_start is None:
-            self._output_start = timestamp
-        if timestamp - self._output_start < self.config.bones.settle_s:
-            return pose
-        mean = self._output_length_sum / self._output_length_count
-        return pose_utils.retarget(pose, self._output_bones.update(mean, timestamp))
+        return self._output_bones.settle(pose, timestamp)
 
     def _track(self, target: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
         """Send a camera-space target through the ragdoll (floor shifted to y = 0)."""
