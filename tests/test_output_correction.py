@@ -264,3 +264,12 @@ def test_every_path_applies_the_searching_optimisers_correction(
     reconstructor.reset()
     reconstructor.prepare(stream.positions[0], stream.states[0], 0.0)
     np.testing.assert_allclose(reconstructor.finish()[0], plain.poses[0], atol=1e-6)
+    # The fusion's output is left as it is (the correction is learned without the fusion).
+    from fpg_gym.reconstruct.fusion import FusionConfig
+
+    fused = Reconstructor(graph, ragdoll=False, fusion=FusionConfig(enabled=True))
+    alone = fused.reconstruct(stream, "none")
+    again = Reconstructor(graph, ragdoll=False, fusion=FusionConfig(enabled=True))
+    np.testing.assert_array_equal(
+        again.reconstruct(stream, _Correcting(_Fixed(offsets))).poses, alone.poses
+    )
