@@ -5,9 +5,10 @@ constraint update per body part and step) and in some two hundred numpy calls on
 quaternions around it: the target's bone frames, their interpolation over the physics steps,
 the capsules' goals and the forward kinematics of the simulated capsules. Each of those is one
 call here, with the same formulas in the same order as the numpy code it stands for
-(``Ragdoll._bone_frames``, ``_body_goals`` over the interpolated frames, ``_pose_from`` and the
-joint gap of ``_read_pose``); the results agree to rounding (a joint is its parent joint plus its
-bone vector here, a product with ``PATH_MATRIX`` there). The tests compare both paths.
+(:mod:`fpg_gym.physics.ragdoll_kinematics`: ``bone_frames``, ``substep_goals``, ``pose_and_gap``;
+:mod:`fpg_gym.physics.ragdoll_guards`: the measures of ``divergence``); the results agree to
+rounding (a joint is its parent joint plus its bone vector here, a product with ``PATH_MATRIX``
+there). The tests compare both paths.
 
 Quaternions are (x, y, z, w). Module-level functions so that numba's disk cache
 (``cache=True``) finds them in a new process.
@@ -25,7 +26,7 @@ __all__ = ["bone_frames", "divergence_measures", "pose_from", "substep_goals"]
 
 @numba.njit(cache=True, nogil=True)
 def _mul(a, b):
-    """Quaternion product ``a b`` of two 4-tuples (``ragdoll._quat_mul``)."""
+    """Quaternion product ``a b`` of two 4-tuples (``ragdoll_kinematics.quat_mul``)."""
     ax, ay, az, aw = a
     bx, by, bz, bw = b
     return (
@@ -47,7 +48,7 @@ def _cross(u, v):
 
 @numba.njit(cache=True, nogil=True)
 def _rotate(q, v):
-    """``v`` rotated by the unit quaternion ``q`` (``ragdoll._quat_rotate``)."""
+    """``v`` rotated by the unit quaternion ``q`` (``ragdoll_kinematics.quat_rotate``)."""
     u = (q[0], q[1], q[2])
     c = _cross(u, v)
     t = (2.0 * c[0], 2.0 * c[1], 2.0 * c[2])
@@ -72,7 +73,7 @@ def _arc(a, b):
 
 @numba.njit(cache=True, nogil=True)
 def _matrix_quat(m):
-    """A rotation matrix ``(3, 3)`` to a unit quaternion (``ragdoll._matrix_to_quat``)."""
+    """A rotation matrix ``(3, 3)`` to a unit quaternion (``ragdoll_kinematics.matrix_to_quat``)."""
     trace = m[0, 0] + m[1, 1] + m[2, 2]
     q = np.empty(4)
     if trace > 0:
@@ -98,7 +99,7 @@ def _matrix_quat(m):
 
 @numba.njit(cache=True, nogil=True)
 def bone_frames(pose, directions, root_frame, rest_directions, root_arc, bones, parent_bone, lines):
-    """The target's bone frames (``Ragdoll._bone_frames``).
+    """The target's bone frames (``ragdoll_kinematics.bone_frames``).
 
     Parameters
     ----------
@@ -175,8 +176,8 @@ def bone_frames(pose, directions, root_frame, rest_directions, root_arc, bones, 
 
 @numba.njit(cache=True, nogil=True)
 def substep_goals(root0, world0, root1, world1, substeps, rest_vectors, capsule_frames, bones):
-    """The capsules' goals at each physics step of a frame (``Ragdoll.track``'s interpolation
-    and ``_body_goals``): the root moves linearly and each bone frame by normalised quaternion
+    """The capsules' goals at each physics step of a frame (``ragdoll_kinematics.substep_goals``):
+    the root moves linearly and each bone frame by normalised quaternion
     interpolation, the short way round, from ``(root0, world0)`` to ``(root1, world1)``.
 
     Returns
@@ -223,8 +224,7 @@ def substep_goals(root0, world0, root1, world1, substeps, rest_vectors, capsule_
 
 @numba.njit(cache=True, nogil=True)
 def pose_from(centres, orientations, capsule_frames, rest_vectors, bones):
-    """Forward kinematics of the simulated capsules (``Ragdoll._pose_from`` and the joint gap
-    of ``_read_pose``).
+    """Forward kinematics of the simulated capsules (``ragdoll_kinematics.pose_and_gap``).
 
     Returns
     -------

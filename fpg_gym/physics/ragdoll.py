@@ -100,15 +100,29 @@ from fpg_gym.core import poses, skeleton
 from fpg_gym.core.compiled import compiled_module
 from fpg_gym.core.errors import FpgGymError
 from fpg_gym.core.poses import FloorShift
-from fpg_gym.core.rotations import cross_product, shortest_arc
+from fpg_gym.core.rotations import shortest_arc
 from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
+from fpg_gym.physics.ragdoll_build import build_body, build_world, place_body, remove_body
+from fpg_gym.physics.ragdoll_guards import divergence, glide
+from fpg_gym.physics.ragdoll_kinematics import (
+    BONES,
+    LINES,
+    NUM_BONES,
+    PARENT_BONE,
+    body_goals,
+    bone_frames,
+    joint_velocities,
+    pose_and_gap,
+    pose_from,
+    substep_goals,
+)
 from fpg_gym.physics.ragdoll_model import GRAVITY, BodyModel, build_body_model
+from fpg_gym.physics.ragdoll_scene import Scene, front_left_view
 
 # FloorShift (fpg_gym.core.poses) is imported here too: the shift a camera-space stream takes around
 # the ragdoll.
 __all__ = ["FloorShift", "PhysicsError", "PhysicsWarning", "Ragdoll"]
 
-_NB = skeleton.NUM_BONES
 _HIP_LEFT = skeleton.joint_index("HipLeft")
 _HIP_RIGHT = skeleton.joint_index("HipRight")
 _SHOULDER_LEFT = skeleton.joint_index("ShoulderLeft")
@@ -130,81 +144,6 @@ class PhysicsError(FpgGymError, RuntimeError):
 class PhysicsWarning(UserWarning):
     """The simulation diverged and the ragdoll was reset to the target
     (``on_divergence="reset"``)."""
-
-
-# --------------------------------------------------------------------------- tree of the bones
-
-
-def _parent_bones() -> np.ndarray:
-    """Parent bone of each bone: the bone ending at its start joint; the bones leaving the root
-    (the pelvis halves) hang from bone 0 (HipCenter–Spine). -1 for bone 0."""
-    parents = np.array([skeleton.BONE_OF_JOINT[p] for p, _ in skeleton.BONES], dtype=np.intp)
-    parents[parents < 0] = 0
-    parents[0] = -1
-    return parents
-
-
-_PARENT_BONE = _parent_bones()
-
-
-def _levels() -> list[np.ndarray]:
-    """Bones grouped by depth below bone 0 (a parent always sits in an earlier group)."""
-    depth = np.zeros(_NB, dtype=np.intp)
-    for bone in range(1, _NB):  # BONES is ordered so that a parent bone comes first
-        depth[bone] = depth[_PARENT_BONE[bone]] + 1
-    return [np.flatnonzero(depth == d) for d in range(1, int(depth.max()) + 1)]
-
-
-_LEVELS = _levels()
-_PATH = np.array(skeleton.PATH_MATRIX)  # joint = root + PATH @ bone vectors
-_STARTS = np.array(skeleton.BONES[:, 0])
-_BONES = np.ascontiguousarray(skeleton.BONES, dtype=np.intp)
-_LINES = np.array([[_HIP_LEFT, _HIP_RIGHT], [_SHOULDER_LEFT, _SHOULDER_RIGHT]], dtype=np.intp)
-
-
-# --------------------------------------------------------------------------- quaternions (x y z w)
-# Written out component by component: these run on (19, 4) arrays every frame, where numpy's
-# generic cross/moveaxis cost more than the arithmetic.
-
-
-def _quat_mul(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    ax, ay, az, aw = a[..., 0], a[..., 1], a[..., 2], a[..., 3]
-    bx, by, bz, bw = b[..., 0], b[..., 1], b[..., 2], b[..., 3]
-    out = np.empty(np.broadcast_shapes(a.shape, b.shape))
-    out[..., 0] = aw * bx + ax * bw + ay * bz - az * by
-    out[..., 1] = aw * by - ax * bz + ay * bw + az * bx
-    out[..., 2] = aw * bz + ax * by - ay * bx + az * bw
-    out[..., 3] = aw * bw - ax * bx - ay * by - az * bz
-    return out
-
-
-def _quat_conj(q: np.ndarray) -> np.ndarray:
-    return q * np.array([-1.0, -1.0, -1.0, 1.0])
-
-
-def _quat_rotate(q: np.ndarray, v: np.ndarray) -> np.ndarray:
-    """Rotate vectors ``v (..., 3)`` by unit quaternions ``q (..., 4)``."""
-    u = q[..., :3]
-    t = 2.0 * cross_product(u, v)
-    return v + q[..., 3:] * t + cross_product(u, t)
-
-
-def _matrix_to_quat(m: np.ndarray) -> np.ndarray:
-    """One rotation matrix ``(3, 3)`` to a unit quaternion (x, y, z, w) (Shepperd's method)."""
-    trace = m[0, 0] + m[1, 1] + m[2, 2]
-    if trace > 0:
-        s = 2.0 * math.sqrt(trace + 1.0)
-        q = [(m[2, 1] - m[1, 2]) / s, (m[0, 2] - m[2, 0]) / s, (m[1, 0] - m[0, 1]) / s, s / 4]
-    else:
-        i = int(np.argmax(np.diag(m)))
-        j, k = (i + 1) % 3, (i + 2) % 3
-        s = 2.0 * math.sqrt(max(1.0 + m[i, i] - m[j, j] - m[k, k], 1e-12))
-        q = [0.0, 0.0, 0.0, (m[k, j] - m[j, k]) / s]
-        q[i] = s / 4
-        q[j] = (m[j, i] + m[i, j]) / s
-        q[k] = (m[k, i] + m[i, k]) / s
-    out = np.array(q)
-    return out / np.linalg.norm(out)
 
 
 # --------------------------------------------------------------------------- the ragdoll
@@ -342,13 +281,13 @@ class Ragdoll:
         # Each capsule body's frame at rest: centre of mass, Z along the bone (pybullet
         # capsules lie along Z), so its inertia is diagonal in it.
         self._capsule_frames = shortest_arc(
-            np.tile([0.0, 0.0, 1.0], (_NB, 1)), self._rest_directions
+            np.tile([0.0, 0.0, 1.0], (NUM_BONES, 1)), self._rest_directions
         )
         # The physics client draws nothing (building bodies costs half as much without the
         # renderer); render() draws the body in a client of its own, built on first use.
         self.client = connect_direct(renderer=False)
         self._closed = False
-        self._scene: _Scene | None = None
+        self._scene: Scene | None = None
         self.bodies: list[int] = []
         self._tracking: list[int] = []
         self._joints: list[int] = []
@@ -385,7 +324,7 @@ class Ragdoll:
         self._output = np.zeros((skeleton.NUM_JOINTS, 3), dtype=np.float32)
         self._directions = self._rest_directions.copy()
         self._root_frame = np.array([0.0, 0.0, 0.0, 1.0])
-        self._goal = (np.zeros(3), np.tile([0.0, 0.0, 0.0, 1.0], (_NB, 1)))
+        self._goal = (np.zeros(3), np.tile([0.0, 0.0, 0.0, 1.0], (NUM_BONES, 1)))
         self._offset = np.zeros(3)
         self._offset_velocity = np.zeros(3)
         self._jumps = 0
@@ -393,9 +332,24 @@ class Ragdoll:
             self._remove_body()
             self._removals += 1
         else:
-            self._build_world(self._friction, self._solver_iterations)
+            self.bodies, self._tracking, self._joints = [], [], []
+            self.floor = build_world(
+                self.client,
+                time_step=self.time_step,
+                erp=self.erp,
+                solver_iterations=self._solver_iterations,
+                floor_height=self.floor_height,
+                friction=self._friction,
+            )
             self._removals = 0
-        self._build_body(self._friction)
+        self.bodies, self._tracking, self._joints = build_body(
+            self.client,
+            self.model,
+            self._rest_vectors,
+            self._capsule_frames,
+            self.force_bounds,
+            self._friction,
+        )
         self.reset(self.standing_pose())
 
     # ----------------------------------------------------------------------- construction
@@ -416,116 +370,10 @@ class Ragdoll:
         lift = floor - rest[:, 1].min() + self.foot_clearance
         return (rest + np.array([0.0, lift, 0.0])).astype(np.float32)
 
-    def _build_world(self, friction: float, solver_iterations: int) -> None:
-        """The physics settings and the floor, in an empty world."""
-        pb, cid = pybullet, self.client
-        pb.resetSimulation(physicsClientId=cid)
-        self.bodies, self._tracking, self._joints = [], [], []
-        pb.setGravity(0.0, -GRAVITY, 0.0, physicsClientId=cid)
-        pb.setPhysicsEngineParameter(
-            fixedTimeStep=self.time_step,
-            numSubSteps=0,
-            numSolverIterations=solver_iterations,
-            erp=self.erp,
-            deterministicOverlappingPairs=1,
-            physicsClientId=cid,
-        )
-        self.floor = -1
-        if self.floor_height is not None:
-            plane = pb.createCollisionShape(
-                pb.GEOM_PLANE, planeNormal=[0.0, 1.0, 0.0], physicsClientId=cid
-            )
-            self.floor = pb.createMultiBody(
-                baseMass=0.0,
-                baseCollisionShapeIndex=plane,
-                basePosition=[0.0, self.floor_height, 0.0],
-                physicsClientId=cid,
-            )
-            pb.changeDynamics(
-                self.floor, -1, lateralFriction=friction, restitution=0.0, physicsClientId=cid
-            )
-            pb.setCollisionFilterGroupMask(
-                self.floor, -1, _FLOOR_GROUP, _BODY_GROUP, physicsClientId=cid
-            )
-
-    def _build_body(self, friction: float) -> None:
-        """The capsules of :attr:`model`, their tracking constraints and their joints."""
-        pb, cid = pybullet, self.client
-        model = self.model
-        rest = poses.rest_pose(model.bone_lengths).astype(np.float64)
-        centres = rest[_STARTS] + 0.5 * self._rest_vectors
-        for bone in range(_NB):  # one-off construction, not a hot path
-            radius, length = float(model.radii[bone]), float(model.bone_lengths[bone])
-            shape = pb.createCollisionShape(
-                pb.GEOM_CAPSULE, radius=radius, height=length, physicsClientId=cid
-            )
-            body = pb.createMultiBody(
-                baseMass=float(model.masses[bone]),
-                baseCollisionShapeIndex=shape,
-                basePosition=centres[bone].tolist(),
-                baseOrientation=self._capsule_frames[bone].tolist(),
-                physicsClientId=cid,
-            )
-            pb.changeDynamics(
-                body,
-                -1,
-                localInertiaDiagonal=model.inertia[bone].tolist(),
-                linearDamping=0.0,
-                angularDamping=0.0,
-                lateralFriction=friction,
-                restitution=0.0,
-                physicsClientId=cid,
-            )
-            pb.setCollisionFilterGroupMask(body, -1, _BODY_GROUP, _FLOOR_GROUP, physicsClientId=cid)
-            self.bodies.append(body)
-            # The body part's PD drive: its centre of mass frame to a moving world frame.
-            tracking = pb.createConstraint(
-                body,
-                -1,
-                -1,
-                -1,
-                pb.JOINT_FIXED,
-                [0.0, 0.0, 0.0],
-                parentFramePosition=[0.0, 0.0, 0.0],
-                childFramePosition=centres[bone].tolist(),
-                childFrameOrientation=self._capsule_frames[bone].tolist(),
-                physicsClientId=cid,
-            )
-            pb.changeConstraint(
-                tracking, maxForce=float(self.force_bounds[bone]), physicsClientId=cid
-            )
-            self._tracking.append(tracking)
-        # Ball joints: each bone's start to its parent at the shared Kinect joint.
-        joint_force = _JOINT_FORCE_BODY_WEIGHTS * model.total_mass * GRAVITY
-        for bone in range(1, _NB):
-            parent = int(_PARENT_BONE[bone])
-            joint = rest[_STARTS[bone]]
-            constraint = pb.createConstraint(
-                self.bodies[parent],
-                -1,
-                self.bodies[bone],
-                -1,
-                pb.JOINT_POINT2POINT,
-                [0.0, 0.0, 0.0],
-                parentFramePosition=self._in_body(parent, joint - centres[parent]).tolist(),
-                childFramePosition=self._in_body(bone, joint - centres[bone]).tolist(),
-                physicsClientId=cid,
-            )
-            pb.changeConstraint(constraint, maxForce=joint_force, physicsClientId=cid)
-            self._joints.append(constraint)
-
     def _remove_body(self) -> None:
         """Remove the body's constraints and capsules (the floor stays)."""
-        pb, cid = pybullet, self.client
-        for constraint in self._joints + self._tracking:
-            pb.removeConstraint(constraint, physicsClientId=cid)
-        for body in self.bodies:
-            pb.removeBody(body, physicsClientId=cid)
+        remove_body(self.client, self.bodies, self._joints + self._tracking)
         self.bodies, self._tracking, self._joints = [], [], []
-
-    def _in_body(self, bone: int, vector: np.ndarray) -> np.ndarray:
-        """A rest-pose world vector in the bone's body frame."""
-        return _quat_rotate(_quat_conj(self._capsule_frames[bone]), vector)
 
     # ----------------------------------------------------------------------- targets
 
@@ -541,48 +389,21 @@ class Ragdoll:
                 self._root_frame,
                 self._rest_directions,
                 self._root_arc,
-                _BONES,
-                _PARENT_BONE,
-                _LINES,
+                BONES,
+                PARENT_BONE,
+                LINES,
             )
-            self._root_frame = world[0]
-            return pose64[skeleton.ROOT], world
-        vectors = poses.bone_vectors(pose64)
-        norms = np.sqrt(np.sum(vectors * vectors, axis=-1, keepdims=True))
-        ok = norms > _DEGENERATE_M
-        directions = np.where(ok, vectors / np.where(ok, norms, 1.0), self._directions)
-        # Root frame: spine direction and the hip line (shoulder line, then the last frame's).
-        up = directions[0]
-        left = None
-        for a, b in ((_HIP_LEFT, _HIP_RIGHT), (_SHOULDER_LEFT, _SHOULDER_RIGHT)):
-            line = pose64[a] - pose64[b]
-            line = line - up * float(line @ up)
-            if float(line @ line) > 1e-6:
-                left = line
-                break
-        if left is None:
-            line = _quat_rotate(self._root_frame, np.array([1.0, 0.0, 0.0]))
-            left = line - up * float(line @ up)
-        left = left / np.linalg.norm(left)
-        frame = np.stack([left, up, cross_product(left, up)], axis=1)  # columns: rest X, Y, Z
-        world = np.empty((_NB, 4))
-        world[0] = _quat_mul(_matrix_to_quat(frame), self._root_arc)
-        for level in _LEVELS:  # at most 5 groups, vectorised within each
-            parent = world[_PARENT_BONE[level]]
-            in_parent = _quat_rotate(_quat_conj(parent), directions[level])
-            local = shortest_arc(self._rest_directions[level], in_parent)
-            world[level] = _quat_mul(parent, local)
-        self._directions = directions
+        else:
+            world, self._directions = bone_frames(
+                pose64, self._directions, self._root_frame, self._rest_directions, self._root_arc
+            )
         self._root_frame = world[0]
         return pose64[skeleton.ROOT], world
 
     def _body_goals(self, root: np.ndarray, world: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Centre-of-mass positions and body orientations of the capsules for a root position
         ``(..., 3)`` and bone frames ``(..., 19, 4)``."""
-        vectors = _quat_rotate(world, self._rest_vectors)
-        joints = root[..., None, :] + _PATH @ vectors
-        centres = joints[..., _STARTS, :] + 0.5 * vectors
-        return centres, _quat_mul(world, self._capsule_frames)
+        return body_goals(root, world, self._rest_vectors, self._capsule_frames)
 
     def _catch_up(self, root: np.ndarray) -> np.ndarray:
         """Offset added to the target root this frame (teleport recovery, module docstring).
@@ -599,22 +420,13 @@ class Ragdoll:
             self._offset = previous_goal - root
             self._offset_velocity = np.zeros(3)
             self._jumps += 1
-        distance = float(np.sqrt(self._offset @ self._offset))
-        if distance > 0.0:
-            dt = 1.0 / self.frame_rate
-            # Approach speed: exponential near the end, never faster than the speed from which
-            # half the available acceleration can still stop the body in time.
-            speed = min(self.recovery_frequency * distance, math.sqrt(2.0 * self._glide * distance))
-            change = -self._offset * (speed / distance) - self._offset_velocity
-            limit = self._glide * dt
-            norm = float(np.sqrt(change @ change))
-            if norm > limit:
-                change *= limit / norm
-            self._offset_velocity = self._offset_velocity + change
-            self._offset = self._offset + dt * self._offset_velocity
-            if distance < 1e-4:
-                self._offset = np.zeros(3)
-                self._offset_velocity = np.zeros(3)
+        self._offset, self._offset_velocity = glide(
+            self._offset,
+            self._offset_velocity,
+            dt=1.0 / self.frame_rate,
+            recovery_frequency=self.recovery_frequency,
+            acceleration=self._glide,
+        )
         return self._offset
 
     # ----------------------------------------------------------------------- public API
@@ -676,16 +488,12 @@ class Ragdoll:
         # intermediate target keeps the joints together.
         if self._kernels is not None:
             centres_all, orientations_all, world1 = self._kernels.substep_goals(
-                root0, world0, root1, world1, n, self._rest_vectors, self._capsule_frames, _BONES
+                root0, world0, root1, world1, n, self._rest_vectors, self._capsule_frames, BONES
             )
         else:
-            fractions = (np.arange(1, n + 1) / n)[:, None]
-            sign = np.where(np.sum(world0 * world1, axis=-1, keepdims=True) < 0, -1.0, 1.0)
-            world1 = sign * world1
-            blend = (1 - fractions[:, :, None]) * world0 + fractions[:, :, None] * world1
-            blend /= np.sqrt(np.sum(blend * blend, axis=-1, keepdims=True))
-            roots = root0 + fractions * (root1 - root0)
-            centres_all, orientations_all = self._body_goals(roots, blend)
+            centres_all, orientations_all, world1 = substep_goals(
+                root0, world0, root1, world1, n, self._rest_vectors, self._capsule_frames
+            )
         centres = centres_all.tolist()
         orientations = orientations_all.tolist()
         goal = (root1, world1)
@@ -705,7 +513,18 @@ class Ragdoll:
         self._target = target.copy()
         self._frames += 1
         output = self._read_pose()
-        problem = self._divergence(output, target)
+        problem = divergence(
+            output,
+            target,
+            self._offset,
+            self._output,
+            self._joint_gap,
+            frame_rate=self.frame_rate,
+            max_speed=self.max_speed,
+            max_distance=self.max_distance,
+            max_joint_gap=self.max_joint_gap,
+            kernels=self._kernels,
+        )
         if problem:
             self._divergences += 1
             self._last_error = f"frame {self._frames}: {problem}"
@@ -723,45 +542,9 @@ class Ragdoll:
         self._output = output
         return output.copy()
 
-    def _divergence(self, output: np.ndarray, target: np.ndarray) -> str:
-        # Distances against the goal (the target shifted by a teleport glide's remaining
-        # offset) and the last output.
-        if self._kernels is not None:
-            finite, distance, moved = self._kernels.divergence_measures(
-                output, target, self._offset, self._output
-            )
-        else:
-            finite = bool(np.all(np.isfinite(output)))
-            distance = float(np.max(np.linalg.norm(output - (target + self._offset), axis=-1)))
-            moved = float(np.max(np.linalg.norm(output - self._output, axis=-1)))
-        if not (finite and math.isfinite(self._joint_gap)):
-            return "non-finite joint positions"
-        if distance > self.max_distance:
-            return f"a joint is {distance:.3g} m from its target (max_distance {self.max_distance})"
-        if moved * self.frame_rate > self.max_speed:
-            speed = moved * self.frame_rate
-            return f"a joint moves at {speed:.3g} m/s (max_speed {self.max_speed})"
-        if self._joint_gap > self.max_joint_gap:
-            return (
-                f"joint constraints {self._joint_gap:.3g} m apart "
-                f"(max_joint_gap {self.max_joint_gap})"
-            )
-        return ""
-
     def _place(self, centres: np.ndarray, orientations: np.ndarray) -> None:
         """Put every capsule exactly on its goal, at rest, with the tracking targets there."""
-        pb, cid = pybullet, self.client
-        zero = [0.0, 0.0, 0.0]
-        for bone, (body, constraint) in enumerate(zip(self.bodies, self._tracking, strict=True)):
-            centre, orientation = centres[bone].tolist(), orientations[bone].tolist()
-            pb.resetBasePositionAndOrientation(body, centre, orientation, physicsClientId=cid)
-            pb.resetBaseVelocity(body, zero, zero, physicsClientId=cid)
-            pb.changeConstraint(
-                constraint,
-                jointChildPivot=centre,
-                jointChildFrameOrientation=orientation,
-                physicsClientId=cid,
-            )
+        place_body(self.client, self.bodies, self._tracking, centres, orientations)
 
     # ----------------------------------------------------------------------- state
 
@@ -774,23 +557,19 @@ class Ragdoll:
         self, centres: np.ndarray, orientations: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray]:
         """Forward kinematics of the capsules: joints ``(20, 3)`` and bone vectors ``(19, 3)``."""
-        frames = _quat_mul(orientations, _quat_conj(self._capsule_frames))
-        vectors = _quat_rotate(frames, self._rest_vectors)
-        root = centres[0] - 0.5 * vectors[0]
-        return root + _PATH @ vectors, vectors
+        return pose_from(centres, orientations, self._capsule_frames, self._rest_vectors)
 
     def _read_pose(self) -> np.ndarray:
         centres, orientations = self._body_states()
         if self._kernels is not None:
             joints, gap = self._kernels.pose_from(
-                centres, orientations, self._capsule_frames, self._rest_vectors, _BONES
+                centres, orientations, self._capsule_frames, self._rest_vectors, BONES
             )
             self._joint_gap = float(gap)
         else:
-            joints, vectors = self._pose_from(centres, orientations)
-            # How far each capsule's start end is from the joint it should share with its parent.
-            gaps = centres - 0.5 * vectors - joints[_STARTS]
-            self._joint_gap = float(np.sqrt(np.max(np.sum(gaps * gaps, axis=-1))))
+            joints, self._joint_gap = pose_and_gap(
+                centres, orientations, self._capsule_frames, self._rest_vectors
+            )
         if math.isfinite(self._joint_gap):
             self._max_joint_gap = max(self._max_joint_gap, self._joint_gap)
         return joints.astype(np.float32)
@@ -812,14 +591,7 @@ class Ragdoll:
         velocities = [get(body, physicsClientId=cid) for body in self.bodies]
         linear = np.array([v[0] for v in velocities])
         angular = np.array([v[1] for v in velocities])
-        out = np.empty((skeleton.NUM_JOINTS, 3))
-        out[skeleton.BONES[:, 1]] = linear + cross_product(
-            angular, joints[skeleton.BONES[:, 1]] - centres
-        )
-        out[skeleton.ROOT] = linear[0] + cross_product(
-            angular[0], joints[skeleton.ROOT] - centres[0]
-        )
-        return out.astype(np.float32)
+        return joint_velocities(joints, centres, linear, angular).astype(np.float32)
 
     @property
     def joint_names(self) -> tuple[str, ...]:
@@ -874,16 +646,11 @@ class Ragdoll:
         for name, value in (("width", width), ("height", height)):
             if not (isinstance(value, int | np.integer) and 1 <= value <= 4096):
                 raise ValueError(f"{name}: expected an integer in [1, 4096], got {value!r}")
-        pose = self.joint_positions.astype(np.float64)
-        centre = 0.5 * (pose.min(axis=0) + pose.max(axis=0))
-        yaw = float(poses.facing_yaw(pose))
-        forward = np.array([math.sin(yaw), 0.0, math.cos(yaw)])
-        side = np.array([math.cos(yaw), 0.0, -math.sin(yaw)])
-        eye = centre + 2.6 * forward + 1.3 * side + np.array([0.0, 0.5, 0.0])
+        eye, centre = front_left_view(self.joint_positions.astype(np.float64))
         if self._scene is None or self._scene.model is not self.model:
             if self._scene is not None:
                 self._scene.close()
-            self._scene = _Scene(self.model, self.floor_height)
+            self._scene = Scene(self.model, self.floor_height)
         return self._scene.picture(*self._body_states(), eye, centre, int(width), int(height))
 
     # ----------------------------------------------------------------------- lifetime
@@ -927,91 +694,3 @@ class Ragdoll:
             f"Ragdoll(mass={self.model.total_mass:.1f} kg, substeps={self.substeps}, "
             f"frames={self._frames}, {state})"
         )
-
-
-class _Scene:
-    """What :meth:`Ragdoll.render` draws: the capsules and the floor tile, without physics, in
-    a pybullet client of their own (the ragdoll's physics client has no renderer)."""
-
-    def __init__(self, model: BodyModel, floor_height: float | None) -> None:
-        self.model = model
-        self.client = connect_direct()
-        pb, cid = pybullet, self.client
-        if floor_height is not None:
-            tile = pb.createVisualShape(
-                pb.GEOM_BOX,
-                halfExtents=[5.0, 0.005, 5.0],
-                visualFramePosition=[0.0, -0.005, 0.0],
-                rgbaColor=[0.78, 0.78, 0.74, 1.0],
-                physicsClientId=cid,
-            )
-            pb.createMultiBody(
-                baseMass=0.0,
-                baseVisualShapeIndex=tile,
-                basePosition=[0.0, floor_height, 0.0],
-                physicsClientId=cid,
-            )
-        self.bodies = []
-        for bone, colour in enumerate(_bone_colours()):
-            visual = pb.createVisualShape(
-                pb.GEOM_CAPSULE,
-                radius=float(model.radii[bone]),
-                length=float(model.bone_lengths[bone]),
-                rgbaColor=colour,
-                physicsClientId=cid,
-            )
-            self.bodies.append(
-                pb.createMultiBody(baseMass=0.0, baseVisualShapeIndex=visual, physicsClientId=cid)
-            )
-
-    def picture(
-        self,
-        centres: np.ndarray,
-        orientations: np.ndarray,
-        eye: np.ndarray,
-        target: np.ndarray,
-        width: int,
-        height: int,
-    ) -> np.ndarray:
-        """The capsules placed at ``centres``/``orientations`` seen from ``eye``, RGB uint8."""
-        pb, cid = pybullet, self.client
-        for body, centre, orientation in zip(
-            self.bodies, centres.tolist(), orientations.tolist(), strict=True
-        ):
-            pb.resetBasePositionAndOrientation(body, centre, orientation, physicsClientId=cid)
-        view = pb.computeViewMatrix(
-            eye.tolist(), target.tolist(), [0.0, 1.0, 0.0], physicsClientId=cid
-        )
-        projection = pb.computeProjectionMatrixFOV(
-            fov=50.0, aspect=width / height, nearVal=0.05, farVal=30.0, physicsClientId=cid
-        )
-        _, _, rgba, _, _ = pb.getCameraImage(
-            width,
-            height,
-            view,
-            projection,
-            renderer=pb.ER_TINY_RENDERER,
-            flags=pb.ER_NO_SEGMENTATION_MASK,
-            physicsClientId=cid,
-        )
-        image = np.asarray(rgba, dtype=np.uint8).reshape(height, width, 4)
-        return image[..., :3].copy()
-
-    def close(self) -> None:
-        try:
-            pybullet.disconnect(physicsClientId=self.client)
-        except pybullet.error:
-            pass
-
-
-def _bone_colours() -> list[list[float]]:
-    """Left side blue, right side red, centre line grey (for :meth:`Ragdoll.render`)."""
-    colours = []
-    for _, child in skeleton.BONES:
-        if skeleton.is_left(int(child)):
-            colours.append([0.25, 0.45, 0.85, 1.0])
-        elif skeleton.is_right(int(child)):
-            colours.append([0.85, 0.3, 0.25, 1.0])
-        else:
-            colours.append([0.55, 0.55, 0.6, 1.0])
-    return colours
