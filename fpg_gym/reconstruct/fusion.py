@@ -71,7 +71,6 @@ _INCIDENCE.flags.writeable = False
 _LAPLACIAN = _INCIDENCE.T @ _INCIDENCE
 
 
-
 class BoneModel(Protocol):
     """A model of the sensor's bone vectors (e.g. a learned correction of a sensor's bias)."""
 

@@ -13,8 +13,9 @@ import numpy as np
 
 from fpg_gym.core import skeleton
 from fpg_gym.core.compiled import compiled_module
+from fpg_gym.reconstruct.energy import motion_target
 
-__all__ = ["LABELLINGS", "LABEL_PERMUTATIONS", "left_right_costs"]
+__all__ = ["LABELLINGS", "LABEL_PERMUTATIONS", "best_labelling", "left_right_costs"]
 
 
 def _side_joints(prefixes: tuple[str, ...]) -> np.ndarray:
@@ -80,3 +81,31 @@ def left_right_costs(
     w = weights[LABEL_PERMUTATIONS]  # (H, 20)
     dist = np.linalg.norm(relabelled - target, axis=-1)
     return np.asarray((w * dist).sum(axis=1) / np.maximum(w.sum(axis=1), 1e-9))
+
+
+def best_labelling(
+    compared: np.ndarray,
+    states: np.ndarray,
+    history: list[tuple[np.ndarray, float]],
+    dt: float,
+    margin: float,
+) -> int:
+    """The labelling (an index in :data:`LABELLINGS`) of the sensor pose ``compared`` that
+    continues the previous outputs ``history`` (camera-space poses and timestamps, newest
+    last; at least one) best, ``dt`` s after the last: another than the reported one (0) only
+    when its cost is under ``margin`` times the reported one's and 3 cm lower."""
+    last = history[-1][0]
+    guess = last
+    if len(history) >= 2:
+        before = history[-2][0]
+        guess = motion_target(
+            last - last[skeleton.ROOT],
+            before - before[skeleton.ROOT],
+            dt,
+            history[-1][1] - history[-2][1],
+        )
+    costs = left_right_costs(compared, states, guess)
+    best = int(np.argmin(costs))
+    if best != 0 and costs[best] < margin * costs[0] and costs[0] - costs[best] > 0.03:
+        return best
+    return 0

@@ -72,40 +72,31 @@ none.
 from __future__ import annotations
 
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, fields, replace
+from dataclasses import fields, replace
 from typing import Any, Literal
 
 import numpy as np
-from tqdm import tqdm
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
-from fpg_gym.core.poses import FloorShift, RecordingLike
-from fpg_gym.core.seeding import as_generator
 from fpg_gym.definitions import OnlineDefinitionFit, sensor_to_output_map
 from fpg_gym.reconstruct.bones import BoneSettler, OutputLengths
 from fpg_gym.reconstruct.config import RagdollFactory, RagdollLike, ReconstructorConfig
-from fpg_gym.reconstruct.energy import (
-    TERM_NAMES,
-    EnergyModel,
-    motion_target,
-)
+from fpg_gym.reconstruct.drivers import FrameDrivers
+from fpg_gym.reconstruct.energy import EnergyModel
 from fpg_gym.reconstruct.fusion import SensorFusion, SensorTrust
-from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.reconstruct.latent import LatentSpace
-from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, LABELLINGS, left_right_costs
+from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, LABELLINGS, best_labelling
 from fpg_gym.reconstruct.output_correction import (
     CorrectionState,
     OutputCorrection,
     output_correction_of,
 )
+from fpg_gym.reconstruct.pending import Pending, frame_record
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
-from fpg_gym.reconstruct.records import STAGES, FrameRecord, ReconstructionResult
-from fpg_gym.reconstruct.reliability import (
-    ReliabilityEstimator,
-    ReliabilityTerms,
-)
+from fpg_gym.reconstruct.ragdoll_stage import RagdollStage
+from fpg_gym.reconstruct.records import STAGES, FrameRecord
+from fpg_gym.reconstruct.reliability import ReliabilityEstimator, ReliabilityTerms
 from fpg_gym.reconstruct.search import run_search
 from fpg_gym.reconstruct.selection import (
     CandidateSelector,
@@ -118,41 +109,12 @@ from fpg_gym.reconstruct.temporal import (
     OutputSmoother,
     PlacementSmoother,
     align_basis,
+    continuity,
 )
 from optimizers import Optimizer, SearchResult, make
 
 
-@dataclass
-class _Pending:
-    """State between prepare() and finish()."""
-
-    problem: SearchProblem
-    placement: pose_utils.Placement
-    terms: ReliabilityTerms
-    selection: Selection
-    first: bool
-    no_body: bool
-    timestamp: float
-    ms: dict[str, float]
-    prepared_at: float
-    labelling: str = "as-reported"
-    lengths: np.ndarray | None = None
-    sensor: np.ndarray | None = None  # the raw input frame, before the sensor map
-    tracked: np.ndarray | None = None  # its tracked joints
-    found: np.ndarray | None = None  # the best point of search(), if one ran
-    sensor_states: np.ndarray | None = None  # the raw input's tracking states
-    correction: OutputCorrection | None = None  # the searching optimiser's, if it has one
-    trust: np.ndarray | None = None  # the fusion's trust in each (relabelled) sensor joint
-    permutation: np.ndarray | None = None  # the labelling's joint permutation
-
-
-def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
-    """A camera-space pose, root-relative and turned by ``-yaw`` (the current frame's heading)."""
-    pose = np.asarray(pose, dtype=np.float64)
-    return pose_utils.into_placement(pose, pose_utils.Placement(root=pose[skeleton.ROOT], yaw=yaw))
-
-
-class Reconstructor:
+class Reconstructor(FrameDrivers):
     """Reconstructs Kinect frames against a pose graph, one frame at a time.
 
     Parameters
@@ -230,10 +192,9 @@ class Reconstructor:
                 "ragdoll: expected a factory lengths -> ragdoll (fpg_gym.physics.ragdoll.Ragdoll, "
                 "or fpg_gym.methods.ragdoll_factory(True)), None or False; got True"
             )
-        self._ragdoll_factory: RagdollFactory | None = ragdoll if callable(ragdoll) else None
-        self._ragdoll: RagdollLike | None = None
-        self._ragdoll_lengths: np.ndarray | None = None
-        self.ragdoll_rebuilds = 0
+        self._ragdoll = RagdollStage(
+            ragdoll if callable(ragdoll) else None, config.ragdoll_rebuild_m
+        )
         self._placement_smoother = (
             PlacementSmoother(config.temporal) if config.temporal.placement else None
         )
@@ -271,7 +232,12 @@ class Reconstructor:
     @property
     def ragdoll(self) -> RagdollLike | None:
         """The current ragdoll (None before the first frame or without one)."""
-        return self._ragdoll
+        return self._ragdoll.body
+
+    @property
+    def ragdoll_rebuilds(self) -> int:
+        """Ragdoll rebuilds for new bone lengths within streams, since construction."""
+        return self._ragdoll.rebuilds
 
     @property
     def problem(self) -> SearchProblem | None:
@@ -298,17 +264,14 @@ class Reconstructor:
         self._history: list[tuple[np.ndarray, float]] = []  # camera-space outputs, newest last
         self._fused_history: list[tuple[np.ndarray, float]] = []  # the fusion's outputs
         self._placement: pose_utils.Placement | None = None
-        self._pending: _Pending | None = None
+        self._pending: Pending | None = None
         self._index = 0
         self._last_timestamp: float | None = None
-        self._floor = FloorShift()
-        self._ragdoll_needs_reset = True
-        self._ragdoll_settle = False
         # A new stream starts from scratch: the retargeted-database cache and the ragdoll's
         # physics (rebuilt at the first tracked frame) carry nothing over, so the output does
         # not depend on what was reconstructed before.
         self.database.clear_cache()
-        self._ragdoll_lengths = None
+        self._ragdoll.restart()
         self.bones.reset()
         if self._trust is not None:
             self._trust.reset()
@@ -331,16 +294,7 @@ class Reconstructor:
 
     def close(self) -> None:
         """Release the ragdoll, if any."""
-        if self._ragdoll is not None:
-            self._ragdoll.close()
-            self._ragdoll = None
-
-    def __getstate__(self) -> dict[str, Any]:
-        """Pickle support: the ragdoll (a pybullet client) is left out and rebuilt on use."""
-        state = self.__dict__.copy()
-        state["_ragdoll"] = None
-        state["_ragdoll_needs_reset"] = True
-        return state
+        self._ragdoll.close()
 
     def __enter__(self) -> Reconstructor:
         return self
@@ -400,7 +354,9 @@ class Reconstructor:
         terms, trust, lengths = self._reliability_terms(positions, states, compared, timestamp)
         t2 = time.perf_counter()
 
-        previous, prediction = self._continuity(placement.yaw, dt, no_body)
+        previous, prediction = continuity(
+            self._history, placement.yaw, dt, no_body, cfg.temporal.velocity_damping
+        )
         selection = self.selector.select(
             SelectionQuery(
                 pose=kinect,
@@ -427,7 +383,7 @@ class Reconstructor:
             "selection": 1e3 * (t3 - t2),
             "latent": 1e3 * (t4 - t3),
         }
-        self._pending = _Pending(
+        self._pending = Pending(
             problem,
             output_placement,
             terms,
@@ -454,7 +410,7 @@ class Reconstructor:
             self._fused_history.clear()
             self.selector.reset()
             self.reliability.forget_motion()
-            self._ragdoll_needs_reset = True
+            self._ragdoll.needs_reset = True
             self._restart_temporal()
 
     def _relabel(
@@ -480,27 +436,11 @@ class Reconstructor:
             if self._sensor_output_map is not None:
                 compared = self._sensor_output_map.apply(sensor)
         if cfg.left_right_fix and history and not no_body:
-            last = history[-1][0]
-            guess = last
-            if len(history) >= 2:
-                before = history[-2][0]
-                guess = motion_target(
-                    last - last[skeleton.ROOT],
-                    before - before[skeleton.ROOT],
-                    dt,
-                    history[-1][1] - history[-2][1],
-                )
-            costs = left_right_costs(compared, states, guess)
-            best = int(np.argmin(costs))
-            if (
-                best != 0
-                and costs[best] < cfg.left_right_margin * costs[0]
-                and costs[0] - costs[best] > 0.03
-            ):
-                labelling = best
-                positions = positions[LABEL_PERMUTATIONS[best]]
-                states = states[LABEL_PERMUTATIONS[best]]
-                compared = compared[LABEL_PERMUTATIONS[best]]
+            labelling = best_labelling(compared, states, history, dt, cfg.left_right_margin)
+            if labelling:
+                permutation = LABEL_PERMUTATIONS[labelling]
+                positions, states = positions[permutation], states[permutation]
+                compared = compared[permutation]
         return labelling, positions, states, compared
 
     def _normalise(
@@ -543,29 +483,8 @@ class Reconstructor:
         was_settled = self.bones.settled
         lengths = self.bones.update(terms.reference_lengths, timestamp)
         if self.bones.settled and not was_settled:
-            self._ragdoll_settle = True
+            self._ragdoll.settle = True
         return terms, trust, lengths
-
-    def _continuity(
-        self, yaw: np.ndarray, dt: float, no_body: bool
-    ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """Previous reconstructions in this frame; continuity prediction (FPG Eq. 6) which is
-        also the motion target of Em (Shum Eq. 14). Both None on a stream's first frame."""
-        previous = prediction = None
-        if self._history:
-            previous = _rotate_into(self._history[-1][0], yaw)
-            if len(self._history) >= 2 and not no_body:
-                before = _rotate_into(self._history[-2][0], yaw)
-                dt_prev = self._history[-1][1] - self._history[-2][1]
-                prediction = motion_target(previous, before, dt, dt_prev)
-                damping = self.config.temporal.velocity_damping
-                if damping != 1.0:
-                    # Temporal coherence (not in the papers): a continuity prior anchored on the
-                    # previous reconstruction rather than on its noisy extrapolation.
-                    prediction = previous + damping * (prediction - previous)
-            else:
-                prediction = previous.copy()
-        return previous, prediction
 
     def _frame_problem(
         self,
@@ -656,14 +575,14 @@ class Reconstructor:
         pose = pose_utils.denormalise(local, pending.placement)
         t1 = time.perf_counter()
         ragdoll_info = None
-        if self._ragdoll_factory is not None:
-            pose, ragdoll_info = self._track(pose, problem.lengths)
+        if self._ragdoll.factory is not None:
+            pose, ragdoll_info = self._ragdoll.track(pose, problem.lengths)
         history_pose = pose
         t2 = time.perf_counter()
         if self._output_smoother is not None:
             # Light output filter (not in the papers); the bone lengths stay the output's.
             out_lengths = (
-                problem.lengths if self._ragdoll_lengths is None else self._ragdoll_lengths
+                problem.lengths if self._ragdoll.lengths is None else self._ragdoll.lengths
             )
             pose = self._output_smoother.update(pose, out_lengths, pending.timestamp)
         t3 = time.perf_counter()
@@ -678,7 +597,7 @@ class Reconstructor:
         ms["ragdoll"] = 1e3 * (t2 - t1)
         ms["total"] = sum(ms[s] for s in STAGES)
         terms = pending.terms
-        record = self._frame_record(pending, chosen, ms, ragdoll_info)
+        record = frame_record(self._index, pending, chosen, ms, ragdoll_info)
         self._pending = None
         self._index += 1
         pose = self._output_stages(pose, pending, record)
@@ -701,45 +620,7 @@ class Reconstructor:
             record.ms["total"] += spent
         return pose.astype(np.float32), record
 
-    def _frame_record(
-        self,
-        pending: _Pending,
-        chosen: dict[str, np.ndarray],
-        ms: dict[str, float],
-        ragdoll_info: dict[str, Any] | None,
-    ) -> FrameRecord:
-        """What happened in the finished frame (``chosen``: the terms of z and of x0)."""
-        terms = pending.terms
-        selection = pending.selection
-        problem = pending.problem
-        return FrameRecord(
-            index=self._index,
-            timestamp=pending.timestamp,
-            reliability=terms.reliability,
-            behaviour=terms.behaviour,
-            kinematic=terms.kinematic,
-            tracking=terms.tracking,
-            reference_source=terms.reference_source,
-            nodes=selection.nodes,
-            node_scores=selection.scores,
-            num_scored=selection.num_scored,
-            full_search=selection.full_search,
-            recovered=selection.recovered,
-            first=pending.first,
-            no_body=pending.no_body,
-            energy=float(chosen["E"][0]),
-            energy_x0=float(chosen["E"][1]),
-            terms={name: float(chosen[name][0]) for name in TERM_NAMES},
-            evaluations=problem.evaluations,
-            ms=ms,
-            ragdoll=ragdoll_info,
-            labelling=pending.labelling,
-            bone_lengths=pending.lengths,
-        )
-
-    def _output_stages(
-        self, pose: np.ndarray, pending: _Pending, record: FrameRecord
-    ) -> np.ndarray:
+    def _output_stages(self, pose: np.ndarray, pending: Pending, record: FrameRecord) -> np.ndarray:
         """The stages after the history's pose: the output map or the online calibration, the
         output's settled bone lengths, the fusion with the sensor (its time added to
         ``record.ms``)."""
@@ -754,7 +635,7 @@ class Reconstructor:
                 target = self.config.calibration_map.apply(target)
             pose = self._calibration.update(pose, target, pending.tracked)
         if self._output_bones is not None and not pending.no_body:
-            pose = self._settle_output_bones(pose, pending.timestamp)
+            pose = self._output_bones.settle(pose, pending.timestamp)
         if self._fusion is not None and sensor is not None and pending.trust is not None:
             # Fusion (not in the papers): the sensor where it is trusted, the reconstruction
             # where it is not.
@@ -772,95 +653,9 @@ class Reconstructor:
             record.ms["total"] += spent
         return pose
 
-    def _settle_output_bones(self, pose: np.ndarray, timestamp: float) -> np.ndarray:
-        """The mapped output with settled bone lengths.
+    # ------------------------------------------------------------------ search
 
-        A definition map moves each joint in the frame of its own body part, which stretches
-        the bones between parts as the body turns; :class:`OutputLengths` settles them (the
-        rule the database-side lengths obey).
-        """
-        assert self._output_bones is not None
-        return self._output_bones.settle(pose, timestamp)
-
-    def _track(self, target: np.ndarray, lengths: np.ndarray) -> tuple[np.ndarray, dict[str, Any]]:
-        """Send a camera-space target through the ragdoll (floor shifted to y = 0)."""
-        assert self._ragdoll_factory is not None
-        new_stream = self._ragdoll_lengths is None
-        settle, self._ragdoll_settle = self._ragdoll_settle, False
-        if (
-            self._ragdoll is None
-            or new_stream
-            or np.max(np.abs(self._ragdoll_lengths - lengths)) > self.config.ragdoll_rebuild_m
-            or (settle and np.max(np.abs(self._ragdoll_lengths - lengths)) > 1e-3)
-        ):
-            lengths64 = np.asarray(lengths, dtype=np.float64)
-            rebuild = getattr(self._ragdoll, "rebuild", None)
-            if self._ragdoll is not None and callable(rebuild):
-                rebuild(lengths64)  # same client, fresh physics: cheaper than a new ragdoll
-            else:
-                if self._ragdoll is not None:
-                    self._ragdoll.close()
-                self._ragdoll = self._ragdoll_factory(lengths64)
-            if not new_stream:
-                self.ragdoll_rebuilds += 1
-            self._ragdoll_lengths = lengths64.copy()
-            self._ragdoll_needs_reset = True
-        before = int((getattr(self._ragdoll, "info", {}) or {}).get("divergences", 0))
-        world = self._floor.down(target)
-        if self._ragdoll_needs_reset:
-            out = self._ragdoll.reset(world)
-            self._ragdoll_needs_reset = False
-        else:
-            out = self._ragdoll.track(world)
-        info = dict(getattr(self._ragdoll, "info", {}) or {})
-        info["rebuilds"] = self.ragdoll_rebuilds
-        info["floor_y"] = self._floor.floor_y
-        # The ragdoll's counter is cumulative and restarts with a rebuild: report this frame's.
-        info["new_divergences"] = int(info.get("divergences", 0)) - before
-        return self._floor.up(out), info
-
-    # ------------------------------------------------------------------ drivers
-
-    def reconstruct_frame(
-        self,
-        positions: np.ndarray,
-        states: np.ndarray,
-        timestamp: float | None = None,
-        optimizer: Optimizer | str = "local-search",
-        rng: np.random.Generator | int | None = None,
-    ) -> tuple[np.ndarray, FrameRecord]:
-        """``prepare``, :meth:`search` with ``optimizer`` (a registered name or an object),
-        ``finish``."""
-        opt = make(optimizer)
-        generator = as_generator(rng)
-        self.prepare(positions, states, timestamp)
-        try:
-            found = self.search(opt, generator)
-        except BaseException:
-            self._pending = None
-            raise
-        return self.finish(found.x)
-
-    def warm_up(self, optimizer: Optimizer | str = "local-search") -> None:
-        """Load what a stream's first frames would otherwise load, then start a new stream.
-
-        Compiles (or loads from numba's disk cache) the energy and selection kernels and runs
-        two frames of a still database pose standing 2.5 m in front of the sensor, a full search
-        then a graph walk, with ``optimizer`` (which loads the compiled local search when it is
-        local search) and the ragdoll, when configured; then
-        :meth:`reset`, after which the output does not depend on these frames. For a live
-        stream, whose first frames would stall for tens of milliseconds otherwise.
-        """
-        compile_kernels()
-        pose = np.asarray(self.graph.poses[0], dtype=np.float64) + np.array([0.0, 1.0, 2.5])
-        states = np.full(skeleton.NUM_JOINTS, skeleton.TRACKED)
-        try:
-            for timestamp in (0.0, self.config.frame_dt):
-                self.reconstruct_frame(pose, states, timestamp, optimizer, 0)
-        finally:
-            self.reset()
-
-    def _prepared(self, caller: str) -> _Pending:
+    def _prepared(self, caller: str) -> Pending:
         """The prepared frame, or a RuntimeError naming ``caller``."""
         if self._pending is None:
             raise RuntimeError(f"{caller}: no prepared frame (call prepare first)")
@@ -895,98 +690,3 @@ class Reconstructor:
         pending.found = found.x
         pending.correction = output_correction_of(opt)
         return found
-
-    def iter_frames(
-        self,
-        recording: RecordingLike,
-        optimizer: Optimizer | str = "local-search",
-        rng: np.random.Generator | int | None = None,
-    ) -> Iterator[tuple[np.ndarray, FrameRecord]]:
-        """Reconstruct a recording frame by frame (a generator; starts with :meth:`reset`).
-
-        ``recording`` needs ``positions`` (T,20,3), ``states`` (T,20) and optionally
-        ``timestamps`` (T,).
-        """
-        positions = pose_utils.as_poses(recording.positions, "recording.positions", ndim=3)
-        states = np.asarray(recording.states)
-        if states.shape != positions.shape[:2]:
-            raise ValueError(
-                f"recording.states: expected shape {positions.shape[:2]}, got {states.shape}"
-            )
-        stamps = getattr(recording, "timestamps", None)
-        timestamps = (
-            np.arange(len(positions)) * self.config.frame_dt
-            if stamps is None
-            else np.asarray(stamps, dtype=np.float64)
-        )
-        opt = make(optimizer)
-        generator = as_generator(rng)
-        self.reset()
-        for i in range(len(positions)):
-            yield self.reconstruct_frame(positions[i], states[i], timestamps[i], opt, generator)
-
-    def reconstruct(
-        self,
-        recording: RecordingLike,
-        optimizer: Optimizer | str = "local-search",
-        rng: np.random.Generator | int | None = None,
-        *,
-        progress: bool = False,
-        stop_on_interrupt: bool = False,
-        checkpoint: Callable[[ReconstructionResult], None] | None = None,
-        checkpoint_s: float = 30.0,
-    ) -> ReconstructionResult:
-        """Reconstruct a whole recording.
-
-        Parameters
-        ----------
-        recording : Recording-like
-            ``positions`` (T,20,3), ``states`` (T,20), optional ``timestamps`` (T,).
-        optimizer : str or Optimizer
-            A registered name (``optimizers.available()``) or an optimiser object.
-        rng : numpy.random.Generator or int, optional
-            Seed or generator for the optimiser (same seed, same output); None: unseeded.
-        progress : bool
-            Show a tqdm progress bar on stderr.
-        stop_on_interrupt : bool
-            On Ctrl-C return the frames done (``interrupted=True``) instead of raising.
-        checkpoint : callable, optional
-            Called every ``checkpoint_s`` seconds (0: never) with the frames done so far (a
-            :class:`ReconstructionResult` with ``interrupted=True``), e.g. to write them so that
-            a killed run keeps them.
-        checkpoint_s : float
-            Seconds between checkpoints (30).
-        """
-        total = len(recording.positions)
-        last_checkpoint = time.monotonic()
-        poses = np.zeros((total, skeleton.NUM_JOINTS, 3), dtype=np.float32)
-        records: list[FrameRecord] = []
-        bar = None
-        if progress:
-            bar = tqdm(total=total, unit="frame", desc="reconstruct", leave=False)
-        interrupted = False
-        try:
-            for i, (pose, record) in enumerate(self.iter_frames(recording, optimizer, rng)):
-                poses[i] = pose
-                records.append(record)
-                if bar is not None:
-                    bar.update(1)
-                now = time.monotonic()
-                if checkpoint is not None and 0 < checkpoint_s <= now - last_checkpoint:
-                    done = len(records)
-                    checkpoint(
-                        ReconstructionResult(
-                            poses[:done].copy(), list(records), True, bones=self.bones.report()
-                        )
-                    )
-                    last_checkpoint = time.monotonic()
-        except KeyboardInterrupt:
-            if not stop_on_interrupt:
-                raise
-            interrupted = True
-        finally:
-            if bar is not None:
-                bar.close()
-        return ReconstructionResult(
-            poses[: len(records)], records, interrupted, bones=self.bones.report()
-        )

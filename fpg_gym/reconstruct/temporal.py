@@ -48,6 +48,7 @@ from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
 from fpg_gym.filters import make_filter
 from fpg_gym.filters.one_euro import OneEuroFilter
+from fpg_gym.reconstruct.energy import motion_target
 from fpg_gym.reconstruct.latent import LatentSpace
 
 __all__ = [
@@ -55,6 +56,7 @@ __all__ = [
     "PlacementSmoother",
     "TemporalConfig",
     "align_basis",
+    "continuity",
 ]
 
 
@@ -204,3 +206,36 @@ def align_basis(latent: LatentSpace, previous: LatentSpace | None) -> LatentSpac
         latent.degenerate,
         latent.explained_variance_ratio,
     )
+
+
+def _rotate_into(pose: np.ndarray, yaw: np.ndarray) -> np.ndarray:
+    """A camera-space pose, root-relative and turned by ``-yaw`` (the current frame's heading)."""
+    pose = np.asarray(pose, dtype=np.float64)
+    return pose_utils.into_placement(pose, pose_utils.Placement(root=pose[skeleton.ROOT], yaw=yaw))
+
+
+def continuity(
+    history: list[tuple[np.ndarray, float]],
+    yaw: np.ndarray,
+    dt: float,
+    no_body: bool,
+    damping: float,
+) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The previous reconstruction (``history``: camera-space outputs and timestamps, newest
+    last) in the frame of heading ``yaw``, and the continuity prediction ``dt`` s later (FPG
+    Eq. 6), which is also the motion target of Em (Shum Eq. 14), its velocity scaled by
+    ``damping`` (:attr:`TemporalConfig.velocity_damping`). Both None on a stream's first frame."""
+    previous = prediction = None
+    if history:
+        previous = _rotate_into(history[-1][0], yaw)
+        if len(history) >= 2 and not no_body:
+            before = _rotate_into(history[-2][0], yaw)
+            dt_prev = history[-1][1] - history[-2][1]
+            prediction = motion_target(previous, before, dt, dt_prev)
+            if damping != 1.0:
+                # Temporal coherence (not in the papers): a continuity prior anchored on the
+                # previous reconstruction rather than on its noisy extrapolation.
+                prediction = previous + damping * (prediction - previous)
+        else:
+            prediction = previous.copy()
+    return previous, prediction
