@@ -1,26 +1,13 @@
 """``KinectPoseEnv``: Kinect pose reconstruction as a Gymnasium env (``fpg_gym/KinectPose-v0``).
 
-One step reconstructs one Kinect frame (Shum 2013, FPG 2016): the action is a point of the
-frame's natural posture space, the whitened local PCA of the K poses that the Filtered Pose Graph
-selected; the env back-projects it, scores it with the paper's energy, sends it through the PD
-ragdoll and prepares the next frame. See :class:`KinectPoseEnv` for the full description.
-
-The env is registered as ``fpg_gym/KinectPose-v0`` when :mod:`fpg_gym` is imported::
-
-    import gymnasium as gym
-    import fpg_gym  # noqa: F401  (registers the env)
-
-    env = gym.make("fpg_gym/KinectPose-v0", k=30, reward_mode="error")
-    obs, info = env.reset(seed=0, options={"clip": "walk", "scenario": "front-many"})
-    obs, reward, terminated, truncated, info = env.step(env.action_space.sample())
+See :mod:`fpg_gym.env` and :class:`KinectPoseEnv`.
 """
 
 from __future__ import annotations
 
 import os
 import time
-import warnings
-from collections.abc import Iterator, Mapping, Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any, SupportsFloat
 
 import gymnasium as gym
@@ -32,12 +19,14 @@ from fpg_gym.core import skeleton
 from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.core.metrics import acceleration, frame_error
 from fpg_gym.core.validation import check_choice, check_integer, check_number
-from fpg_gym.env_episodes import RESET_OPTIONS, EpisodeSource
+from fpg_gym.env.ragdoll import CountingRagdollFactory
+from fpg_gym.env.settings import ACTION_MODES, OBSERVATION_MODES, REWARD_MODES, energy_weights_of
+from fpg_gym.env.step_types import ExactAction, StageTimes
+from fpg_gym.env_episodes import EpisodeSource
 from fpg_gym.env_observation import ObservationLayout
 from fpg_gym.graph import load_graph
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
-from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 from fpg_gym.reconstruct import (
     EnergyWeights,
     FrameRecord,
@@ -47,146 +36,10 @@ from fpg_gym.reconstruct import (
 )
 from fpg_gym.rendering import HumanWindow, render_panels
 
-__all__ = [
-    "ACTION_MODES",
-    "ENV_ID",
-    "OBSERVATION_MODES",
-    "RESET_OPTIONS",
-    "REWARD_MODES",
-    "ExactAction",
-    "KinectPoseEnv",
-    "StageTimes",
-]
+__all__ = ["ENV_ID", "KinectPoseEnv"]
 
 #: The registered id.
 ENV_ID = "fpg_gym/KinectPose-v0"
-#: Values of ``reward_mode``.
-REWARD_MODES: tuple[str, ...] = ("energy", "error", "combined", "smooth")
-#: Values of ``action_mode``.
-ACTION_MODES: tuple[str, ...] = ("delta", "absolute")
-#: Values of ``observation_mode``.
-OBSERVATION_MODES: tuple[str, ...] = ("vector", "dict")
-
-
-class ExactAction(np.ndarray):
-    """An action that :meth:`KinectPoseEnv.step` uses as given, never clipped.
-
-    :meth:`KinectPoseEnv.action_for` with ``exact=True`` returns one: it selects exactly the
-    latent point an optimiser found, even when that point lies outside the action box, whatever
-    the env's ``clip_actions`` (which it does not change). It is a float64 ``ndarray`` view with the
-    same values as the plain action, so wrappers that pass actions through (``gym.make``'s
-    checkers) keep it; a wrapper that transforms the action returns a plain array, which the env
-    clips as usual.
-    """
-
-    def __new__(cls, values: Any) -> ExactAction:
-        return np.asarray(values, dtype=np.float64).view(cls)
-
-
-class StageTimes(Mapping[str, float]):
-    """Milliseconds per stage of one step: read it like a dict (``info["timings"]["ragdoll"]``).
-
-    Wall-clock times are measurements, not part of the environment's deterministic output, so two
-    ``StageTimes`` compare equal when they time the same stages, whatever the values (Gymnasium's
-    ``check_env`` compares the infos of two seeded runs). Compare ``dict(a) == dict(b)`` for the
-    values.
-    """
-
-    def __init__(self, milliseconds: Mapping[str, float]) -> None:
-        self._ms = {str(k): float(v) for k, v in milliseconds.items()}
-
-    def __getitem__(self, key: str) -> float:
-        return self._ms[key]
-
-    def __iter__(self) -> Iterator[str]:
-        return iter(self._ms)
-
-    def __len__(self) -> int:
-        return len(self._ms)
-
-    def __eq__(self, other: object) -> bool:
-        if isinstance(other, StageTimes):
-            return self._ms.keys() == other._ms.keys()
-        return NotImplemented
-
-    __hash__ = None  # type: ignore[assignment]
-
-    def __repr__(self) -> str:
-        inner = ", ".join(f"{k}={v:.3f}" for k, v in self._ms.items())
-        return f"StageTimes({inner})"
-
-
-class _RagdollProbe:
-    """The env's ragdoll: a :class:`~fpg_gym.physics.ragdoll.Ragdoll` that counts resets and builds.
-
-    A divergence already resets the body to its target and is counted in the step's info (from
-    the frame record's ``new_divergences``), so its
-    :class:`~fpg_gym.physics.ragdoll.PhysicsWarning` is not repeated as a Python warning.
-    """
-
-    def __init__(self, ragdoll: Any, counts: dict[str, int]) -> None:
-        self.ragdoll = ragdoll
-        self.counts = counts
-
-    def reset(self, pose: np.ndarray) -> np.ndarray:
-        self.counts["ragdoll_resets"] += 1
-        return np.asarray(self.ragdoll.reset(pose))
-
-    def track(self, target_pose: np.ndarray) -> np.ndarray:
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", PhysicsWarning)
-            out = self.ragdoll.track(target_pose)
-        return np.asarray(out)
-
-    @property
-    def info(self) -> dict[str, Any]:
-        return dict(self.ragdoll.info)
-
-    def rebuild(self, bone_lengths: np.ndarray) -> None:
-        self.counts["ragdoll_builds"] += 1
-        self.ragdoll.rebuild(bone_lengths)
-
-    def render(self, width: int = 320, height: int = 240) -> np.ndarray:
-        return np.asarray(self.ragdoll.render(width, height))
-
-    def close(self) -> None:
-        self.ragdoll.close()
-
-
-class _RagdollFactory:
-    """Builds the env's ragdolls (``lengths -> _RagdollProbe``), counting the builds."""
-
-    def __init__(self, kwargs: Mapping[str, Any], counts: dict[str, int]) -> None:
-        self.kwargs = dict(kwargs)
-        self.counts = counts
-
-    def __call__(self, lengths: np.ndarray) -> _RagdollProbe:
-
-        self.counts["ragdoll_builds"] += 1
-        return _RagdollProbe(Ragdoll(bone_lengths=lengths, **self.kwargs), self.counts)
-
-
-def _energy_weights(value: Any) -> EnergyWeights:
-    if value is None:
-        return EnergyWeights()
-    if isinstance(value, EnergyWeights):
-        return value
-    if isinstance(value, Mapping):
-        try:
-            return EnergyWeights(**{str(k): float(v) for k, v in value.items()})
-        except TypeError:
-            raise ValueError(
-                "energy_weights: expected keys among control, style, kinematic, motion, prior, got "
-                f"{sorted(value)}"
-            ) from None
-    values = list(value)
-    if len(values) not in (4, 5):
-        raise ValueError(
-            "energy_weights: expected 4 or 5 weights (control, style, kinematic, motion[, "
-            f"prior]), got {len(values)}"
-        )
-    return EnergyWeights(*(float(v) for v in values))
 
 
 class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
@@ -405,7 +258,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
         self.simulator_seeds = None if simulator_seeds is None else int(simulator_seeds)
         self.latent_dim = int(latent_dim)
-        self.weights = _energy_weights(energy_weights)
+        self.weights = energy_weights_of(energy_weights)
         self._needs_truth = reward_mode != "energy"
 
         # Episode source.
@@ -480,7 +333,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             ragdoll=(
                 None
                 if self._ragdoll_kwargs is None
-                else _RagdollFactory(self._ragdoll_kwargs, self._counts)
+                else CountingRagdollFactory(self._ragdoll_kwargs, self._counts)
             ),
             **explicit,
             **overrides,

@@ -1,0 +1,65 @@
+"""The env's ragdoll: a :class:`~fpg_gym.physics.ragdoll.Ragdoll` that counts its resets,
+builds and (through the frame records) divergences for the step's ``info``."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
+
+__all__ = ["CountingRagdollFactory", "RagdollProbe"]
+
+
+class RagdollProbe:
+    """The env's ragdoll: a :class:`~fpg_gym.physics.ragdoll.Ragdoll` that counts resets and builds.
+
+    A divergence already resets the body to its target and is counted in the step's info (from
+    the frame record's ``new_divergences``), so its
+    :class:`~fpg_gym.physics.ragdoll.PhysicsWarning` is not repeated as a Python warning.
+    """
+
+    def __init__(self, ragdoll: Any, counts: dict[str, int]) -> None:
+        self.ragdoll = ragdoll
+        self.counts = counts
+
+    def reset(self, pose: np.ndarray) -> np.ndarray:
+        self.counts["ragdoll_resets"] += 1
+        return np.asarray(self.ragdoll.reset(pose))
+
+    def track(self, target_pose: np.ndarray) -> np.ndarray:
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", PhysicsWarning)
+            out = self.ragdoll.track(target_pose)
+        return np.asarray(out)
+
+    @property
+    def info(self) -> dict[str, Any]:
+        return dict(self.ragdoll.info)
+
+    def rebuild(self, bone_lengths: np.ndarray) -> None:
+        self.counts["ragdoll_builds"] += 1
+        self.ragdoll.rebuild(bone_lengths)
+
+    def render(self, width: int = 320, height: int = 240) -> np.ndarray:
+        return np.asarray(self.ragdoll.render(width, height))
+
+    def close(self) -> None:
+        self.ragdoll.close()
+
+
+class CountingRagdollFactory:
+    """Builds the env's ragdolls (``lengths -> RagdollProbe``), counting the builds."""
+
+    def __init__(self, kwargs: Mapping[str, Any], counts: dict[str, int]) -> None:
+        self.kwargs = dict(kwargs)
+        self.counts = counts
+
+    def __call__(self, lengths: np.ndarray) -> RagdollProbe:
+
+        self.counts["ragdoll_builds"] += 1
+        return RagdollProbe(Ragdoll(bone_lengths=lengths, **self.kwargs), self.counts)
