@@ -23,7 +23,7 @@ counts); its observation is :mod:`fpg_gym.env_observation`, its episodes
 from __future__ import annotations
 
 from fpg_gym.env.kinect_pose import ENV_ID, KinectPoseEnv
-from fpg_gym.env.settings import ACTION_MODES, OBSERVATION_MODES, REWARD_MODES
+from fpg_gym.env.settings import ACTION_MODES, OBSERVATION_MODES, REWARD_MODES, EnvSettings
 from fpg_gym.env.step_types import ExactAction, StageTimes
 from fpg_gym.env_episodes import RESET_OPTIONS
 
@@ -33,6 +33,7 @@ __all__ = [
     "OBSERVATION_MODES",
     "RESET_OPTIONS",
     "REWARD_MODES",
+    "EnvSettings",
     "ExactAction",
     "KinectPoseEnv",
     "StageTimes",

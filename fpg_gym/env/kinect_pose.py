@@ -18,9 +18,8 @@ from gymnasium.utils import EzPickle
 from fpg_gym.core import skeleton
 from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.core.metrics import acceleration, frame_error
-from fpg_gym.core.validation import check_choice, check_integer, check_number
-from fpg_gym.env.ragdoll import CountingRagdollFactory
-from fpg_gym.env.settings import ACTION_MODES, OBSERVATION_MODES, REWARD_MODES, energy_weights_of
+from fpg_gym.env.ragdoll import CountingRagdollFactory, ragdoll_keywords
+from fpg_gym.env.settings import RENDER_MODES, EnvSettings, energy_weights_of
 from fpg_gym.env.step_types import ExactAction, StageTimes
 from fpg_gym.env_episodes import EpisodeSource
 from fpg_gym.env_observation import ObservationLayout
@@ -161,6 +160,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     ``max_evaluations`` (energy evaluations an optimiser may spend per frame, 2,000);
     ``render_mode`` ``"rgb_array"`` or ``"human"``; ``cache_dir`` for the default graph;
     ``reconstructor_options`` (other :class:`~fpg_gym.reconstruct.ReconstructorConfig` fields).
+    The scalar settings, checked, are ``env.settings`` (:class:`~fpg_gym.env.settings.EnvSettings`)
+    and attributes of the same names (``env.reward_mode``, ``env.action_scale``, ...).
 
     ## Version History
 
@@ -174,7 +175,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     observations, rewards and infos (``info["timings"]`` aside).
     """
 
-    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 30}  # noqa: RUF012
+    metadata = {"render_modes": list(RENDER_MODES), "render_fps": 30}  # noqa: RUF012
 
     def __init__(
         self,
@@ -202,16 +203,11 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         cache_dir: str | os.PathLike[str] | None = None,
         reconstructor_options: Mapping[str, Any] | None = None,
     ) -> None:
+        # Pickling re-creates the env from its arguments as given (EzPickle): __init__'s locals.
         EzPickle.__init__(
-            self,
-            graph,
-            recordings=recordings,
-            clips=clips,
-            scenarios=scenarios,
-            selector=selector,
-            k=k,
-            latent_dim=latent_dim,
-            energy_weights=energy_weights,
+            self, graph, **{k: v for k, v in locals().items() if k not in ("self", "graph")}
+        )
+        settings = EnvSettings(
             reward_mode=reward_mode,
             error_weight=error_weight,
             smooth_weight=smooth_weight,
@@ -219,45 +215,27 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             action_scale=action_scale,
             clip_actions=clip_actions,
             observation_mode=observation_mode,
-            ragdoll=ragdoll,
+            latent_dim=latent_dim,
             max_episode_steps=max_episode_steps,
             simulator_seeds=simulator_seeds,
-            max_evaluations=max_evaluations,
             render_mode=render_mode,
-            cache_dir=cache_dir,
-            reconstructor_options=reconstructor_options,
         )
-        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
-            raise ValueError(
-                f"render_mode: expected None, 'human' or 'rgb_array', got {render_mode!r}"
-            )
-        check_choice(reward_mode, "reward_mode", REWARD_MODES)
-        check_choice(action_mode, "action_mode", ACTION_MODES)
-        check_choice(observation_mode, "observation_mode", OBSERVATION_MODES)
-        check_number(action_scale, "action_scale", low=0.0, low_open=True)
-        check_number(error_weight, "error_weight", low=0.0)
-        check_number(smooth_weight, "smooth_weight", low=0.0)
-        check_integer(latent_dim, "latent_dim", low=1)
-        if max_episode_steps is not None:
-            check_integer(max_episode_steps, "max_episode_steps", low=1)
-        if simulator_seeds is not None:
-            check_integer(simulator_seeds, "simulator_seeds", low=1)
         if recordings is not None and clips is not None:
             raise ValueError("give either recordings= or clips= (with scenarios=), not both")
         if recordings is not None and scenarios is not None:
             raise ValueError("scenarios= applies to clips=, not to recordings=")
-
-        self.render_mode = render_mode
-        self.reward_mode = reward_mode
-        self.error_weight = float(error_weight)
-        self.smooth_weight = float(smooth_weight)
-        self.action_mode = action_mode
-        self.action_scale = float(action_scale)
-        self.clip_actions = bool(clip_actions)
-        self.observation_mode = observation_mode
-        self.max_episode_steps = None if max_episode_steps is None else int(max_episode_steps)
-        self.simulator_seeds = None if simulator_seeds is None else int(simulator_seeds)
-        self.latent_dim = int(latent_dim)
+        self.settings = settings
+        self.render_mode = settings.render_mode
+        self.reward_mode = settings.reward_mode
+        self.error_weight = settings.error_weight
+        self.smooth_weight = settings.smooth_weight
+        self.action_mode = settings.action_mode
+        self.action_scale = settings.action_scale
+        self.clip_actions = settings.clip_actions
+        self.observation_mode = settings.observation_mode
+        self.max_episode_steps = settings.max_episode_steps
+        self.simulator_seeds = settings.simulator_seeds
+        self.latent_dim = settings.latent_dim
         self.weights = energy_weights_of(energy_weights)
         self._needs_truth = reward_mode != "energy"
 
@@ -274,9 +252,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         # Reconstruction core.
         self.graph = load_graph(graph, exclude=DEFAULT_HOLDOUT_CLIPS, cache_dir=cache_dir)
         self._counts = {"ragdoll_resets": 0, "ragdoll_divergences": 0, "ragdoll_builds": 0}
-        self._ragdoll_kwargs: dict[str, Any] | None = (
-            dict(ragdoll) if isinstance(ragdoll, Mapping) else ({} if ragdoll else None)
-        )
+        self._ragdoll_kwargs = ragdoll_keywords(ragdoll)
         self.reconstructor = self._make_reconstructor(
             selector, int(k), max_evaluations, reconstructor_options
         )

@@ -11,7 +11,7 @@ import numpy as np
 
 from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
 
-__all__ = ["CountingRagdollFactory", "RagdollProbe"]
+__all__ = ["CountingRagdollFactory", "RagdollProbe", "ragdoll_keywords"]
 
 
 class RagdollProbe:
@@ -63,3 +63,9 @@ class CountingRagdollFactory:
 
         self.counts["ragdoll_builds"] += 1
         return RagdollProbe(Ragdoll(bone_lengths=lengths, **self.kwargs), self.counts)
+
+
+def ragdoll_keywords(ragdoll: bool | Mapping[str, Any]) -> dict[str, Any] | None:
+    """The env's ``ragdoll`` argument as :class:`~fpg_gym.physics.ragdoll.Ragdoll` keyword
+    arguments: a mapping as given, True as none, False as None (no ragdoll)."""
+    return dict(ragdoll) if isinstance(ragdoll, Mapping) else ({} if ragdoll else None)
