@@ -13,6 +13,12 @@ Cross-fitting (:func:`group_databases`): a held-out subject is reconstructed wit
 sensor map that never saw it, so each training group's data is collected with a graph and a map
 built the same way from the other training groups' recordings (their ground truth as the
 graph's clips, their pairs for the map), not with ones that contain it.
+
+Occlusions (:func:`with_occlusions`): real paired recordings are mostly of a visible body, and
+a sampler and output correction fitted on them alone learn to follow the sensor where it fails.
+Each training recording is also given once with an occlusion of
+:mod:`fpg_gym.simulate.occlude` put in (the cases in turn, seeded), in its own group; the
+graphs and maps are built from the recordings as they are.
 """
 
 from __future__ import annotations
@@ -26,18 +32,22 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.core.errors import DataFormatError
+from fpg_gym.core.seeding import derive_seed
 from fpg_gym.definitions import DefinitionMap
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import Clip, expand_inputs, read_recording
 from fpg_gym.io.files import file_digest
+from fpg_gym.simulate.occlude import occlude, occlusion_case_names
 
 __all__ = [
     "GroupDatabase",
     "PairedRecordings",
+    "check_occlusion_cases",
     "group_databases",
     "group_pattern",
     "paired_recordings",
     "recording_paths",
+    "with_occlusions",
 ]
 
 
@@ -201,6 +211,60 @@ def paired_recordings(
         "validation_groups": held_out,
     }
     return PairedRecordings(train, validation, info, names)
+
+
+def check_occlusion_cases(cases: Sequence[str]) -> None:
+    """Refuse a name that is not an occlusion case (:mod:`fpg_gym.simulate.occlude`).
+
+    Raises
+    ------
+    ValueError
+        Naming the unknown cases and the known ones.
+    """
+    unknown = sorted(set(cases) - set(occlusion_case_names()))
+    if unknown:
+        raise ValueError(
+            f"occlusions: unknown case(s) {', '.join(unknown)}; expected some of "
+            f"{', '.join(occlusion_case_names())}"
+        )
+
+
+def with_occlusions(paired: PairedRecordings, cases: Sequence[str], seed: int) -> PairedRecordings:
+    """``paired`` with each training recording also once with an occlusion put in.
+
+    Parameters
+    ----------
+    paired : PairedRecordings
+    cases : sequence of str
+        Occlusion cases (:func:`fpg_gym.simulate.occlude.occlusion_case_names`), given to the
+        training recordings in turn; empty: ``paired`` unchanged.
+    seed : int
+        Same seed, same occlusions (recording ``i`` is occluded with
+        ``derive_seed(seed, "occlusion", i)``).
+
+    Returns
+    -------
+    PairedRecordings
+        The training recordings, then their occluded copies (same group, name
+        ``NAME~CASE``); validation and info unchanged.
+
+    Raises
+    ------
+    ValueError
+        On an unknown case name.
+    """
+    check_occlusion_cases(cases)
+    if not cases:
+        return paired
+    occluded = []
+    names = []
+    for i, ((group, recording), name) in enumerate(zip(paired.train, paired.names, strict=True)):
+        case = cases[i % len(cases)]
+        occluded.append((group, occlude(recording, case, derive_seed(seed, "occlusion", i))))
+        names.append(f"{name}~{case}")
+    return PairedRecordings(
+        paired.train + occluded, paired.validation, paired.info, paired.names + names
+    )
 
 
 @dataclass

@@ -39,6 +39,7 @@ from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.runtime.ray_session import check_address, require_ray
 from fpg_gym.simulate import simulate_clips
+from fpg_gym.simulate.occlude import occlusion_case_names
 from optimizers.local_search import LocalSearch
 from optimizers.random_search import RandomSearch
 from policies.checkpoints import RunCheckpoints
@@ -58,10 +59,12 @@ from policies.output_correction import CorrectionSource, learn_correction
 from policies.paired_recordings import (
     GroupDatabase,
     PairedRecordings,
+    check_occlusion_cases,
     group_databases,
     group_pattern,
     paired_recordings,
     recording_paths,
+    with_occlusions,
 )
 from policies.pose_sampler import (
     LINEAR_FEATURES,
@@ -389,6 +392,11 @@ class TrainConfig:
         with a graph and a sensor map built from the other training groups' recordings, as a
         new subject's are built without it (:func:`policies.paired_recordings.group_databases`;
         True); False: with ``graph`` and ``sensor_map``, which contain every group.
+    occlusions : list of str
+        With ``recordings``: each training recording is also learnt from once with one of these
+        occlusion cases put in (in turn; :func:`policies.paired_recordings.with_occlusions`;
+        every case of :mod:`fpg_gym.simulate.occlude` by default, empty for none); the graphs
+        and maps are built from the recordings as they are.
     group_pattern : str, optional
         With ``recordings``: regular expression on the file names whose first group names a
         recording's group (e.g. its subject); each recording is its own group otherwise.
@@ -444,6 +452,7 @@ class TrainConfig:
     sensor_blend: float = 0.0
     correction: bool = True
     cross_fit: bool = True
+    occlusions: list[str] = field(default_factory=lambda: list(occlusion_case_names()))
 
     def __post_init__(self) -> None:
         if self.kind not in ("supervised", "rl", "linear"):
@@ -503,6 +512,7 @@ class TrainConfig:
         elif self.group_pattern is not None:
             raise ValueError("group_pattern: only used with recordings")
         group_pattern(self.group_pattern)  # a regular expression with a group
+        check_occlusion_cases(self.occlusions)
         if not (np.isfinite(self.sensor_blend) and 0.0 <= self.sensor_blend <= 1.0):
             raise ValueError(f"sensor_blend: expected a value in [0, 1], got {self.sensor_blend}")
         if not self.correction and self.kind != "linear":
@@ -522,6 +532,8 @@ class TrainConfig:
         settings = asdict(self)
         for name in _RUN_INDEPENDENT:
             settings.pop(name)
+        if self.recordings is None:  # only recordings are occluded
+            settings.pop("occlusions")
         if self.graph != "default" and Path(self.graph).is_file():
             settings["graph_sha256"] = file_digest(self.graph)
         if self.sensor_map is not None and Path(self.sensor_map).is_file():
@@ -660,7 +672,11 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             + ("each group's data with a graph and sensor map without it, " * config.cross_fit)
             + f"seed {config.seed}"
         )
-        training_data: dict[str, Any] = {**paired.info, "cross_fit": config.cross_fit}
+        training_data: dict[str, Any] = {
+            **paired.info,
+            "cross_fit": config.cross_fit,
+            "occlusions": list(config.occlusions),
+        }
         if config.cross_fit:  # before any other work: a graph that cannot be cross-fitted
             t0 = time.perf_counter()
             databases = group_databases(
@@ -669,6 +685,12 @@ def train_sampler(config: TrainConfig, *, log: Callable[[str], None] | None = No
             say(
                 f"cross-fitting: {len(databases)} graphs and sensor maps, each without its "
                 f"group ({time.perf_counter() - t0:.1f} s)"
+            )
+        if config.occlusions:  # after the databases: they are built from the real streams
+            paired = with_occlusions(paired, config.occlusions, config.seed)
+            say(
+                f"occlusions: each training recording also with one of "
+                f"{', '.join(config.occlusions)} put in ({len(paired.train)} recordings)"
             )
     else:
         clips = training_clips(config.clips, units=config.units, progress=config.progress)

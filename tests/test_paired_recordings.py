@@ -18,11 +18,13 @@ from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import Clip, load_default_clips, write_recording
 from fpg_gym.io.recording import Recording, load_recording
 from fpg_gym.simulate import simulate
+from fpg_gym.simulate.occlude import occlusion_case_names
 from policies.paired_recordings import (
     group_databases,
     group_pattern,
     paired_recordings,
     recording_paths,
+    with_occlusions,
 )
 
 #: Embedded clips standing in for three "subjects" (the default graph is built from them; the
@@ -127,6 +129,42 @@ def test_bad_recordings_and_patterns_are_named(tmp_path: Path) -> None:
     assert "m09_s09_e01.npz" in str(error.value)
 
 
+def test_training_recordings_are_also_given_occluded(tmp_path: Path) -> None:
+    """Each training recording once more with an occlusion put in (the cases in turn, seeded),
+    in its own group; the held-out recordings and the record unchanged."""
+    folder = _write(tmp_path / "recordings")
+    paired = paired_recordings([folder], pattern=r"_(s\d+)_", val_share=0.2, episodes=6)
+    cases = ["legs", "forearm"]
+    occluded = with_occlusions(paired, cases, seed=3)
+    count = len(paired.train)
+    assert occluded.train[:count] == paired.train and occluded.names[:count] == paired.names
+    assert len(occluded.train) == 2 * count and len(occluded.names) == 2 * count
+    assert occluded.validation == paired.validation and occluded.info == paired.info
+    for i, ((group, copy), name) in enumerate(
+        zip(occluded.train[count:], occluded.names[count:], strict=True)
+    ):
+        original = paired.train[i][1]
+        case = cases[i % len(cases)]
+        assert group == paired.train[i][0] and name == f"{paired.names[i]}~{case}"
+        assert copy.metadata["occlusion"]["case"] == case
+        assert copy.occluded is not None and copy.occluded.any()
+        hidden = copy.occluded.any(axis=1)
+        assert not np.array_equal(copy.positions[hidden], original.positions[hidden])
+        np.testing.assert_array_equal(copy.positions[~hidden], original.positions[~hidden])
+        np.testing.assert_array_equal(copy.ground_truth, original.ground_truth)
+    again = with_occlusions(paired, cases, seed=3)
+    for (_, a), (_, b) in zip(occluded.train, again.train, strict=True):
+        np.testing.assert_array_equal(a.positions, b.positions)
+    other = with_occlusions(paired, cases, seed=4)
+    assert any(
+        not np.array_equal(a.positions, b.positions)
+        for (_, a), (_, b) in zip(occluded.train[count:], other.train[count:], strict=True)
+    )
+    assert with_occlusions(paired, [], seed=3) is paired
+    with pytest.raises(ValueError, match=r"unknown case.*behind-the-sofa"):
+        with_occlusions(paired, ["legs", "behind-the-sofa"], seed=3)
+
+
 def test_train_sampler_learns_from_recordings(tmp_path: Path, capsys: Any) -> None:
     """``fpg-gym train-sampler --kind linear --recordings``: a model that loads, trained on the
     training groups only, with the held-out group in its record; cross-fitted by default (its
@@ -154,6 +192,7 @@ def test_train_sampler_learns_from_recordings(tmp_path: Path, capsys: Any) -> No
     assert set(training["training_groups"]).isdisjoint(training["validation_groups"])
     assert all(name.endswith(".npz") for name in training["recordings"])
     assert training["cross_fit"] is False and training["evaluation"]
+    assert training["occlusions"] == list(occlusion_case_names())  # by default
     # Cross-fitted, on every group: the graph of the recordings' truth, no final evaluation.
     graph = _truth_graph(folder).save(tmp_path / "truth.npz")
     every = [*command, "--graph", str(graph), "--val-share", "0", "--out", str(tmp_path / "all")]
@@ -162,6 +201,14 @@ def test_train_sampler_learns_from_recordings(tmp_path: Path, capsys: Any) -> No
     assert training["cross_fit"] is True and training["validation_groups"] == []
     assert sorted(training["training_groups"]) == sorted(SUBJECTS)
     assert "evaluation" not in training
+    none = [*command, "--no-cross-fit", "--occlusions", "none", "--out", str(tmp_path / "bare")]
+    assert main(none) == 0
+    assert json.loads((tmp_path / "bare.json").read_text())["training"]["occlusions"] == []
+    assert main([*command, "--no-cross-fit", "--occlusions", "legs,sofa"]) == 2
+    assert "occlusions: unknown case(s) sofa" in capsys.readouterr().err
+    clips = ["train-sampler", "--kind", "linear", "--target", "bones", "--follow", "anchor"]
+    assert main([*clips, "--occlusions", "legs", "--out", str(tmp_path / "clips")]) == 2
+    assert "--occlusions: only with --recordings" in capsys.readouterr().err
     with pytest.raises(ValueError, match="only kind 'linear'"):
         from policies.training import TrainConfig
 
@@ -199,3 +246,14 @@ def test_train_sampler_json_summarises_the_recordings(
     assert not any(name in line for name in files)
     assert json.loads(line)["config"]["clips"] is None
     assert json.loads(line)["config"]["graph"] == "uiprmd"
+
+
+def test_train_sampler_help_names_every_occlusion_case(capsys: Any) -> None:
+    """The --occlusions help lists the default cases by name (written out to keep the
+    command's import light): it must name every case the benchmark has."""
+    from fpg_gym.cli import main
+
+    with pytest.raises(SystemExit):
+        main(["train-sampler", "--help"])
+    text = "".join(capsys.readouterr().out.split())  # argparse wraps at spaces and hyphens
+    assert ",".join(occlusion_case_names()) in text

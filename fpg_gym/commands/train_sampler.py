@@ -63,6 +63,11 @@ def _list(text: str) -> list[str]:
     return [item.strip() for item in text.split(",") if item.strip()]
 
 
+def _occlusion_cases(text: str) -> list[str]:
+    """``--occlusions``: case names, or none for ``none``."""
+    return [] if text.strip() == "none" else _list(text)
+
+
 def _settings(text: str) -> dict[str, object]:
     """A JSON object of settings (``--hyperparameters``)."""
     import json
@@ -160,6 +165,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "(which contain it) instead of a graph and map built from the other training groups' "
         "recordings, as a new subject's are built without it (the default; --graph must then "
         "be the graph of these recordings' ground truth)",
+    )
+    parser.add_argument(
+        "--occlusions",
+        type=_occlusion_cases,
+        default=None,
+        metavar="A,B",
+        help="with --recordings: each training recording is also learnt from once with one of "
+        "these occlusion cases put in, in turn (default: every case of the real-data occlusion "
+        "benchmark, forearm,legs,hand-on-surface,side-turn; 'none': the recordings as they "
+        "are); without them a sampler and its correction follow the sensor where it fails",
     )
     parser.add_argument(
         "--no-correction",
@@ -367,6 +382,8 @@ def run(args: argparse.Namespace) -> int:
     features = (
         list(FEATURE_SETS[args.features]) if args.features in FEATURE_SETS else _list(args.features)
     )
+    if args.occlusions is not None and not args.recordings:
+        raise ValueError("--occlusions: only with --recordings (simulated clips take --scenarios)")
     config = TrainConfig(
         kind=args.kind,
         out=args.out,
@@ -408,6 +425,7 @@ def run(args: argparse.Namespace) -> int:
         sensor_blend=args.sensor_blend,
         correction=not args.no_correction,
         cross_fit=not args.no_cross_fit,
+        **({} if args.occlusions is None else {"occlusions": args.occlusions}),
     )
     result = train_sampler(config)
     if args.json:
