@@ -37,12 +37,11 @@ from fpg_gym.definitions import DefinitionMap
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import Clip, expand_inputs, read_recording
 from fpg_gym.io.files import file_digest
-from fpg_gym.simulate.occlude import occlude, occlusion_case_names
+from fpg_gym.simulate.occlude import check_occlusion_cases, occlude
 
 __all__ = [
     "GroupDatabase",
     "PairedRecordings",
-    "check_occlusion_cases",
     "group_databases",
     "group_pattern",
     "paired_recordings",
@@ -211,22 +210,6 @@ def paired_recordings(
         "validation_groups": held_out,
     }
     return PairedRecordings(train, validation, info, names)
-
-
-def check_occlusion_cases(cases: Sequence[str]) -> None:
-    """Refuse a name that is not an occlusion case (:mod:`fpg_gym.simulate.occlude`).
-
-    Raises
-    ------
-    ValueError
-        Naming the unknown cases and the known ones.
-    """
-    unknown = sorted(set(cases) - set(occlusion_case_names()))
-    if unknown:
-        raise ValueError(
-            f"occlusions: unknown case(s) {', '.join(unknown)}; expected some of "
-            f"{', '.join(occlusion_case_names())}"
-        )
 
 
 def with_occlusions(paired: PairedRecordings, cases: Sequence[str], seed: int) -> PairedRecordings:

@@ -39,7 +39,7 @@ from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
 from fpg_gym.runtime.ray_session import check_address, require_ray
 from fpg_gym.simulate import simulate_clips
-from fpg_gym.simulate.occlude import occlusion_case_names
+from fpg_gym.simulate.occlude import check_occlusion_cases, occlusion_case_names
 from optimizers.local_search import LocalSearch
 from optimizers.random_search import RandomSearch
 from policies.checkpoints import RunCheckpoints
@@ -59,7 +59,6 @@ from policies.output_correction import CorrectionSource, learn_correction
 from policies.paired_recordings import (
     GroupDatabase,
     PairedRecordings,
-    check_occlusion_cases,
     group_databases,
     group_pattern,
     paired_recordings,

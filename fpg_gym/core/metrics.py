@@ -231,16 +231,9 @@ def acceleration(
     """
     pos = _clip_array(positions, "positions")
     count = len(pos)
-    if timestamps is None:
-        if not fps > 0:
-            raise ValueError(f"fps: expected a positive frame rate, got {fps}")
-        times = np.arange(count) / float(fps)
-    else:
-        times = np.asarray(timestamps, dtype=np.float64).reshape(-1)
-        if times.shape != (count,):
-            raise ValueError(f"timestamps: expected shape ({count},), got {times.shape}")
-        if count > 1 and not np.all(np.diff(times) > 0):
-            raise ValueError("timestamps: must be strictly increasing")
+    times = _times(count, fps, timestamps)
+    if count > 1 and not np.all(np.diff(times) > 0):
+        raise ValueError("timestamps: must be strictly increasing")
     if count < 3:
         return np.zeros((0, skeleton.NUM_JOINTS))
     h0 = (times[1:-1] - times[:-2])[:, None, None]

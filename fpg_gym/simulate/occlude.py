@@ -35,6 +35,7 @@ each frame, so scores can split occluded and visible joints. Same seed, same occ
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from typing import Any
 
@@ -46,7 +47,13 @@ from fpg_gym.simulate.models import OcclusionModel
 from fpg_gym.simulate.scenarios import KINECT_V2_OCCLUSION
 from fpg_gym.simulate.simulator import ARM_JOINTS, LEG_JOINTS, occlusion_effects
 
-__all__ = ["OCCLUSION_CASES", "OcclusionCase", "occlude", "occlusion_case_names"]
+__all__ = [
+    "OCCLUSION_CASES",
+    "OcclusionCase",
+    "check_occlusion_cases",
+    "occlude",
+    "occlusion_case_names",
+]
 
 _J = skeleton.joint_index
 
@@ -152,6 +159,22 @@ def occlusion_case_names() -> tuple[str, ...]:
     return tuple(OCCLUSION_CASES)
 
 
+def check_occlusion_cases(cases: Sequence[str]) -> None:
+    """Refuse a name that is not one of :data:`OCCLUSION_CASES`.
+
+    Raises
+    ------
+    ValueError
+        Naming the unknown cases and the known ones.
+    """
+    unknown = sorted(set(cases) - set(OCCLUSION_CASES))
+    if unknown:
+        raise ValueError(
+            f"occlusions: unknown case(s) {', '.join(unknown)}; expected some of "
+            f"{', '.join(OCCLUSION_CASES)}"
+        )
+
+
 def _case(case: str | OcclusionCase) -> OcclusionCase:
     if isinstance(case, OcclusionCase):
         return case
@@ -163,9 +186,7 @@ def _case(case: str | OcclusionCase) -> OcclusionCase:
         ) from None
 
 
-def _interval(
-    case: OcclusionCase, rng: np.random.Generator, times: np.ndarray
-) -> tuple[int, int]:
+def _interval(case: OcclusionCase, rng: np.random.Generator, times: np.ndarray) -> tuple[int, int]:
     """First and one-past-last frame of the occlusion."""
     start = times[0] + rng.uniform(*case.start_s)
     end = np.inf if case.duration_s is None else start + rng.uniform(*case.duration_s)
