@@ -693,12 +693,12 @@ def test_a_byte_order_mark_before_hierarchy_is_read(tmp_path: Path) -> None:
 def test_linear_training_with_too_few_clips_is_refused_before_any_work(
     tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: Any
 ) -> None:
-    import policies.training as training
+    import policies.training.linear as linear
 
     def no_work(*args: Any, **kwargs: Any) -> Any:
         raise AssertionError("data was collected before the settings were checked")
 
-    monkeypatch.setattr(training, "_imitation_pairs", no_work)
+    monkeypatch.setattr(linear, "imitation_pairs", no_work)
     argv = ["train-sampler", "--kind", "linear", "--target", "bones", "--follow", "anchor"]
     argv += ["--clips", "run", "jump", "--out", str(tmp_path / "m"), "--quiet"]
     assert main(argv) == 2
