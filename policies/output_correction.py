@@ -291,14 +291,7 @@ def fit_output_correction(
         ``uncorrected_jitter`` (the outputs' own), ``jitter_budget`` (the steadiness kept),
         ``frames``, ``groups``.
     """
-    if len(groups) < 2:
-        raise ValueError(f"groups: expected at least 2 for cross-validation, got {len(groups)}")
-    if any(len(g) == 0 for g in groups):
-        raise ValueError("groups: expected frames in every group")
-    if not penalties or min(penalties) < 0:
-        raise ValueError(f"penalties: expected non-negative values, got {list(penalties)}")
-    if not smoothing or not all(0.0 < a <= 1.0 for a in smoothing):
-        raise ValueError(f"smoothing: expected values in (0, 1], got {list(smoothing)}")
+    _check_correction_inputs(groups, penalties, smoothing)
     sums = [ridge_sums(g.features, g.targets) for g in groups]
 
     def mean_figures(offsets: Sequence[np.ndarray]) -> tuple[float, float]:
@@ -356,6 +349,21 @@ def fit_output_correction(
     if log is not None:
         log(describe_correction(report))
     return correction, report
+
+
+def _check_correction_inputs(
+    groups: Sequence[CorrectionData], penalties: Sequence[float], smoothing: Sequence[float]
+) -> None:
+    """Raise ``ValueError`` on :func:`fit_output_correction` groups or settings it cannot
+    use."""
+    if len(groups) < 2:
+        raise ValueError(f"groups: expected at least 2 for cross-validation, got {len(groups)}")
+    if any(len(g) == 0 for g in groups):
+        raise ValueError("groups: expected frames in every group")
+    if not penalties or min(penalties) < 0:
+        raise ValueError(f"penalties: expected non-negative values, got {list(penalties)}")
+    if not smoothing or not all(0.0 < a <= 1.0 for a in smoothing):
+        raise ValueError(f"smoothing: expected values in (0, 1], got {list(smoothing)}")
 
 
 def describe_correction(report: dict[str, Any]) -> str:

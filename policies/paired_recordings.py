@@ -156,15 +156,7 @@ def paired_recordings(
     compiled = group_pattern(pattern)
     say = log or (lambda _text: None)
     loaded: list[tuple[str, Path, Any]] = []
-    paths: list[Path] = []
-    seen: dict[str, Path] = {}
-    for path in recording_paths(items):
-        digest = file_digest(path)
-        if digest in seen:  # one recording twice would weigh twice in the fit
-            say(f"note: --recordings {path}: the same recording as {seen[digest]}; read once")
-            continue
-        seen[digest] = path
-        paths.append(path)
+    paths = _distinct_recordings(items, say)
     stems = [path.stem for path in paths]
     for path in paths:
         recording = read_recording(path)
@@ -210,6 +202,22 @@ def paired_recordings(
         "validation_groups": held_out,
     }
     return PairedRecordings(train, validation, info, names)
+
+
+def _distinct_recordings(items: Sequence[str | Path], say: Callable[[str], None]) -> list[Path]:
+    """The recording files ``items`` name (:func:`recording_paths`), each content once: a
+    file whose content was already given is left out with a note (one recording twice would
+    weigh twice in the fit)."""
+    paths: list[Path] = []
+    seen: dict[str, Path] = {}
+    for path in recording_paths(items):
+        digest = file_digest(path)
+        if digest in seen:  # one recording twice would weigh twice in the fit
+            say(f"note: --recordings {path}: the same recording as {seen[digest]}; read once")
+            continue
+        seen[digest] = path
+        paths.append(path)
+    return paths
 
 
 def with_occlusions(paired: PairedRecordings, cases: Sequence[str], seed: int) -> PairedRecordings:

@@ -408,55 +408,14 @@ def fit_linear(
         weight: ``error`` in m and ``shake`` in m per frame²), ``anchor_error`` and
         ``anchor_shake`` (the anchor's in the same measures), ``frames``, ``groups``.
     """
-    if len(groups) < 2:
-        raise ValueError(f"groups: expected at least 2 for cross-validation, got {len(groups)}")
-    if any(len(group) != 3 for group in groups):
-        raise ValueError("groups: expected (observations, actions, episodes) triples")
-    if not penalties or min(penalties) < 0:
-        raise ValueError(f"penalties: expected non-negative values, got {list(penalties)}")
-    if not pose_weights or not all(np.isfinite(w) and w >= 0 for w in pose_weights):
-        raise ValueError(f"pose_weights: expected finite values >= 0, got {list(pose_weights)}")
-    feature_map = spec.feature_map()
-    parts: list[dict[str, Any]] = []
-    for observations, actions, episodes in groups:
-        fields, regressors, targets = _regression_data(spec, feature_map, observations, actions)
-        parts.append(
-            {
-                "regressors": regressors,
-                "targets": targets,
-                "target_bones": pose_utils.flat_bone_vectors(targets),
-                "design": pose_utils.latent_bone_design(fields["axes"]),
-                "fields": fields,
-                "actions": np.asarray(actions, dtype=np.float64),
-                "episodes": np.asarray(episodes),
-            }
-        )
+    _check_linear_inputs(groups, penalties, pose_weights)
+    parts = _group_parts(spec, groups)
     frames = sum(len(p["regressors"]) for p in parts)
     sums = [ridge_sums(p["regressors"], p["targets"]) for p in parts]
-
-    def mean_of(measure: Any, means: list[np.ndarray]) -> float:
-        """``measure``'s mean over every group's frames of its out-of-group means."""
-        values = [measure(mean, part, spec) for mean, part in zip(means, parts, strict=True)]
-        return float(np.concatenate(values).mean())
-
-    errors: dict[str, float] = {}
-    chosen: tuple[float, float, list[np.ndarray]] | None = None
-    for penalty in penalties:
-        offsets = [
-            predict_ridge(fit_ridge(sums[:g] + sums[g + 1 :], penalty), part["regressors"])
-            for g, part in enumerate(parts)
-        ]
-        means = [
-            _encode_offset(part["fields"], offset, spec, part["design"])
-            for offset, part in zip(offsets, parts, strict=True)
-        ]
-        errors[f"{penalty:g}"] = error = mean_of(_bone_errors, means)
-        if chosen is None or error < chosen[0]:
-            chosen = (error, penalty, offsets)
-    assert chosen is not None
-    _, penalty, offsets = chosen
+    errors, penalty, offsets = _choose_penalty(spec, parts, sums, penalties)
     anchor = [np.zeros_like(p["actions"]) for p in parts]
-    anchor_error, anchor_shake = mean_of(_bone_errors, anchor), mean_of(_shake, anchor)
+    anchor_error = _mean_over(_bone_errors, anchor, parts, spec)
+    anchor_shake = _mean_over(_shake, anchor, parts, spec)
     candidates = {}
     for weight in pose_weights:
         means = [
@@ -465,23 +424,17 @@ def fit_linear(
             else _encode_offset(part["fields"], offset, spec, part["design"])
             for offset, part in zip(offsets, parts, strict=True)
         ]
-        candidates[weight] = (mean_of(_bone_errors, means), mean_of(_shake, means), means)
+        candidates[weight] = (
+            _mean_over(_bone_errors, means, parts, spec),
+            _mean_over(_shake, means, parts, spec),
+            means,
+        )
     steady = [w for w, (_, shake, _) in candidates.items() if shake <= anchor_shake]
     if steady:
         pose_weight = min(steady, key=lambda w: candidates[w][0])
     else:
         pose_weight = min(candidates, key=lambda w: candidates[w][1])
-    means = candidates[pose_weight][2]
-    # The spread: the out-of-group error of the chosen settings' means, per latent axis.
-    squares, counts = np.zeros(spec.latent_dim), np.zeros(spec.latent_dim)
-    for mean, part in zip(means, parts, strict=True):
-        mask = part["fields"]["mask"]
-        miss = part["actions"] - (part["fields"]["anchor"] + mean)
-        squares += (np.where(mask, miss, 0.0) ** 2).sum(axis=0)
-        counts += mask.sum(axis=0)
-    used = counts > 0
-    std = np.sqrt(squares / np.maximum(counts, 1))
-    std = np.where(used, std, float(np.median(std[used])) if used.any() else 1.0)
+    std = _spread(candidates[pose_weight][2], parts, spec.latent_dim)
     spec.hyperparameters = {
         **spec.hyperparameters,
         "penalty": penalty,
@@ -500,6 +453,94 @@ def fit_linear(
         "groups": len(parts),
     }
     return sampler, report
+
+
+def _check_linear_inputs(
+    groups: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]],
+    penalties: Sequence[float],
+    pose_weights: Sequence[float],
+) -> None:
+    """Raise ``ValueError`` on :func:`fit_linear` groups or settings it cannot use."""
+    if len(groups) < 2:
+        raise ValueError(f"groups: expected at least 2 for cross-validation, got {len(groups)}")
+    if any(len(group) != 3 for group in groups):
+        raise ValueError("groups: expected (observations, actions, episodes) triples")
+    if not penalties or min(penalties) < 0:
+        raise ValueError(f"penalties: expected non-negative values, got {list(penalties)}")
+    if not pose_weights or not all(np.isfinite(w) and w >= 0 for w in pose_weights):
+        raise ValueError(f"pose_weights: expected finite values >= 0, got {list(pose_weights)}")
+
+
+def _group_parts(
+    spec: SamplerSpec, groups: Sequence[tuple[np.ndarray, np.ndarray, np.ndarray]]
+) -> list[dict[str, Any]]:
+    """Each group's regression data (:func:`_regression_data`), target bone vectors, latent
+    bone design, actions and episodes."""
+    feature_map = spec.feature_map()
+    parts: list[dict[str, Any]] = []
+    for observations, actions, episodes in groups:
+        fields, regressors, targets = _regression_data(spec, feature_map, observations, actions)
+        parts.append(
+            {
+                "regressors": regressors,
+                "targets": targets,
+                "target_bones": pose_utils.flat_bone_vectors(targets),
+                "design": pose_utils.latent_bone_design(fields["axes"]),
+                "fields": fields,
+                "actions": np.asarray(actions, dtype=np.float64),
+                "episodes": np.asarray(episodes),
+            }
+        )
+    return parts
+
+
+def _mean_over(
+    measure: Any, means: list[np.ndarray], parts: list[dict[str, Any]], spec: SamplerSpec
+) -> float:
+    """``measure``'s mean over every group's frames of its out-of-group means."""
+    values = [measure(mean, part, spec) for mean, part in zip(means, parts, strict=True)]
+    return float(np.concatenate(values).mean())
+
+
+def _choose_penalty(
+    spec: SamplerSpec,
+    parts: list[dict[str, Any]],
+    sums: list[Any],
+    penalties: Sequence[float],
+) -> tuple[dict[str, float], float, list[np.ndarray]]:
+    """The cross-validated FPG Eq. 13 of each ridge ``penalty`` (by ``f"{penalty:g}"``), the
+    lowest's penalty and each group's out-of-group offsets with it."""
+    errors: dict[str, float] = {}
+    chosen: tuple[float, float, list[np.ndarray]] | None = None
+    for penalty in penalties:
+        offsets = [
+            predict_ridge(fit_ridge(sums[:g] + sums[g + 1 :], penalty), part["regressors"])
+            for g, part in enumerate(parts)
+        ]
+        means = [
+            _encode_offset(part["fields"], offset, spec, part["design"])
+            for offset, part in zip(offsets, parts, strict=True)
+        ]
+        errors[f"{penalty:g}"] = error = _mean_over(_bone_errors, means, parts, spec)
+        if chosen is None or error < chosen[0]:
+            chosen = (error, penalty, offsets)
+    assert chosen is not None
+    _, penalty, offsets = chosen
+    return errors, penalty, offsets
+
+
+def _spread(means: list[np.ndarray], parts: list[dict[str, Any]], latent_dim: int) -> np.ndarray:
+    """The spread per latent axis: the root-mean-square out-of-group error of the chosen
+    settings' means (the median of the used axes' on unused ones)."""
+    squares, counts = np.zeros(latent_dim), np.zeros(latent_dim)
+    for mean, part in zip(means, parts, strict=True):
+        mask = part["fields"]["mask"]
+        miss = part["actions"] - (part["fields"]["anchor"] + mean)
+        squares += (np.where(mask, miss, 0.0) ** 2).sum(axis=0)
+        counts += mask.sum(axis=0)
+    used = counts > 0
+    std = np.sqrt(squares / np.maximum(counts, 1))
+    return np.where(used, std, float(np.median(std[used])) if used.any() else 1.0)
 
 
 def describe_fit(report: dict[str, Any]) -> str:

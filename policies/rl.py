@@ -26,19 +26,18 @@ never runs code. SB3's own ``.zip`` format (whose entries are unpickled on load)
 from __future__ import annotations
 
 import os
-import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from tqdm.auto import tqdm
 
 from fpg_gym.core.errors import DataFormatError
 from fpg_gym.core.outputs import atomic_path
 from fpg_gym.env import REWARD_MODES, KinectPoseEnv
 from fpg_gym.reconstruct.closed_form import DEFAULT_STYLE
+from policies.rl_callback import training_callback
 from policies.sampler import (
     DEFAULT_FEATURES,
     GaussianSampler,
@@ -362,19 +361,9 @@ def train_rl(
         the steps since the last record) and the periodic evaluations (``eval_*``, between
         updates: the first at step 0, before any training, the last of the returned policy).
     """
-    sb3 = import_learn("stable_baselines3")
-    from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.monitor import Monitor
-    from stable_baselines3.common.vec_env import DummyVecEnv
-
+    import_learn("stable_baselines3")
     algo_class = _algo_class(algo)
-    hyper = {**RL_DEFAULTS[algo], **(hyperparameters or {})}
-    unknown = sorted(set(hyper) - set(RL_DEFAULTS[algo]))
-    if unknown:
-        raise ValueError(f"hyperparameters for {algo}: unknown {unknown}")
-    if algo == "ppo":
-        hyper["n_steps"] = int(min(hyper["n_steps"], max(timesteps, 2)))
-        hyper["batch_size"] = int(min(hyper["batch_size"], hyper["n_steps"]))
+    hyper = _rl_hyperparameters(algo, hyperparameters, timesteps)
     env = make_training_env(
         graph,
         clips,
@@ -388,7 +377,28 @@ def train_rl(
         error_weight=error_weight,
         smooth_weight=smooth_weight,
     )
-    spec = SamplerSpec.for_env(
+    spec = _rl_spec(env, algo, hyper, features, anchor, anchor_style)
+    model = _sb3_model(algo_class, env, spec, seed, tensorboard)
+    sampler = RLSampler(spec, model.policy, seed)
+    say = log or (lambda text: None)
+    folder = None if checkpoints is None else Path(checkpoints)
+    callback = training_callback(sampler, timesteps, evaluate, eval_every, folder, progress, say)
+    model.learn(total_timesteps=timesteps, callback=callback, tb_log_name=f"sampler_{algo}")
+    env.close()
+    return sampler, callback.history
+
+
+def _rl_spec(
+    env: Any,
+    algo: str,
+    hyper: dict[str, Any],
+    features: Sequence[str],
+    anchor: str,
+    anchor_style: float,
+) -> SamplerSpec:
+    """The spec of an RL sampler trained on ``env`` (its layout, weights and actions) with
+    the algorithm's hyper-parameters, the features it reads and its anchor."""
+    return SamplerSpec.for_env(
         env,
         "rl",
         algo,
@@ -397,13 +407,23 @@ def train_rl(
         anchor_style=anchor_style,
         hyperparameters=dict(hyper),
     )
+
+
+def _sb3_model(
+    algo_class: Any, env: Any, spec: SamplerSpec, seed: int, tensorboard: str | None
+) -> Any:
+    """The SB3 ``algo_class`` model with ``spec``'s hyper-parameters on ``env`` seen through
+    the spec's features (:meth:`FeatureMap.wrap`), seeded, on the CPU."""
+    from stable_baselines3.common.monitor import Monitor
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    hyper = spec.hyperparameters
     feature_map = spec.feature_map()
     vec_env = DummyVecEnv([lambda: Monitor(feature_map.wrap(env))])
     policy_kwargs = {key: hyper[key] for key in _POLICY_KEYS}
     policy_kwargs["net_arch"] = [int(w) for w in policy_kwargs["net_arch"]]
     algo_kwargs = {key: v for key, v in hyper.items() if key not in _POLICY_KEYS}
-    say = log or (lambda text: None)
-    model = algo_class(
+    return algo_class(
         "MlpPolicy",
         vec_env,
         seed=seed,
@@ -413,79 +433,18 @@ def train_rl(
         tensorboard_log=tensorboard,
         **algo_kwargs,
     )
-    sampler = RLSampler(spec, model.policy, seed)
-    history: list[dict[str, Any]] = []
-    record_every = max(timesteps // 20, 1)
-    checkpoint_dir = None if checkpoints is None else Path(checkpoints)
 
-    class _Callback(BaseCallback):
-        """Records the reward and evaluates the policy between updates: at the start of the
-        first rollout after each ``eval_every`` steps, and once more at the end of training,
-        so that every evaluated policy is one that updates left as it is, and the last
-        evaluation is of the policy :func:`train_rl` returns (a PPO update follows every
-        rollout: an evaluation during the rollout would score a policy the run then changes)."""
 
-        def __init__(self) -> None:
-            super().__init__()
-            self.bar: Any = None
-            self.rewards: list[float] = []
-            self.started = time.perf_counter()
-            self.evaluated_at: int | None = None
-
-        def _on_training_start(self) -> None:
-            if evaluate is not None and eval_every:
-                self._evaluate(0)  # the untrained policy: the reference of the curve
-            if progress:
-                self.bar = tqdm(total=timesteps, desc=f"train {algo}", unit="step", leave=False)
-
-        def _on_rollout_start(self) -> None:
-            steps = int(self.num_timesteps)
-            if evaluate is not None and eval_every:
-                if (self.evaluated_at or 0) // eval_every < steps // eval_every:
-                    self._evaluate(steps)
-
-        def _on_step(self) -> bool:
-            self.rewards.extend(float(r) for r in np.ravel(self.locals.get("rewards", [])))
-            steps = int(self.num_timesteps)
-            if self.bar is not None:
-                self.bar.update(steps - self.bar.n)
-            if steps % record_every == 0 and self.rewards:
-                history.append(
-                    {
-                        "timesteps": steps,
-                        "reward_per_step": float(np.mean(self.rewards)),
-                        "seconds": time.perf_counter() - self.started,
-                    }
-                )
-                if self.bar is not None:
-                    self.bar.set_postfix({"reward/step": f"{history[-1]['reward_per_step']:.4f}"})
-                self.rewards = []
-            return True
-
-        def _evaluate(self, steps: int) -> None:
-            assert evaluate is not None
-            self.evaluated_at = steps
-            table = evaluate(sampler)["mean"]
-            record = {"timesteps": steps, **{f"eval_{k}": v for k, v in table.items()}}
-            history.append(record)
-            self.logger.record("eval/mean_energy", table["mean_energy"])
-            self.logger.record("eval/mean_error", table["mean_error"])
-            name = ""
-            if checkpoint_dir is not None:  # step 0: the untrained policy, for reference
-                name = sampler.save(checkpoint_dir / f"step-{steps:08d}").name
-            say(
-                f"step {steps}: held-out mean action: energy {table['mean_energy']:.4f}, "
-                f"error {table['mean_error']:.4f} m" + (f" (checkpoint {name})" if name else "")
-            )
-
-        def _on_training_end(self) -> None:
-            if self.bar is not None:
-                self.bar.close()
-            steps = int(self.num_timesteps)
-            if evaluate is not None and eval_every and self.evaluated_at != steps:
-                self._evaluate(steps)  # the policy the run returns (after its last update)
-
-    del sb3
-    model.learn(total_timesteps=timesteps, callback=_Callback(), tb_log_name=f"sampler_{algo}")
-    env.close()
-    return sampler, history
+def _rl_hyperparameters(
+    algo: str, hyperparameters: dict[str, Any] | None, timesteps: int
+) -> dict[str, Any]:
+    """:data:`RL_DEFAULTS` of ``algo`` with ``hyperparameters`` over them (unknown keys
+    refused); PPO's rollout and batch no longer than the run."""
+    hyper = {**RL_DEFAULTS[algo], **(hyperparameters or {})}
+    unknown = sorted(set(hyper) - set(RL_DEFAULTS[algo]))
+    if unknown:
+        raise ValueError(f"hyperparameters for {algo}: unknown {unknown}")
+    if algo == "ppo":
+        hyper["n_steps"] = int(min(hyper["n_steps"], max(timesteps, 2)))
+        hyper["batch_size"] = int(min(hyper["batch_size"], hyper["n_steps"]))
+    return hyper
