@@ -8,7 +8,7 @@ goes:
 * ``data-EEEEE-FFFFF.npz``: the (observation, target) pairs of episodes ``E`` to ``F``, one file
   per finished chunk of episodes (compressed ``.npz``, read with ``allow_pickle=False``);
 * ``fit.json`` and ``fit.pt``: the fit after its last finished epoch
-  (:class:`~policies.supervised.FitState`: network, Adam, the shuffling generator, the best
+  (:class:`~policies.supervised_fit.FitState`: network, Adam, the shuffling generator, the best
   epoch so far and the epoch records);
 * ``epoch-NNNN.json`` / ``.pt``: the sampler at each periodic evaluation (as before).
 
@@ -41,7 +41,7 @@ from fpg_gym.core.outputs import atomic_path, save_npz
 from fpg_gym.io.files import read_json
 from fpg_gym.io.npz import check_npz
 from policies.imitation import ImitationData
-from policies.supervised import FitState
+from policies.supervised_fit import FitState
 
 __all__ = ["RunCheckpoints", "settings_digest"]
 

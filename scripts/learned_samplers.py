@@ -82,7 +82,8 @@ from policies.learned_optimizers import LearnedSampler
 from policies.output_correction import CorrectionSource, describe_correction, learn_correction
 from policies.pose_sampler import LINEAR_FEATURES, describe_fit, fit_linear
 from policies.sampler import FEATURE_SETS, SamplerSpec
-from policies.supervised import SupervisedSampler, fit_supervised
+from policies.supervised import SupervisedSampler
+from policies.supervised_fit import fit_supervised
 from policies.training import (
     TrainConfig,
     collect_imitation_data,

@@ -1,5 +1,5 @@
 """The supervised sampler's training step: its imitation pairs, a tenth of their episodes
-held out, the fit (:func:`policies.supervised.fit_supervised`) with periodic held-out
+held out, the fit (:func:`policies.supervised_fit.fit_supervised`) with periodic held-out
 evaluations and checkpoints, going on from a stopped run's fit state."""
 
 from __future__ import annotations
@@ -14,7 +14,8 @@ import numpy as np
 
 from policies.checkpoints import RunCheckpoints
 from policies.sampler import GaussianSampler
-from policies.supervised import SupervisedSampler, fit_supervised
+from policies.supervised import SupervisedSampler
+from policies.supervised_fit import fit_supervised
 from policies.training.config import TrainConfig
 from policies.training.pairs import imitation_pairs, imitation_spec
 
