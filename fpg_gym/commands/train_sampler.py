@@ -92,17 +92,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="sampler kind (linear: the pose-space ridge model; needs --target bones or truth "
         "and learns the ground truth)",
     )
-    parser.add_argument(
-        "--algo", choices=["ppo", "sac"], default="ppo", help="RL algorithm (rl; default ppo)"
-    )
-    parser.add_argument(
+    parser.add_argument("--out", required=True, metavar="MODEL", help="model path (no suffix)")
+    parser.add_argument("--seed", type=types.seed, default=0, help="seed (default 0)")
+    _add_data_arguments(parser.add_argument_group("training data"))
+    _add_recordings_arguments(parser.add_argument_group("paired recordings (--kind linear)"))
+    _add_sensor_arguments(parser.add_argument_group("sensor"))
+    _add_imitation_arguments(parser.add_argument_group("supervised and linear samplers"))
+    _add_rl_arguments(parser.add_argument_group("RL samplers"))
+    _add_model_arguments(parser.add_argument_group("model"))
+    _add_run_arguments(parser.add_argument_group("run"))
+
+
+def _add_data_arguments(group: Any) -> None:
+    """What the sampler learns from and is evaluated on."""
+    group.add_argument(
         "--graph",
         default="default",
         metavar="FILE",
         help="pose graph .npz, 'default' (embedded, without the held-out clips) or a packaged "
         "graph by name ('uiprmd')",
     )
-    parser.add_argument(
+    group.add_argument(
         "--clips",
         nargs="+",
         default=None,
@@ -110,14 +120,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="training clips: mocap files/folders or embedded clip names; 'default' (the "
         "default) is the embedded clips of the default graph",
     )
-    parser.add_argument(
+    group.add_argument(
         "--val-clips",
         nargs="+",
         default=None,
         metavar="CLIP",
         help="clips for the periodic evaluation (default: a held-out share of --clips)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--val-share",
         type=float,
         default=0.2,
@@ -126,7 +136,39 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "with --recordings 0 trains on every group (settings by cross-validation over them, no "
         "final evaluation)",
     )
-    parser.add_argument(
+    group.add_argument(
+        "--scenarios",
+        type=_list,
+        default=None,
+        metavar="A,B",
+        help="simulator scenarios (default front-many,left45-many,right45-many)",
+    )
+    group.add_argument(
+        "--timesteps",
+        type=types.integer(1),
+        default=None,
+        metavar="N",
+        help="env steps (rl, default 100000) or training frames collected (supervised, "
+        "default 20000)",
+    )
+    group.add_argument(
+        "--max-frames",
+        type=types.integer(2),
+        default=None,
+        metavar="N",
+        help="first N frames per episode",
+    )
+    group.add_argument(
+        "--no-mirror",
+        action="store_true",
+        help="do not add the mirror images of the training clips",
+    )
+    group.add_argument("--units", default="auto", help="BVH units (auto)")
+
+
+def _add_recordings_arguments(group: Any) -> None:
+    """Paired recordings instead of simulated clips (``--kind linear``)."""
+    group.add_argument(
         "--recordings",
         nargs="+",
         default=None,
@@ -134,7 +176,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="--kind linear: learn from paired recordings (files, or folders of .npz: sensor "
         "streams with ground truth, e.g. fpg-gym import-uiprmd's) instead of simulated clips",
     )
-    parser.add_argument(
+    group.add_argument(
         "--group-pattern",
         default=None,
         metavar="REGEX",
@@ -142,23 +184,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "a recording's group, e.g. '_(s[0-9]+)_' (UI-PRMD's subjects); groups are held out and "
         "cross-validated whole (default: each recording is its own group)",
     )
-    parser.add_argument(
-        "--sensor-map",
-        metavar="MAP.json",
-        default=None,
-        help="joint-definition map of the sensor (fpg-gym fit-map, or a packaged map by name) "
-        "for the training data and "
-        "the evaluation: give the one reconstruct --sensor-map will use",
-    )
-    parser.add_argument(
-        "--sensor-blend",
-        type=float,
-        default=0.0,
-        metavar="F",
-        help="the reconstructor's sensor blend for the training data and the evaluation (0): "
-        "give the one reconstruct --sensor-blend will use",
-    )
-    parser.add_argument(
+    group.add_argument(
         "--no-cross-fit",
         action="store_true",
         help="with --recordings: collect every group's data with --graph and --sensor-map "
@@ -166,7 +192,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "recordings, as a new subject's are built without it (the default; --graph must then "
         "be the graph of these recordings' ground truth)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--occlusions",
         type=_occlusion_cases,
         default=None,
@@ -176,31 +202,31 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "benchmark, forearm,legs,hand-on-surface,side-turn; 'none': the recordings as they "
         "are); without them a sampler and its correction follow the sensor where it fails",
     )
-    parser.add_argument(
-        "--no-correction",
-        action="store_true",
-        help="--kind linear: no learned output correction (by default the sampler also learns "
-        "a correction of the reconstructor's output from its own outputs of the training data, "
-        "which learned: and learned+search: then apply)",
-    )
-    parser.add_argument(
-        "--scenarios",
-        type=_list,
+
+
+def _add_sensor_arguments(group: Any) -> None:
+    """The sensor map and blend of the training data and the evaluation."""
+    group.add_argument(
+        "--sensor-map",
+        metavar="MAP.json",
         default=None,
-        metavar="A,B",
-        help="simulator scenarios (default front-many,left45-many,right45-many)",
+        help="joint-definition map of the sensor (fpg-gym fit-map, or a packaged map by name) "
+        "for the training data and "
+        "the evaluation: give the one reconstruct --sensor-map will use",
     )
-    parser.add_argument(
-        "--timesteps",
-        type=types.integer(1),
-        default=None,
-        metavar="N",
-        help="env steps (rl, default 100000) or training frames collected (supervised, "
-        "default 20000)",
+    group.add_argument(
+        "--sensor-blend",
+        type=float,
+        default=0.0,
+        metavar="F",
+        help="the reconstructor's sensor blend for the training data and the evaluation (0): "
+        "give the one reconstruct --sensor-blend will use",
     )
-    parser.add_argument("--out", required=True, metavar="MODEL", help="model path (no suffix)")
-    parser.add_argument("--seed", type=types.seed, default=0, help="seed (default 0)")
-    parser.add_argument(
+
+
+def _add_imitation_arguments(group: Any) -> None:
+    """The targets and fit of the samplers that learn from imitation pairs."""
+    group.add_argument(
         "--target",
         choices=["best", "search", "truth", "bones"],
         default="best",
@@ -208,7 +234,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "anchor), the papers' local-search optimum, or the ground truth (truth: its joints "
         "projected; bones: its bone directions at the frame's bone lengths) (default best)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--follow",
         choices=["search", "anchor", "truth"],
         default="search",
@@ -216,7 +242,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "or, with --target truth or bones and no search at all, the closed-form anchor or the "
         "truth",
     )
-    parser.add_argument(
+    group.add_argument("--epochs", type=types.integer(1), default=40, help="supervised epochs (40)")
+    group.add_argument(
+        "--no-correction",
+        action="store_true",
+        help="--kind linear: no learned output correction (by default the sampler also learns "
+        "a correction of the reconstructor's output from its own outputs of the training data, "
+        "which learned: and learned+search: then apply)",
+    )
+
+
+def _add_rl_arguments(group: Any) -> None:
+    """The RL algorithm and reward."""
+    group.add_argument(
+        "--algo", choices=["ppo", "sac"], default="ppo", help="RL algorithm (rl; default ppo)"
+    )
+    group.add_argument(
         "--reward",
         choices=["energy", "energy-gain", "error", "combined", "smooth"],
         default="energy",
@@ -225,16 +266,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "energy + --error-weight x error, or error + --smooth-weight x the output's "
         "acceleration (m/s^2)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--error-weight", type=float, default=1.0, help="error weight of --reward combined (1)"
     )
-    parser.add_argument(
+    group.add_argument(
         "--smooth-weight",
         type=float,
         default=0.002,
         help="acceleration weight of --reward smooth (0.002: 10 m/s^2 weighs as 2 cm of error)",
     )
-    parser.add_argument(
+
+
+def _add_model_arguments(group: Any) -> None:
+    """The network, the observation layout and the action coordinates."""
+    group.add_argument(
         "--hyperparameters",
         type=_settings,
         default=None,
@@ -243,82 +288,70 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         '\'{"learning_rate": 0.001, "gamma": 0}\' (rl: overrides policies.rl.RL_DEFAULTS; '
         "unknown keys are refused)",
     )
-    parser.add_argument(
-        "--epochs", type=types.integer(1), default=40, help="supervised epochs (40)"
-    )
-    parser.add_argument(
-        "--eval-every",
-        type=types.integer(1),
-        default=None,
-        metavar="N",
-        help="evaluate and checkpoint every N env steps (rl) or epochs (supervised)",
-    )
-    parser.add_argument(
-        "--eval-episodes",
-        type=types.integer(1),
-        default=6,
-        metavar="N",
-        help="held-out episodes (6)",
-    )
-    parser.add_argument(
-        "--max-frames",
-        type=types.integer(2),
-        default=None,
-        metavar="N",
-        help="first N frames per episode",
-    )
-    parser.add_argument("--k", type=types.integer(1), default=30, help="candidates per frame (30)")
-    parser.add_argument("--latent-dim", type=types.integer(1), default=20, help="latent axes (20)")
-    parser.add_argument(
+    group.add_argument("--k", type=types.integer(1), default=30, help="candidates per frame (30)")
+    group.add_argument("--latent-dim", type=types.integer(1), default=20, help="latent axes (20)")
+    group.add_argument(
         "--action-mode",
         choices=["absolute", "delta"],
         default="absolute",
         help="action coordinates of the sampler's Gaussian (default absolute)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--action-scale", type=float, default=3.0, help="whitened units per action unit (3)"
     )
-    parser.add_argument(
+    group.add_argument(
         "--anchor",
         choices=["quadratic", "none"],
         default="quadratic",
         help="centre of the Gaussian: the closed-form minimiser of the energy's quadratic "
         "terms, or none (default quadratic)",
     )
-    parser.add_argument(
+    group.add_argument(
         "--features",
         default="all",
         metavar="SET",
         help="observation fields the model reads: 'all', 'latent' or a comma list",
     )
-    parser.add_argument(
-        "--no-mirror",
-        action="store_true",
-        help="do not add the mirror images of the training clips",
+
+
+def _add_run_arguments(group: Any) -> None:
+    """Evaluation, checkpoints, logs, workers and output."""
+    group.add_argument(
+        "--eval-every",
+        type=types.integer(1),
+        default=None,
+        metavar="N",
+        help="evaluate and checkpoint every N env steps (rl) or epochs (supervised)",
     )
-    parser.add_argument(
+    group.add_argument(
+        "--eval-episodes",
+        type=types.integer(1),
+        default=6,
+        metavar="N",
+        help="held-out episodes (6)",
+    )
+    group.add_argument(
         "--tensorboard",
         default=None,
         metavar="DIR",
         help="TensorBoard log folder (only if tensorboard is installed)",
     )
-    parser.add_argument("--units", default="auto", help="BVH units (auto)")
-    parser.add_argument(
+    group.add_argument(
         "--workers",
         type=types.workers,
         default=1,
         metavar="N",
         help="processes (or Ray tasks) collecting the supervised data (1; the same data for any N)",
     )
-    add_backend_arguments(parser, "where the supervised data is collected: local processes")
-    parser.add_argument(
+    add_backend_arguments(group, "where the supervised data is collected: local processes")
+    group.add_argument(
         "--restart",
         action="store_true",
         help="supervised: start over instead of going on from MODEL.checkpoints/ (removes its "
         "data and fit checkpoints)",
     )
-    parser.add_argument("--quiet", action="store_true", help="no progress bars")
-    parser.add_argument(
+    group.add_argument("--quiet", action="store_true", help="no progress bars")
+    group.add_argument(
         "--json",
         action="store_true",
         help="print a JSON summary last (the clips and recordings as counts, folders and a hash)",
