@@ -40,7 +40,7 @@ _RUN_INDEPENDENT = (
 
 @dataclass
 class TrainConfig:
-    """Settings of :func:`train_sampler` (``fpg-gym train-sampler``'s arguments).
+    """Settings of :func:`~policies.training.train_sampler` (``fpg-gym train-sampler``'s arguments).
 
     Attributes
     ----------
@@ -53,8 +53,9 @@ class TrainConfig:
     graph : str
         ``"default"`` (embedded, without the held-out clips) or a graph ``.npz``.
     clips : list of str, optional
-        Training clips (see :func:`training_clips`); a seeded ``val_share`` of them is held out
-        for the periodic evaluation unless ``val_clips`` is given.
+        Training clips (see :func:`~policies.training.data.training_clips`); a seeded
+        ``val_share`` of them is held out for the periodic evaluation unless ``val_clips`` is
+        given.
     val_clips : list of str, optional
     scenarios : list of str, optional
         Simulator scenarios (default front-many, left45-many, right45-many).
@@ -63,11 +64,11 @@ class TrainConfig:
         20,000).
     seed : int
     target : {"best", "search", "truth", "bones"}
-        Supervised target (:func:`collect_imitation_data`).
+        Supervised target (:func:`~policies.imitation.collect_imitation_data`).
     follow : {"search", "anchor", "truth"}
-        What the supervised data's stream continues from (:func:`collect_imitation_data`;
-        ``"anchor"`` and ``"truth"`` need target ``"truth"`` or ``"bones"`` and run no
-        search).
+        What the supervised data's stream continues from
+        (:func:`~policies.imitation.collect_imitation_data`; ``"anchor"`` and ``"truth"`` need
+        target ``"truth"`` or ``"bones"`` and run no search).
     reward : {"energy", "energy-gain", "error", "combined", "smooth"}
         The RL env's reward (rl; the error modes learn the simulated ground truth; see
         :class:`~fpg_gym.env.KinectPoseEnv` and :class:`policies.rl.EnergyGain`).
@@ -101,8 +102,8 @@ class TrainConfig:
         BVH units.
     workers : int
         Processes the supervised data's episodes are split between (1: this process; the data
-        is the same for any value, :func:`collect_imitation_data`), or with ``backend="ray"``
-        the Ray tasks they fill.
+        is the same for any value, :func:`~policies.imitation.collect_imitation_data`), or
+        with ``backend="ray"`` the Ray tasks they fill.
     backend : {"local", "ray"}
         Where the supervised data is collected: here and local processes, or Ray
         (``fpg-gym[distributed]``).
