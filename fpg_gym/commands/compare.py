@@ -82,7 +82,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "'uiprmd' for Kinect v2 recordings, else 'embedded' without the evaluated embedded "
         "clips), 'embedded', 'uiprmd'",
     )
-    source = parser.add_argument_group("episodes")
+    _add_episode_arguments(parser.add_argument_group("episodes"))
+    _add_method_arguments(parser.add_argument_group("methods"))
+    _add_run_arguments(parser)
+
+
+def _add_episode_arguments(source: Any) -> None:
+    """The episodes: simulated clips or recordings, seeds and length."""
     source.add_argument(
         "--clips",
         nargs="+",
@@ -121,7 +127,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         metavar="N",
         help="first N frames per episode",
     )
-    methods = parser.add_argument_group("methods")
+
+
+def _add_method_arguments(methods: Any) -> None:
+    """The methods compared and their search settings."""
     methods.add_argument(
         "--methods",
         type=_list,
@@ -163,6 +172,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--k", type=types.integer(1), default=30, help="candidates per frame (default 30)"
     )
     add_calibration_arguments(methods)
+
+
+def _add_run_arguments(parser: argparse.ArgumentParser) -> None:
+    """Where and how the comparison runs and what it writes."""
     parser.add_argument(
         "--workers",
         type=types.workers,
