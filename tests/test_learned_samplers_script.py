@@ -1,14 +1,15 @@
-"""``scripts/learned_samplers.py``: its UI-PRMD fold trains the linear sampler as
-``fpg-gym train-sampler`` does (the same model); its tables pool seeds, give paired changes
-against the closed-form anchor with bootstrap intervals, per subject and per set of
-repetitions."""
+"""``scripts/learned_samplers.py`` (``scripts/sampler_study``): its UI-PRMD fold trains the
+linear sampler as ``fpg-gym train-sampler`` does (the same model); its tables pool seeds, give
+paired changes against the closed-form anchor with bootstrap intervals, per subject and per set
+of repetitions."""
 
 from __future__ import annotations
 
-import importlib.util
+import importlib
 import json
 import sys
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -19,17 +20,14 @@ REPO = Path(__file__).resolve().parents[1]
 
 @pytest.fixture(scope="module")
 def script() -> Any:
-    sys.path.insert(0, str(REPO / "scripts"))  # it imports its neighbour real_kinect.py
+    """The study's modules (``scripts/sampler_study``): ``script.tables``, ``script.uiprmd``."""
+    sys.path.insert(0, str(REPO / "scripts"))  # its package and its neighbour real_kinect.py
     try:
-        spec = importlib.util.spec_from_file_location(
-            "learned_samplers", REPO / "scripts" / "learned_samplers.py"
-        )
-        assert spec is not None and spec.loader is not None
-        module = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(module)
+        tables = importlib.import_module("sampler_study.tables")
+        uiprmd = importlib.import_module("sampler_study.uiprmd")
     finally:
         sys.path.remove(str(REPO / "scripts"))
-    return module
+    return SimpleNamespace(tables=tables, uiprmd=uiprmd)
 
 
 def _rows(errors: dict[str, list[float]]) -> list[dict[str, Any]]:
@@ -63,7 +61,7 @@ def test_table_pools_seeds_and_compares_with_the_anchor(script: Any) -> None:
             f"fpg:learned:{models['1']}": [0.9 * e for e in anchor],
         }
     )
-    table = script.uiprmd_table([{"subject": "s01", "models": models, "rows": rows}])
+    table = script.tables.uiprmd_table([{"subject": "s01", "models": models, "rows": rows}])
     lines = {line.split(" | ")[0].lstrip("| "): line for line in table.splitlines()[2:]}
     assert set(lines) == {
         "raw", "closed-form", "local-search", "learned", "learned (seed 0)", "learned (seed 1)",
@@ -75,7 +73,7 @@ def test_table_pools_seeds_and_compares_with_the_anchor(script: Any) -> None:
     assert float(cells[4].split()[0]) == pytest.approx(2 * np.mean(anchor) * 0.85, abs=1e-4)
     assert cells[8:11] == ["1.00", "2.0", "5.0"]  # jitter, settled range, bone length error
     # Repetitions stand in for seeds: e01 and e04 in one set, e02 in another, e03 in a third.
-    sets = script.repetition_table([{"subject": "s01", "models": models, "rows": rows}])
+    sets = script.tables.repetition_table([{"subject": "s01", "models": models, "rows": rows}])
     assert sets.count("-15.0 %") == 2 and "e02" not in sets  # one episode per set: no row
 
 
@@ -93,11 +91,11 @@ def test_subject_table_and_plot_take_each_fold_alone(script: Any, tmp_path: Path
             }
         )
         folds.append({"subject": subject, "models": models, "rows": rows})
-    table = script.uiprmd_subject_table(folds)
+    table = script.tables.uiprmd_subject_table(folds)
     lines = table.splitlines()[2:]
     assert [line.split(" | ")[0].lstrip("| ") for line in lines] == ["s01", "s02"]
     assert lines[0].count("-25.0 %") == 2 and lines[1].count("-50.0 %") == 2  # Eq. 13, MPJPE
-    path = script.plot_subjects(folds, tmp_path / "per_subject.png")
+    path = script.tables.plot_subjects(folds, tmp_path / "per_subject.png")
     assert path.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
 
 
@@ -132,7 +130,7 @@ def test_a_fold_trains_the_model_the_cli_trains(script: Any, tmp_path: Path) -> 
     from fpg_gym.cli import main
 
     imported = _import(tmp_path / "ui")
-    subjects = script.real_kinect.by_subject(imported / "recordings")
+    subjects = script.uiprmd.real_kinect.by_subject(imported / "recordings")
     task = {
         "out": str(tmp_path / "study"),
         "exclude_training": [],
@@ -142,7 +140,8 @@ def test_a_fold_trains_the_model_the_cli_trains(script: Any, tmp_path: Path) -> 
         "correct": True,
         "command": "test",
     }
-    trained, _, _ = script._uiprmd_linear(task, imported, subjects, "s04", ["s01", "s02", "s03"])
+    training = ["s01", "s02", "s03"]
+    trained, _, _ = script.uiprmd.train_linear(task, imported, subjects, "s04", training)
     clips = sorted(str(p) for p in (imported / "clips").glob("m*_s0[1-3]_*.npz"))
     recordings = sorted(str(p) for p in (imported / "recordings").glob("m*_s0[1-3]_*.npz"))
     graph, sensor_map, out = tmp_path / "G.npz", tmp_path / "M.json", tmp_path / "cli"
