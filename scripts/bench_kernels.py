@@ -295,7 +295,7 @@ def scale_graph(args: argparse.Namespace) -> tuple[Any, list[Any]]:
     return graph, recordings
 
 
-def main(argv: list[str] | None = None) -> int:
+def parse_args(argv: list[str] | None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data", type=Path, default=DEFAULT_DATA)
     parser.add_argument("--clips", type=int, default=3, help="held-out takes reconstructed")
@@ -315,7 +315,83 @@ def main(argv: list[str] | None = None) -> int:
         help="thres1 of the graph 'scale' builds without --graph (0.04: 99k nodes from both "
         "Bandai datasets' training takes; 0.035: 124k)",
     )
-    args = parser.parse_args(argv)
+    return parser.parse_args(argv)
+
+
+def print_energy(graph: Any, recordings: list[Any]) -> None:
+    energy = energy_table(graph, recordings[0])
+    print(
+        f"\nenergy of 100 points: previous {energy['previous_us']:.1f} µs, fused "
+        f"{energy['fused_us']:.1f} µs ({energy['previous_us'] / energy['fused_us']:.1f}x)"
+    )
+
+
+def print_frame(graph: Any, recordings: list[Any], repeats: int) -> None:
+    header = "| configuration | CPU ms / frame | speed-up | mean error (m) | Err0.2 (%) | "
+    header += "median E |"
+    print("\n" + header)
+    print("| --- | --- | --- | --- | --- | --- |")
+    for r in frame_table(graph, recordings, repeats):
+        print(
+            f"| {r['configuration']} | {r['cpu_ms_per_frame']:.3f} | {r['speedup']:.2f}x | "
+            f"{r['mean_error_m']:.4f} | {r['err02_pct']:.1f} | {r['median_energy']:.5f} |"
+        )
+
+
+def print_search(graph: Any, recordings: list[Any]) -> None:
+    header = "| local search (2,000 evaluations) | problems | ask/tell loop ms | compiled ms "
+    print("\n" + header + "| speed-up | results differ |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for r in search_rows(graph, recordings):
+        print(
+            f"| proposals {r['proposals']} | {r['problems']} | {r['loop_ms']:.3f} | "
+            f"{r['compiled_ms']:.3f} | {r['loop_ms'] / r['compiled_ms']:.2f}x | "
+            f"{r['differ']} |"
+        )
+
+
+def print_brute(graph: Any, clips: list[Any], recordings: list[Any], sizes: str) -> None:
+    dense = FilteredPoseGraph.build(clips, thres1=0.04, progress=False)
+    print(f"\ndense graph {dense}")
+    queries = recorded_queries(graph, recordings[:1])
+    queries = [q for q in queries if np.any(q.reliability)][::4][:40]
+    base = np.asarray(dense.poses)
+    rng = np.random.default_rng(0)
+    databases = {"graph thres1 0.2": np.asarray(graph.poses), "graph thres1 0.04": base}
+    for size in (int(s) for s in sizes.split(",") if s):
+        copies = [base] + [
+            base + rng.normal(0.0, 0.01, base.shape).astype(np.float32)
+            for _ in range(size // len(base))
+        ]
+        databases[f"0.04 graph + noisy copies ({size})"] = np.concatenate(copies)[:size]
+    print("\n| database | nodes | previous ms | numpy GEMV ms | compiled ms | speed-up |")
+    print("| --- | --- | --- | --- | --- | --- |")
+    for r in brute_force_table(databases, queries):
+        print(
+            f"| {r['database']} | {r['nodes']} | {r['previous_ms']:.3f} | "
+            f"{r['gemv_ms']:.3f} | {r['compiled_ms']:.3f} | {r['speedup']:.1f}x |"
+        )
+
+
+def print_scale(args: argparse.Namespace) -> None:
+    big, held_out = scale_graph(args)
+    print(f"\nlarge graph {big}, mean degree {np.diff(big.indptr).mean():.0f}")
+    print(
+        "\n| selector | nodes | queries | numpy ms (p95) | compiled ms (p95) | speed-up "
+        "| full searches numpy / compiled | selections differ (other nodes) |"
+    )
+    print("| --- | --- | --- | --- | --- | --- | --- | --- |")
+    for r in scale_table(big, held_out):
+        print(
+            f"| {r['selector']} | {r['nodes']} | {r['queries']} | {r['numpy_ms']:.3f} "
+            f"({r['numpy_p95']:.3f}) | {r['compiled_ms']:.3f} ({r['compiled_p95']:.3f}) | "
+            f"{r['numpy_ms'] / r['compiled_ms']:.1f}x | {r['full_numpy']} / "
+            f"{r['full_compiled']} | {r['differ']} ({r['differ_sets']}) |"
+        )
+
+
+def main(argv: list[str] | None = None) -> int:
+    args = parse_args(argv)
     sections = set(args.sections.split(","))
     folder = args.data / "bandai_namco" / "dataset-1"
     if not folder.is_dir():
@@ -334,73 +410,16 @@ def main(argv: list[str] | None = None) -> int:
             simulate(c.positions[: args.frames], "front-many", seed=i)
             for i, c in enumerate(load_clips(held[: args.clips], progress=False))
         ]
-
     if "energy" in sections:
-        energy = energy_table(graph, recordings[0])
-        print(
-            f"\nenergy of 100 points: previous {energy['previous_us']:.1f} µs, fused "
-            f"{energy['fused_us']:.1f} µs ({energy['previous_us'] / energy['fused_us']:.1f}x)"
-        )
-
+        print_energy(graph, recordings)
     if "frame" in sections:
-        header = "| configuration | CPU ms / frame | speed-up | mean error (m) | Err0.2 (%) | "
-        header += "median E |"
-        print("\n" + header)
-        print("| --- | --- | --- | --- | --- | --- |")
-        for r in frame_table(graph, recordings, args.repeats):
-            print(
-                f"| {r['configuration']} | {r['cpu_ms_per_frame']:.3f} | {r['speedup']:.2f}x | "
-                f"{r['mean_error_m']:.4f} | {r['err02_pct']:.1f} | {r['median_energy']:.5f} |"
-            )
-
+        print_frame(graph, recordings, args.repeats)
     if "search" in sections:
-        header = "| local search (2,000 evaluations) | problems | ask/tell loop ms | compiled ms "
-        print("\n" + header + "| speed-up | results differ |")
-        print("| --- | --- | --- | --- | --- | --- |")
-        for r in search_rows(graph, recordings):
-            print(
-                f"| proposals {r['proposals']} | {r['problems']} | {r['loop_ms']:.3f} | "
-                f"{r['compiled_ms']:.3f} | {r['loop_ms'] / r['compiled_ms']:.2f}x | "
-                f"{r['differ']} |"
-            )
-
+        print_search(graph, recordings)
     if "brute" in sections:
-        dense = FilteredPoseGraph.build(clips, thres1=0.04, progress=False)
-        print(f"\ndense graph {dense}")
-        queries = recorded_queries(graph, recordings[:1])
-        queries = [q for q in queries if np.any(q.reliability)][::4][:40]
-        base = np.asarray(dense.poses)
-        rng = np.random.default_rng(0)
-        databases = {"graph thres1 0.2": np.asarray(graph.poses), "graph thres1 0.04": base}
-        for size in (int(s) for s in args.sizes.split(",") if s):
-            copies = [base] + [
-                base + rng.normal(0.0, 0.01, base.shape).astype(np.float32)
-                for _ in range(size // len(base))
-            ]
-            databases[f"0.04 graph + noisy copies ({size})"] = np.concatenate(copies)[:size]
-        print("\n| database | nodes | previous ms | numpy GEMV ms | compiled ms | speed-up |")
-        print("| --- | --- | --- | --- | --- | --- |")
-        for r in brute_force_table(databases, queries):
-            print(
-                f"| {r['database']} | {r['nodes']} | {r['previous_ms']:.3f} | "
-                f"{r['gemv_ms']:.3f} | {r['compiled_ms']:.3f} | {r['speedup']:.1f}x |"
-            )
-
+        print_brute(graph, clips, recordings, args.sizes)
     if "scale" in sections:
-        big, held_out = scale_graph(args)
-        print(f"\nlarge graph {big}, mean degree {np.diff(big.indptr).mean():.0f}")
-        print(
-            "\n| selector | nodes | queries | numpy ms (p95) | compiled ms (p95) | speed-up "
-            "| full searches numpy / compiled | selections differ (other nodes) |"
-        )
-        print("| --- | --- | --- | --- | --- | --- | --- | --- |")
-        for r in scale_table(big, held_out):
-            print(
-                f"| {r['selector']} | {r['nodes']} | {r['queries']} | {r['numpy_ms']:.3f} "
-                f"({r['numpy_p95']:.3f}) | {r['compiled_ms']:.3f} ({r['compiled_p95']:.3f}) | "
-                f"{r['numpy_ms'] / r['compiled_ms']:.1f}x | {r['full_numpy']} / "
-                f"{r['full_compiled']} | {r['differ']} ({r['differ_sets']}) |"
-            )
+        print_scale(args)
     limits.restore_original_limits()
     return 0
 
