@@ -34,13 +34,13 @@ diagnostic rows run through the Python API: the sampler's anchor alone and its m
   ``--no-correction``), beside ``closed-form`` (the
   anchor, 1), ``local-search`` (2,000), the raw sensor and two oracles that see the truth (its
   latent point by joints and by bones); 95 % confidence intervals by a bootstrap over episodes.
-* ``sim``: the simulated held-out Bandai protocol (:func:`sim_protocol`), the same models and
-  rows.
-* ``rl``: an RL sampler as a search accelerator (:func:`rl_protocol`): PPO trained on the
-  energy's gain without the closed form (:data:`RL_ACCELERATOR`), then ``learned+search:`` (200
-  evaluations) against the local search at 2,000 and 200, the untrained policy and the zero
-  action, paired per episode, on the embedded held-out clips (``--rl-model PATH``: evaluate
-  that model instead of training one).
+* ``sim``: the simulated held-out Bandai protocol (:mod:`sampler_study.sim`), the same models
+  and rows.
+* ``rl``: an RL sampler as a search accelerator (:mod:`sampler_study.rl`): PPO trained on the
+  energy's gain without the closed form (:data:`sampler_study.rl.RL_ACCELERATOR`), then
+  ``learned+search:`` (200 evaluations) against the local search at 2,000 and 200, the
+  untrained policy and the zero action, paired per episode, on the embedded held-out clips
+  (``--rl-model PATH``: evaluate that model instead of training one).
 
 Usage::
 

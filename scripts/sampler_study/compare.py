@@ -5,8 +5,6 @@ random search and each sampler's anchor and mean alone as diagnostics."""
 from __future__ import annotations
 
 import argparse
-import csv
-import re
 import shlex
 import subprocess
 import sys
@@ -16,7 +14,15 @@ from typing import Any
 
 import numpy as np
 
+import optimizers
+from fpg_gym.experiments import CompareConfig, run_compare
+from fpg_gym.experiments.report import markdown_table
+from fpg_gym.experiments.store import frames_path, load_frames, read_rows
+from policies.learned_optimizers import LearnedSampler
+from policies.loading import load_sampler
+from policies.sampler import AnchorSampler
 from sampler_study import REPO, SCENARIOS
+from sampler_study.scoring import mean_only
 
 
 def sh(args: list[str], log: Path) -> float:
@@ -33,23 +39,17 @@ def sh(args: list[str], log: Path) -> float:
     return seconds
 
 
-def _safe(text: str) -> str:
-    """File-name form of a name, as ``fpg-gym compare`` writes its frame files."""
-    return re.sub(r"[^A-Za-z0-9._+-]+", "_", text).strip("_") or "x"
-
-
 def aggregate(folder: Path) -> dict[str, dict[str, float]]:
     """Frame-pooled figures per method of a compare folder."""
-    rows = list(csv.DictReader((folder / "results.csv").open()))
     out: dict[str, dict[str, list[np.ndarray]]] = {}
-    for row in rows:
-        path = folder / "frames" / _safe(row["episode"]) / f"{_safe(row['method'])}.npz"
-        with np.load(path, allow_pickle=False) as frames:
-            acc = out.setdefault(row["method"], {"errors": [], "ms": [], "energy": [], "ev": []})
-            acc["errors"].append(frames["errors"])
-            acc["ms"].append(frames["ms"])
-            acc["energy"].append(frames["energy"])
-            acc["ev"].append(frames["evaluations"])
+    for row in read_rows(folder / "results.csv"):
+        path = frames_path(folder, row["episode"], row["method"])
+        frames = load_frames(path, ("errors", "ms", "energy", "evaluations"))
+        acc = out.setdefault(row["method"], {"errors": [], "ms": [], "energy": [], "ev": []})
+        acc["errors"].append(frames["errors"])
+        acc["ms"].append(frames["ms"])
+        acc["energy"].append(frames["energy"])
+        acc["ev"].append(frames["evaluations"])
     table = {}
     for method, acc in out.items():
         errors = np.concatenate(acc["errors"])
@@ -66,20 +66,24 @@ def aggregate(folder: Path) -> dict[str, dict[str, float]]:
 
 
 def markdown(table: dict[str, dict[str, float]], names: dict[str, str], baseline: str) -> str:
+    """Each method's row of :func:`aggregate`'s table (``names``: its label), its mean error's
+    change against ``baseline``'s."""
     base = table[baseline]["mean_error"]
-    lines = [
-        "| method | evaluations/frame | mean energy | mean error (m) | vs local search | "
-        "Err0.2 (%) | ms/frame |",
-        "| --- | --- | --- | --- | --- | --- | --- |",
+    columns = ["method", "evaluations/frame", "mean energy", "mean error (m)", "vs local search"]
+    columns += ["Err0.2 (%)", "ms/frame"]
+    rows = [
+        [
+            names.get(method, method),
+            f"{row['evaluations']:.0f}",
+            f"{row['mean_energy']:.4f}",
+            f"{row['mean_error']:.4f}",
+            f"{100 * (row['mean_error'] / base - 1):+.1f} %",
+            f"{row['err02']:.1f}",
+            f"{row['ms']:.2f}",
+        ]
+        for method, row in table.items()
     ]
-    for method, row in table.items():
-        change = 100 * (row["mean_error"] / base - 1)
-        lines.append(
-            f"| {names.get(method, method)} | {row['evaluations']:.0f} | "
-            f"{row['mean_energy']:.4f} | {row['mean_error']:.4f} | {change:+.1f} % | "
-            f"{row['err02']:.1f} | {row['ms']:.2f} |"
-        )
-    return "\n".join(lines)
+    return markdown_table(columns, rows)
 
 
 def diagnostics(
@@ -88,14 +92,6 @@ def diagnostics(
     """random-search (200), the anchor alone and each sampler's mean alone, on the same
     episodes as the main comparison (in this process: the extra optimisers are registered
     here)."""
-    import optimizers
-    from fpg_gym.experiments import CompareConfig, run_compare
-    from policies.learned_optimizers import LearnedSampler
-    from policies.loading import load_sampler
-    from policies.sampler import AnchorSampler
-
-    def mean_only(path: str, **_: Any) -> Any:
-        return LearnedSampler(path, samples=1)
 
     def anchor_only(path: str, **_: Any) -> Any:
         return LearnedSampler(AnchorSampler(load_sampler(path).spec), samples=1)

@@ -16,6 +16,11 @@ from policies.learned_optimizers import LearnedSampler
 from policies.training import truth_latent
 
 
+def mean_only(path: str, **_: Any) -> Any:
+    """``mean-only:PATH``: the sampler of ``PATH`` drawing one candidate, its mean."""
+    return LearnedSampler(path, samples=1)
+
+
 def _oracle(
     graph: Any, options: dict[str, Any], recording: Any, metric: str = "joints"
 ) -> np.ndarray:
@@ -61,9 +66,6 @@ def score(
     local-search, each model's ``learned:`` and ``learned+search:`` (and a linear model's
     ``uncorrected``, an MLP's mean alone) and the bones oracle: :func:`_row`'s figures and CPU
     ms per frame."""
-
-    def mean_only(path: str, **_: Any) -> Any:
-        return LearnedSampler(path, samples=1)
 
     def uncorrected(path: str, **_: Any) -> Any:
         return LearnedSampler(path, correct_output=False)
