@@ -106,9 +106,9 @@ def sim_protocol(args: argparse.Namespace) -> str:
     }
     # The correction's groups: each fold's training and validation parts, each reconstructed
     # with the graph of the other folds.
-    sources = [(*source, g) for g, source in enumerate(train_sources)]
-    sources += [(*source, len(train_parts)) for source in val_sources]
-    trained = train_seeds(spec, train_parts, val, task, "bandai", info, sources)
+    groups = [(*source, g) for g, source in enumerate(train_sources)]
+    groups += [(*source, len(train_parts)) for source in val_sources]
+    trained = train_seeds(spec, train_parts, val, task, "bandai", info, groups)
     graph = FilteredPoseGraph.build(graph_clips, progress=False)
     scenarios = SCENARIOS.split(",")
     recordings = simulate_episodes(eval_clips, scenarios, [0], max_frames=args.max_frames)
