@@ -43,36 +43,18 @@ RL_ACCELERATOR: dict[str, Any] = {
 }
 
 
-def rl_protocol(args: argparse.Namespace) -> str:
-    """An RL sampler's proposals against the local search (module docstring): train one
-    (unless ``--rl-model``), then every agent on the embedded held-out clips x the ``*-many``
-    scenarios x ``--rl-eval-seeds``, each episode with the per-frame problem (temporal stage
-    off, as the env's), errors paired against ``local-search`` (2,000) and against the
-    untrained policy and the zero action."""
+def _agents(model: str) -> dict[str, tuple[int, Any]]:
+    """Each row's ``(evaluations per frame, optimiser)``: the local search at 2,000 and 200,
+    closed-form, the model of ``model`` as ``learned+search:``, ``learned:`` and its mean
+    alone, its untrained policy and its zero action."""
     import optimizers.local_search as local
-    from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
-    from fpg_gym.graph import load_graph
-    from fpg_gym.reconstruct import TemporalConfig
     from policies.learned_optimizers import LearnedSearch
     from policies.loading import load_sampler
     from policies.rl import UNTRAINED_CHECKPOINT, zero_action
-    from policies.training import training_clips
 
-    folder = args.out / "rl"
-    folder.mkdir(parents=True, exist_ok=True)
-    model = args.rl_model
-    trained_note = f"model {model}"
-    if model is None:
-        model = str(folder / "sampler_rl")
-        c0, w0 = time.process_time(), time.perf_counter()
-        train_sampler(TrainConfig(out=model, seed=args.rl_seed, progress=False, **RL_ACCELERATOR))
-        trained_note = (
-            f"trained in {time.process_time() - c0:.0f} s CPU, {time.perf_counter() - w0:.0f} s "
-            f"wall (seed {args.rl_seed})"
-        )
     trained = load_sampler(model)
     untrained = load_sampler(f"{model}.checkpoints/{UNTRAINED_CHECKPOINT}")
-    agents: dict[str, Any] = {
+    return {
         "local-search": (2000, local.LocalSearch()),
         "local-search (200)": (200, local.LocalSearch(iterations=2)),
         "closed-form": (1, "closed-form"),
@@ -82,13 +64,17 @@ def rl_protocol(args: argparse.Namespace) -> str:
         "untrained, learned+search": (200, LearnedSearch(untrained)),
         "zero action, learned+search": (200, LearnedSearch(zero_action(trained))),
     }
-    graph = load_graph("default", exclude=DEFAULT_HOLDOUT_CLIPS)
-    clips = training_clips(list(DEFAULT_HOLDOUT_CLIPS))
-    seeds = [int(s) for s in args.rl_eval_seeds.split(",")]
-    recordings = simulate_episodes(clips, SCENARIOS.split(","), seeds)
+
+
+def _evaluate(
+    agents: dict[str, tuple[int, Any]], graph: Any, recordings: list[Any]
+) -> tuple[dict[str, list[float]], dict[str, list[float]]]:
+    """Each agent's mean error and mean energy per episode, with the per-frame problem
+    (temporal stage off, as the env's), optimiser seed = episode number."""
+    from fpg_gym.reconstruct import TemporalConfig
+
     errors: dict[str, list[float]] = {name: [] for name in agents}
     energies: dict[str, list[float]] = {name: [] for name in agents}
-    c0 = time.process_time()
     for i, recording in enumerate(recordings):
         with Reconstructor(graph, ragdoll=False, temporal=TemporalConfig.off()) as reconstructor:
             for name, (_, agent) in agents.items():
@@ -97,6 +83,17 @@ def rl_protocol(args: argparse.Namespace) -> str:
                     float(metrics.frame_error(recording.ground_truth, result.poses).mean())
                 )
                 energies[name].append(float(result.arrays()["energy"].mean()))
+    return errors, energies
+
+
+def _comparison(
+    agents: dict[str, tuple[int, Any]],
+    errors: dict[str, list[float]],
+    energies: dict[str, list[float]],
+) -> str:
+    """The table of every agent against the local search (paired 95 % bootstrap intervals)
+    and the sentence of ``learned+search`` against its untrained policy, its zero action and
+    the local search at 200."""
     rng = np.random.default_rng(2016)
     base = np.array(errors["local-search"])
     lines = [
@@ -122,15 +119,43 @@ def rl_protocol(args: argparse.Namespace) -> str:
             "local-search (200)",
         )
     ]
+    return "\n".join(lines) + "\n\n`learned+search` " + "; ".join(against) + ".\n"
+
+
+def rl_protocol(args: argparse.Namespace) -> str:
+    """An RL sampler's proposals against the local search (module docstring): train one
+    (unless ``--rl-model``), then every agent on the embedded held-out clips x the ``*-many``
+    scenarios x ``--rl-eval-seeds``, each episode with the per-frame problem (temporal stage
+    off, as the env's), errors paired against ``local-search`` (2,000) and against the
+    untrained policy and the zero action."""
+    from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
+    from fpg_gym.graph import load_graph
+    from policies.training import training_clips
+
+    folder = args.out / "rl"
+    folder.mkdir(parents=True, exist_ok=True)
+    model = args.rl_model
+    trained_note = f"model {model}"
+    if model is None:
+        model = str(folder / "sampler_rl")
+        c0, w0 = time.process_time(), time.perf_counter()
+        train_sampler(TrainConfig(out=model, seed=args.rl_seed, progress=False, **RL_ACCELERATOR))
+        trained_note = (
+            f"trained in {time.process_time() - c0:.0f} s CPU, {time.perf_counter() - w0:.0f} s "
+            f"wall (seed {args.rl_seed})"
+        )
+    agents = _agents(model)
+    graph = load_graph("default", exclude=DEFAULT_HOLDOUT_CLIPS)
+    clips = training_clips(list(DEFAULT_HOLDOUT_CLIPS))
+    seeds = [int(s) for s in args.rl_eval_seeds.split(",")]
+    recordings = simulate_episodes(clips, SCENARIOS.split(","), seeds)
+    c0 = time.process_time()
+    errors, energies = _evaluate(agents, graph, recordings)
     report = (
         f"### RL sampler as a search accelerator ({len(recordings)} episodes: the embedded "
         f"held-out clips x {SCENARIOS} x seeds {args.rl_eval_seeds}, "
         f"{sum(r.num_frames for r in recordings)} frames; {trained_note}; evaluation "
-        f"{time.process_time() - c0:.0f} s CPU)\n\n"
-        + "\n".join(lines)
-        + "\n\n`learned+search` "
-        + "; ".join(against)
-        + ".\n"
+        f"{time.process_time() - c0:.0f} s CPU)\n\n" + _comparison(agents, errors, energies)
     )
     (folder / "table.md").write_text(report)
     (folder / "errors.json").write_text(json.dumps({"errors": errors, "energies": energies}))

@@ -39,6 +39,45 @@ def _sim_data(
     return data, (graph, {}, recordings)
 
 
+def _nested_data(
+    graph_clips: list[Any],
+    folds: list[list[int]],
+    val_ids: set[int],
+    spec: Any,
+    task: dict[str, Any],
+) -> tuple[list[Any], Any, list[tuple[Any, dict[str, Any], list[Any], int]]]:
+    """Each fold's training and validation imitation data (:func:`_sim_data` with a graph of
+    the other folds, simulator seed ``1000 + fold``): ``(training parts, the validation parts
+    in one, the output correction's groups)``."""
+    train_parts: list[Any] = []
+    val_parts: list[Any] = []
+    train_sources: list[tuple[Any, dict[str, Any], list[Any]]] = []
+    val_sources: list[tuple[Any, dict[str, Any], list[Any]]] = []
+    for f, fold in enumerate(folds):
+        other = [graph_clips[i] for g, ids in enumerate(folds) if g != f for i in ids]
+        for ids, parts, sources in (
+            ([i for i in fold if i not in val_ids], train_parts, train_sources),
+            ([i for i in fold if i in val_ids], val_parts, val_sources),
+        ):
+            if ids:
+                part, source = _sim_data(other, [graph_clips[i] for i in ids], spec, task, 1000 + f)
+                parts.append(part)
+                sources.append(source)
+    val = dataclasses.replace(
+        val_parts[0],
+        observations=np.concatenate([d.observations for d in val_parts]),
+        actions=np.concatenate([d.actions for d in val_parts]),
+        masks=np.concatenate([d.masks for d in val_parts]),
+        episodes=np.concatenate([d.episodes for d in val_parts]),
+        search_energies=np.concatenate([d.search_energies for d in val_parts]),
+    )
+    # The correction's groups: each fold's training and validation parts, each reconstructed
+    # with the graph of the other folds.
+    groups = [(*source, g) for g, source in enumerate(train_sources)]
+    groups += [(*source, len(train_parts)) for source in val_sources]
+    return train_parts, val, groups
+
+
 def sim_protocol(args: argparse.Namespace) -> str:
     """The simulated held-out Bandai protocol with ground-truth samplers (module docstring)."""
     if args.model == "mlp":
@@ -75,39 +114,14 @@ def sim_protocol(args: argparse.Namespace) -> str:
     val_ids = set(order[:: max(2, round(1 / args.sim_val_share))].tolist())
     start = time.perf_counter()
     t0 = time.process_time()
-    train_parts: list[Any] = []
-    val_parts: list[Any] = []
-    train_sources: list[tuple[Any, dict[str, Any], list[Any]]] = []
-    val_sources: list[tuple[Any, dict[str, Any], list[Any]]] = []
-    for f, fold in enumerate(folds):
-        other = [graph_clips[i] for g, ids in enumerate(folds) if g != f for i in ids]
-        for ids, parts, sources in (
-            ([i for i in fold if i not in val_ids], train_parts, train_sources),
-            ([i for i in fold if i in val_ids], val_parts, val_sources),
-        ):
-            if ids:
-                part, source = _sim_data(other, [graph_clips[i] for i in ids], spec, task, 1000 + f)
-                parts.append(part)
-                sources.append(source)
+    train_parts, val, groups = _nested_data(graph_clips, folds, val_ids, spec, task)
     data_cpu = time.process_time() - t0
-    val = dataclasses.replace(
-        val_parts[0],
-        observations=np.concatenate([d.observations for d in val_parts]),
-        actions=np.concatenate([d.actions for d in val_parts]),
-        masks=np.concatenate([d.masks for d in val_parts]),
-        episodes=np.concatenate([d.episodes for d in val_parts]),
-        search_energies=np.concatenate([d.search_energies for d in val_parts]),
-    )
     info = {
         "protocol": "simulated held-out Bandai dataset-1 (seed-2016 take split)",
         "graph_takes": len(graph_clips),
         "validation_takes": sorted(graph_clips[i].name for i in val_ids),
         "scenarios": task["sim_scenarios"],
     }
-    # The correction's groups: each fold's training and validation parts, each reconstructed
-    # with the graph of the other folds.
-    groups = [(*source, g) for g, source in enumerate(train_sources)]
-    groups += [(*source, len(train_parts)) for source in val_sources]
     trained = train_seeds(spec, train_parts, val, task, "bandai", info, groups)
     graph = FilteredPoseGraph.build(graph_clips, progress=False)
     scenarios = SCENARIOS.split(",")
