@@ -5,7 +5,7 @@ README.md``: "split by take (whole files), with a fixed, documented seed or list
 frame"). For each dataset folder, the sorted take files are shuffled with ``--seed`` and the
 first ``--eval-share`` of them are held out for evaluation; the rest build the graph. The
 split is :func:`fpg_gym.core.holdout.split_takes` with its default seed (2016) and share (0.2), as
-in ``scripts/bench_reconstruct.py``, so both use the same held-out takes of ``dataset-1``.
+in ``fpg-gym bench``, so both use the same held-out takes of ``dataset-1``.
 
 Writes two lists, one path per line, usable as ``@file`` arguments of every ``fpg-gym`` command::
 

@@ -1,8 +1,8 @@
 """The hold-out split of mocap takes: whole takes, a fixed seed, never frames.
 
 Accuracy only means something on takes the pose graph was not built from (``../shared/data/
-README.md``). ``scripts/holdout_split.py``, ``scripts/bench_reconstruct.py`` and ``fpg-gym bench``
-all split with :func:`holdout_indices`, so they hold out the same takes.
+README.md``). ``scripts/holdout_split.py`` and ``fpg-gym bench`` both
+split with :func:`holdout_indices`, so they hold out the same takes.
 """
 
 from __future__ import annotations
