@@ -257,10 +257,13 @@ def uiprmd_protocol(args: argparse.Namespace) -> str:
 def report_finished(out: Path) -> None:
     """Print the tables of the folds a (possibly stopped) run has finished in ``out``."""
     folds = sorted((out / "uiprmd").glob("fold_*.json"))
+    if not folds:
+        where = out / "uiprmd"
+        print(f"error: --report-only: no finished fold (fold_*.json) in {where}", file=sys.stderr)
+        raise SystemExit(2)
     results = [json.loads(path.read_text()) for path in folds]
     print(f"{len(results)} fold(s): {', '.join(r['subject'] for r in results)}\n")
     print(uiprmd_table(results))
     print(f"\nPer held-out subject:\n\n{uiprmd_subject_table(results)}")
     print(f"\nBy repetitions scored:\n\n{repetition_table(results)}")
-    if results:
-        print(f"\n{plot_subjects(results, out / 'uiprmd' / 'per_subject.png')}")
+    print(f"\n{plot_subjects(results, out / 'uiprmd' / 'per_subject.png')}")
