@@ -1,15 +1,16 @@
 """Issue 18's acceptance figures: the new search kernels against the previous implementation.
 
-The previous implementation is kept in the tests (``tests/reference_energy.py``,
-``tests/reference_selection.py``); this script imports it from there and times both in one
+The energy's reference is its definition (``EnergyModel(kernel="direct")``: the terms of
+:mod:`fpg_gym.reconstruct.energy` on decoded poses); the previous selection is kept in the tests
+(``tests/reference_selection.py``), and this script imports it from there. Both are timed in one
 process, interleaved, in CPU time (``time.process_time``), with BLAS on one thread:
 
 1. **Energy** of 100 latent points of real frames: ``EnergyModel`` (fused kernel) against the
-   previous ``EnergyModel``.
+   definition.
 2. **Frame without ragdoll** (graph selection + local search, 2,000 evaluations) on held-out
    Bandai Namco takes (``dataset-1``, split of ``scripts/holdout_split.py``, graph ``thres1 =
-   0.2`` from the other takes, simulated ``front-many``): the previous implementation (previous
-   energy model, ask/tell loop with normal draws, numpy stages) against today's pipeline with
+   0.2`` from the other takes, simulated ``front-many``): the reference (the energy's
+   definition, ask/tell loop with normal draws, numpy stages) against today's pipeline with
    normal draws and with its default proposal table; mean error and median energy of each, so
    that equal results can be seen.
 3. **Local search alone** (2,000 evaluations) on frame problems of those takes: the ask/tell
@@ -48,10 +49,9 @@ import numpy as np
 from threadpoolctl import threadpool_limits
 
 REPO = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(REPO / "tests"))  # the previous implementation, kept as test reference
+sys.path.insert(0, str(REPO / "tests"))  # the previous selection, kept as test reference
 sys.path.insert(0, str(REPO))  # this checkout's fpg_gym, whatever the installed one
 
-from reference_energy import ReferenceEnergyModel  # noqa: E402
 from reference_selection import reference_best_k  # noqa: E402
 
 import optimizers  # noqa: E402
@@ -66,7 +66,6 @@ from fpg_gym.experiments.bench_kernels import (  # noqa: E402
 from fpg_gym.graph import FilteredPoseGraph  # noqa: E402
 from fpg_gym.io import load_clips  # noqa: E402
 from fpg_gym.reconstruct import Reconstructor  # noqa: E402
-from fpg_gym.reconstruct import reconstructor as reconstructor_module  # noqa: E402
 from fpg_gym.reconstruct import selection as selection_module  # noqa: E402
 from fpg_gym.reconstruct.kernels import compile_kernels  # noqa: E402
 from fpg_gym.reconstruct.selection import (  # noqa: E402
@@ -78,54 +77,48 @@ from fpg_gym.reconstruct.selection import (  # noqa: E402
 from fpg_gym.simulate import simulate  # noqa: E402
 
 DEFAULT_DATA = REPO.parent / "shared" / "data"
-NEW_ENERGY = reconstructor_module.EnergyModel
 
 
 def frame_table(graph: Any, recordings: list[Any], repeats: int) -> list[dict[str, Any]]:
     """CPU ms per frame and output quality of the previous and the new pipeline, interleaved.
 
-    The reference row is the previous implementation: the previous energy model, the ask/tell
-    loop with normal draws, and every stage on its numpy path (:func:`numpy_only`: the PCA, the
-    filters, the retarget, the selection). The second row keeps the previous energy and loop
-    but runs today's compiled stages (what the reference row was before the stages compiled).
+    The reference row is the energy's definition on decoded poses (``energy_kernel="direct"``),
+    the ask/tell loop with normal draws, and every stage on its numpy path (:func:`numpy_only`:
+    the PCA, the filters, the retarget, the selection). The second row keeps the definition and
+    the loop but runs today's compiled stages.
     """
     normal = {"proposals": "normal"}
-    configs: dict[str, tuple[Any, dict[str, Any], bool]] = {
-        "previous implementation (reference)": (ReferenceEnergyModel, normal, True),
-        "previous energy and loop, compiled stages": (ReferenceEnergyModel, normal, False),
-        "today, normal draws": (NEW_ENERGY, normal, False),
-        "today's default (proposal table)": (NEW_ENERGY, {"proposals": "table"}, False),
+    configs: dict[str, tuple[str, dict[str, Any], bool]] = {
+        "energy's definition, numpy stages (reference)": ("direct", normal, True),
+        "energy's definition and loop, compiled stages": ("direct", normal, False),
+        "today, normal draws": ("auto", normal, False),
+        "today's default (proposal table)": ("auto", {"proposals": "table"}, False),
     }
     stats: dict[str, dict[str, Any]] = {
         name: {"cpu": 0.0, "frames": 0, "errors": [], "energies": []} for name in configs
     }
-    for model, kwargs, numpy_stages in configs.values():  # warm-up
-        reconstructor_module.EnergyModel = model
+    for kernel, kwargs, numpy_stages in configs.values():  # warm-up
         with numpy_only() if numpy_stages else contextlib.nullcontext():
-            Reconstructor(graph).reconstruct(
+            Reconstructor(graph, energy_kernel=kernel).reconstruct(
                 recordings[0].head(5), optimizers.make("local-search", **kwargs), rng=0
             )
-    try:
-        for repeat in range(repeats):
-            for i, recording in enumerate(recordings):
-                for name, (model, kwargs, numpy_stages) in configs.items():
-                    reconstructor_module.EnergyModel = model
-                    with numpy_only() if numpy_stages else contextlib.nullcontext():
-                        reconstructor = Reconstructor(graph)
-                        start = time.process_time()
-                        result = reconstructor.reconstruct(
-                            recording,
-                            optimizers.make("local-search", **kwargs),
-                            rng=i + 100 * repeat,
-                        )
-                        stats[name]["cpu"] += time.process_time() - start
-                    stats[name]["frames"] += recording.num_frames
-                    stats[name]["errors"].append(
-                        metrics.frame_error(recording.ground_truth, result.poses)
+    for repeat in range(repeats):
+        for i, recording in enumerate(recordings):
+            for name, (kernel, kwargs, numpy_stages) in configs.items():
+                with numpy_only() if numpy_stages else contextlib.nullcontext():
+                    reconstructor = Reconstructor(graph, energy_kernel=kernel)
+                    start = time.process_time()
+                    result = reconstructor.reconstruct(
+                        recording,
+                        optimizers.make("local-search", **kwargs),
+                        rng=i + 100 * repeat,
                     )
-                    stats[name]["energies"].append(result.arrays()["energy"])
-    finally:
-        reconstructor_module.EnergyModel = NEW_ENERGY
+                    stats[name]["cpu"] += time.process_time() - start
+                stats[name]["frames"] += recording.num_frames
+                stats[name]["errors"].append(
+                    metrics.frame_error(recording.ground_truth, result.poses)
+                )
+                stats[name]["energies"].append(result.arrays()["energy"])
     reference = None
     rows = []
     for name, s in stats.items():
@@ -146,7 +139,8 @@ def frame_table(graph: Any, recordings: list[Any], repeats: int) -> list[dict[st
 
 
 def energy_table(graph: Any, recording: Any, frame: int = 60) -> dict[str, float]:
-    """CPU µs of the energy of 100 points of a real frame, previous vs new (interleaved)."""
+    """CPU µs of the energy of 100 points of a real frame, the definition vs the fused kernel
+    (interleaved)."""
     reconstructor = Reconstructor(graph)
     frame = min(frame, recording.num_frames - 1)
     reconstructor.reconstruct(recording.head(frame), "local-search", rng=0)
@@ -154,7 +148,7 @@ def energy_table(graph: Any, recording: Any, frame: int = 60) -> dict[str, float
         recording.positions[frame], recording.states[frame], recording.timestamps[frame]
     )
     e = problem.energy
-    previous = ReferenceEnergyModel(
+    previous = type(e)(
         e.latent,
         e.sensor.reshape(20, 3),
         e.reliability,
@@ -162,10 +156,11 @@ def energy_table(graph: Any, recording: Any, frame: int = 60) -> dict[str, float
         e.lengths,
         None if e.target is None else e.target.reshape(20, 3),
         e.weights,
+        kernel="direct",
     )
     z = np.random.default_rng(0).standard_normal((100, problem.dim))
     if not np.allclose(previous(z), e(z), rtol=1e-9, atol=1e-12):
-        raise AssertionError("the fused energy differs from the previous one")
+        raise AssertionError("the fused energy differs from its definition")
     timing = interleaved_cpu_us({"old": lambda: previous(z), "new": lambda: e(z)}, repeats=50)
     return {"previous_us": timing["old"], "fused_us": timing["new"]}
 
@@ -321,7 +316,7 @@ def parse_args(argv: list[str] | None) -> argparse.Namespace:
 def print_energy(graph: Any, recordings: list[Any]) -> None:
     energy = energy_table(graph, recordings[0])
     print(
-        f"\nenergy of 100 points: previous {energy['previous_us']:.1f} µs, fused "
+        f"\nenergy of 100 points: definition {energy['previous_us']:.1f} µs, fused "
         f"{energy['fused_us']:.1f} µs ({energy['previous_us'] / energy['fused_us']:.1f}x)"
     )
 

@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 __all__ = [
+    "centre_poses",
     "energy_setup",
     "labelling_costs",
     "latent_terms",
@@ -25,6 +26,31 @@ __all__ = [
     "remove_sorted",
     "whitened_axes",
 ]
+
+
+@numba.njit(cache=True, nogil=True)
+def centre_poses(poses):
+    """Poses ``(K, 20, 3)`` float32 as float64 60-vectors: their mean ``(60,)`` and the centred
+    poses ``(K, 60)`` (numpy's ``data.mean(axis=0)`` and ``data - mean``, to the bit: the rows
+    summed in order, then divided by K), and whether every value is finite."""
+    count = poses.shape[0]
+    size = poses.shape[1] * poses.shape[2]
+    flat = poses.reshape(count, size)
+    mean = np.empty(size)
+    finite = True
+    for c in range(size):
+        mean[c] = np.float64(flat[0, c])
+    for i in range(1, count):
+        for c in range(size):
+            mean[c] += np.float64(flat[i, c])
+    for c in range(size):
+        finite = finite and np.isfinite(mean[c])
+        mean[c] /= count
+    centred = np.empty((count, size))
+    for i in range(count):
+        for c in range(size):
+            centred[i, c] = np.float64(flat[i, c]) - mean[c]
+    return mean, centred, finite
 
 
 @numba.njit(cache=True, nogil=True)
@@ -88,14 +114,19 @@ def _neighbour_coordinates(mean, basis, neighbours):
             v = neighbours[n, c] - mean[c]
             centred[n, c] = v
             centred_sq[n] += v * v
-    y = np.zeros((k, d))  # coordinates in the space (loops: no BLAS to compile)
+    # Coordinates in the space (loops: no BLAS to compile). Each y[n, a] sums its products in
+    # the order of c, the innermost loop running over a so that it vectorises.
+    transposed = np.empty((size, d))
+    for a in range(d):
+        for c in range(size):
+            transposed[c, a] = basis[a, c]
+    y = np.zeros((k, d))
     residual = centred.copy()
     for n in range(k):
-        for a in range(d):
-            dot = 0.0
-            for c in range(size):
-                dot += centred[n, c] * basis[a, c]
-            y[n, a] = dot
+        for c in range(size):
+            v = centred[n, c]
+            for a in range(d):
+                y[n, a] += v * transposed[c, a]
         for a in range(d):
             for c in range(size):
                 residual[n, c] -= y[n, a] * basis[a, c]
@@ -158,22 +189,33 @@ def energy_setup(
     for a in range(d):
         for c in range(size):
             scaled[a, c] = components[a, c] * (wc * joint_weights[c])
+    transposed = np.empty((size, d))
     for a in range(d):
+        for c in range(size):
+            transposed[c, a] = components[a, c]
+    # A = C diag(wc R) C^T: each entry sums over c in order (the loop over b vectorises).
+    row = np.empty(d)
+    for a in range(d):
+        for b in range(d):
+            row[b] = 0.0
+        for c in range(size):
+            v = scaled[a, c]
+            for b in range(a, d):
+                row[b] += v * transposed[c, b]
         for b in range(a, d):
-            dot = 0.0
-            for c in range(size):
-                dot += scaled[a, c] * components[b, c]
-            matrix[a, b] = dot
-            matrix[b, a] = dot
+            matrix[a, b] = row[b]
+            matrix[b, a] = row[b]
+    linear = np.zeros(d)
+    for c in range(size):
+        v = weighted[c]
+        for a in range(d):
+            linear[a] += transposed[c, a] * v
     for a in range(d):
         diagonal = ws / joints * std[a] * std[a] + wp / max(d, 1)
         if has_target:
             diagonal += wm / joints * std[a] * std[a]
         matrix[a, a] += diagonal
-        linear = 0.0
-        for c in range(size):
-            linear += components[a, c] * weighted[c]
-        matrix[a, d] = 2.0 * linear
+        matrix[a, d] = 2.0 * linear[a]
         for n in range(k):
             matrix[a, d + 1 + n] = (-2.0 * ws / joints) * (std[a] * y[n, a])
         for b in range(3 * bones):

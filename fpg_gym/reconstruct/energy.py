@@ -30,6 +30,7 @@ neighbour's unwhitened coordinates, ``r_n`` its residual outside the space), whi
 
 from __future__ import annotations
 
+import functools
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from types import ModuleType
@@ -170,53 +171,14 @@ _CHILD_COORDS = (3 * skeleton.BONES[:, 1][:, None] + np.arange(3)).reshape(-1)
 _PARENT_COORDS = (3 * skeleton.BONES[:, 0][:, None] + np.arange(3)).reshape(-1)
 #: The compiled kernels' "no motion target" (``Em = 0``).
 _NO_TARGET = np.zeros(0)
+_FLOAT64 = np.dtype(np.float64)
+_DTYPES = (np.dtype(np.float32), _FLOAT64)
 
 
-@dataclass(frozen=True)
-class _Working:
-    """The arrays of the latent terms of one frame, in the arithmetic precision: ``mean``,
-    ``sensor``, ``joint_weights``, ``target`` ``(60,)``, ``components`` ``(d, 60)``, ``y``
-    ``(K, d)``, ``y_sq``/``r_sq`` ``(K,)``, ``std`` ``(d,)``, ``lengths`` ``(19,)``."""
-
-    mean: np.ndarray
-    components: np.ndarray
-    sensor: np.ndarray
-    joint_weights: np.ndarray
-    y: np.ndarray
-    y_sq: np.ndarray
-    r_sq: np.ndarray
-    std: np.ndarray
-    lengths: np.ndarray
-    target: np.ndarray | None
-
-
-def _decode(w: _Working, z: np.ndarray) -> np.ndarray:
-    return w.mean + z @ w.components
-
-
-def _latent_terms(w: _Working, z: np.ndarray) -> dict[str, np.ndarray]:
-    """The five terms for points ``(n, d)`` (each ``(n,)``, float64), term by term (the fused
-    kernel gives their weighted sum)."""
-    x = _decode(w, z)
-    joints = skeleton.NUM_JOINTS
-    diff = x - w.sensor
-    ec = (diff * diff) @ w.joint_weights  # Eq. 11
-    u = z * w.std  # unwhitened coordinates
-    dist = np.einsum("nd,nd->n", u, u)[:, None] - 2.0 * (u @ w.y.T) + w.y_sq + w.r_sq
-    es = np.maximum(dist.min(axis=-1), 0.0) / joints  # Eq. 12
-    bones = (x[:, _CHILD_COORDS] - x[:, _PARENT_COORDS]).reshape(len(x), skeleton.NUM_BONES, 3)
-    length = np.sqrt(np.einsum("nbc,nbc->nb", bones, bones))
-    ek = ((length - w.lengths) ** 2).mean(axis=-1)  # Eq. 13
-    if w.target is None:
-        em = np.zeros(len(x))
-    else:
-        diff = x - w.target
-        em = np.einsum("nd,nd->n", diff, diff) / joints  # Eq. 14
-    ep = np.einsum("nd,nd->n", z, z) / max(z.shape[-1], 1)  # latent prior (beyond papers)
-    out = {"Ec": ec, "Es": es, "Ek": ek, "Em": em, "Ep": ep}
-    if z.dtype != np.float64:
-        out = {k: v.astype(np.float64) for k, v in out.items()}
-    return out
+@functools.cache
+def _weights_array(weights: EnergyWeights) -> np.ndarray:
+    """``weights.as_array()``, once per set of weights (shared: not to be written)."""
+    return weights.as_array()
 
 
 class EnergyModel:
@@ -236,15 +198,18 @@ class EnergyModel:
         Motion target for ``Em`` (see :func:`motion_target`); None gives ``Em = 0``.
     weights : EnergyWeights, optional
     dtype : numpy dtype
-        Arithmetic precision (float64). ``float32`` is about 4x faster for batches of a few
-        thousand points and ~20 % faster at 100; the terms are returned as float64 either way.
+        Arithmetic precision of the fused kernel (float64). ``float32`` is about 4x faster for
+        batches of a few thousand points and ~20 % faster at 100; energies are returned as
+        float64 either way.
     kernel : {"auto", "numba", "numpy", "direct"}
         The kernel of the total (calling the model; what the search runs): the frame's
         :class:`~fpg_gym.reconstruct.kernels.EnergyTables` (Eq. 10 as one matrix) evaluated by
         :func:`~fpg_gym.reconstruct.kernels.fused_energy`, compiled when ``fpg-gym[fast]``
         (numba) is installed with ``"auto"``; ``"direct"`` sums :func:`pose_energy_terms` of the
         decoded poses (the definition; slow, for benchmarks; not stacked by
-        :class:`StackedEnergy`). :meth:`terms` gives each term, computed term by term.
+        :class:`StackedEnergy`). :meth:`terms` gives each term: compiled
+        (:func:`fpg_gym.reconstruct.compiled_frame.latent_terms`) with numba, else the
+        definitions on the decoded poses.
     """
 
     def __init__(
@@ -260,12 +225,12 @@ class EnergyModel:
         kernel: str = "auto",
     ) -> None:
         self.dtype = np.dtype(dtype)
-        if self.dtype not in (np.dtype(np.float32), np.dtype(np.float64)):
+        if self.dtype not in _DTYPES:
             raise ValueError(f"dtype: expected float32 or float64, got {self.dtype}")
         self.kernel = "direct" if kernel == "direct" else resolve_kernel(kernel)
         self.latent = latent
         self.weights = weights or EnergyWeights()
-        self._w = self.weights.as_array()
+        self._w = _weights_array(self.weights)
         self.sensor = np.asarray(sensor, dtype=np.float64).reshape(POSE_SIZE)
         self.reliability = np.asarray(reliability, dtype=np.float64)
         self.lengths = np.asarray(lengths, dtype=np.float64)
@@ -277,90 +242,72 @@ class EnergyModel:
             if self.kernel == "numba"
             else None
         )
-        self._compiled_terms: Callable[..., np.ndarray] | None = (
-            None if compiled is None else compiled.latent_terms
-        )
+        # With numba, the arguments of the compiled terms (latent_terms) after z; else None.
+        self._terms_arguments: tuple[Any, ...] | None = None
         if compiled is None:
-            self.tables, arrays = self._setup(latent, flat)
+            self.tables = self._tables(latent, flat)
         else:
-            self.tables, arrays = self._setup_compiled(compiled, latent, flat)
-        # Working arrays of terms() in the arithmetic precision (no copy in float64).
-        t = self.dtype
-        components, joint_weights, y, y_sq, r_sq = (a.astype(t, copy=False) for a in arrays)
-        self._work = _Working(
-            mean=latent.mean.astype(t, copy=False),
-            components=components,
-            sensor=self.sensor.astype(t, copy=False),
-            joint_weights=joint_weights,
-            y=y,
-            y_sq=y_sq,
-            r_sq=r_sq,
-            std=latent.std.astype(t, copy=False),
-            lengths=self.lengths.astype(t, copy=False),
-            target=None if self.target is None else self.target.astype(t, copy=False),
-        )
-        # The compiled terms' motion target: empty for none (Em = 0).
-        self._terms_target = (
-            self._work.target if self._work.target is not None else _NO_TARGET.astype(t)
-        )
-        if self.dtype != np.float64:
+            self.tables = self._setup_compiled(compiled, latent, flat)
+        if self.dtype != _FLOAT64:
             self.tables = self.tables.astype(self.dtype)
+            if self._terms_arguments is not None:
+                self._terms_arguments = tuple(
+                    a.astype(self.dtype) if isinstance(a, np.ndarray) and a.dtype == _FLOAT64 else a
+                    for a in self._terms_arguments
+                )
         self._energy: Callable[[np.ndarray], np.ndarray] = bind_energy(
             self.tables, self.fused_kernel
         )
 
-    def _setup(
-        self, latent: LatentSpace, flat: np.ndarray
-    ) -> tuple[EnergyTables, tuple[np.ndarray, ...]]:
-        """:attr:`tables` (:meth:`_tables`) and the float64 arrays of :meth:`terms`
-        (``components``, ``joint_weights``, ``y``, ``y_sq``, ``r_sq``), in numpy."""
-        joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
-        components = latent.components  # (d, 60)
-        # Es: neighbours' unwhitened coordinates y_n (K, d) and squared residuals |r_n|^2 (K,).
-        centred = flat - latent.mean
-        y = centred @ latent.basis.T
-        residual = centred - y @ latent.basis
-        y_sq = np.einsum("kd,kd->k", y, y)
-        r_sq = np.einsum("kd,kd->k", residual, residual)
-        tables = self._tables(
-            latent, components, joint_weights, y, np.einsum("kd,kd->k", centred, centred)
-        )
-        return tables, (components, joint_weights, y, y_sq, r_sq)
-
     def _setup_compiled(
         self, compiled: ModuleType, latent: LatentSpace, flat: np.ndarray
-    ) -> tuple[EnergyTables, tuple[np.ndarray, ...]]:
-        """:meth:`_setup` in one compiled call
+    ) -> EnergyTables:
+        """:meth:`_tables` and the compiled terms' arrays in one compiled call
         (:func:`fpg_gym.reconstruct.compiled_frame.energy_setup`)."""
-        matrix, c0, ycst, b0, wk, *arrays = compiled.energy_setup(
+        target = _NO_TARGET if self.target is None else self.target
+        basis = latent.basis if latent.basis.flags.c_contiguous else latent.basis.copy()
+        matrix, c0, ycst, b0, wk, components, joint_weights, y, y_sq, r_sq = compiled.energy_setup(
             latent.mean,
-            np.ascontiguousarray(latent.basis),
+            basis,
             latent.std,
             self.sensor,
             self.reliability,
-            np.ascontiguousarray(flat),
+            flat if flat.flags.c_contiguous else flat.copy(),
             self.lengths,
-            _NO_TARGET if self.target is None else self.target,
+            target,
             self._w,
             _CHILD_COORDS,
             _PARENT_COORDS,
         )
-        return EnergyTables(matrix, float(c0), ycst, b0, self.lengths, float(wk)), tuple(arrays)
+        self._terms_arguments = (
+            compiled.latent_terms,
+            latent.mean,
+            components,
+            self.sensor,
+            joint_weights,
+            y,
+            y_sq,
+            r_sq,
+            latent.std,
+            self.lengths,
+            target,
+            _CHILD_COORDS,
+            _PARENT_COORDS,
+        )
+        return EnergyTables(matrix, float(c0), ycst, b0, self.lengths, float(wk))
 
-    def _tables(
-        self,
-        latent: LatentSpace,
-        components: np.ndarray,
-        joint_weights: np.ndarray,
-        y: np.ndarray,
-        centred_sq: np.ndarray,
-    ) -> EnergyTables:
+    def _tables(self, latent: LatentSpace, flat: np.ndarray) -> EnergyTables:
         """Eq. 10 as one matrix (:mod:`fpg_gym.reconstruct.kernels`): ``Ec`` (Eq. 11, ``W =
         diag(R)``) and ``Em`` (Eq. 14, ``W = I / 20``, where ``C C^T = diag(std^2)``) expanded
         as ``z^T A z + g.z + c``, the prior ``|z|^2 / d``, ``|u|^2`` and the ``K`` inner
-        products of ``Es`` (Eq. 12; ``|y_n|^2 + |r_n|^2 = |x_n - mean|^2``), the bone vectors
-        of ``Ek`` (Eq. 13)."""
+        products of ``Es`` (Eq. 12; ``|y_n|^2 + |r_n|^2 = |x_n - mean|^2``, ``y_n`` the
+        neighbours' unwhitened coordinates), the bone vectors of ``Ek`` (Eq. 13). The numpy
+        twin of :func:`fpg_gym.reconstruct.compiled_frame.energy_setup`."""
         joints = skeleton.NUM_JOINTS
+        joint_weights = np.repeat(self.reliability, 3)  # (60,) for Ec
+        components = latent.components  # (d, 60)
+        centred = flat - latent.mean
+        y = centred @ latent.basis.T
         mean, std, d = latent.mean, latent.std, latent.dim
         wc, ws, wk, wm, wp = self._w
         delta = mean - self.sensor
@@ -382,7 +329,7 @@ class EnergyModel:
         return EnergyTables(
             matrix=matrix,
             c0=const,
-            ycst=(ws / joints) * centred_sq,
+            ycst=(ws / joints) * np.einsum("kd,kd->k", centred, centred),
             b0=mean[_CHILD_COORDS] - mean[_PARENT_COORDS],
             lengths=self.lengths,
             wk=wk / skeleton.NUM_BONES,
@@ -391,7 +338,7 @@ class EnergyModel:
     @property
     def dim(self) -> int:
         """Latent dimension ``d``."""
-        return int(self._work.components.shape[0])
+        return self.latent.dim
 
     @property
     def fused_kernel(self) -> str:
@@ -404,32 +351,14 @@ class EnergyModel:
         weights, latent dimension, number of candidates and kernel."""
         return (self.dtype.str, tuple(self._w), self.dim, self.tables.k, self.kernel)
 
-    def decode_flat(self, z: np.ndarray) -> np.ndarray:
-        """Poses as 60-vectors ``(n, 60)`` for latent points ``(n, d)`` (in ``dtype``)."""
-        return _decode(self._work, np.asarray(z, dtype=self.dtype))
-
     def terms(self, z: np.ndarray) -> dict[str, np.ndarray]:
         """``Ec``, ``Es``, ``Ek``, ``Em``, ``Ep`` for latent points ``(n, d)``, each ``(n,)``
-        float64."""
-        z = np.ascontiguousarray(z, dtype=self.dtype)
-        if self._compiled_terms is None:
-            return _latent_terms(self._work, z)
-        w = self._work
-        rows = self._compiled_terms(
-            z,
-            w.mean,
-            w.components,
-            w.sensor,
-            w.joint_weights,
-            w.y,
-            w.y_sq,
-            w.r_sq,
-            w.std,
-            w.lengths,
-            self._terms_target,
-            _CHILD_COORDS,
-            _PARENT_COORDS,
-        )
+        float64: compiled with numba (in the model's dtype), else :func:`pose_energy_terms` on
+        the decoded poses."""
+        if self._terms_arguments is None:
+            return self._definition_terms(z)
+        function, *arguments = self._terms_arguments
+        rows = function(np.ascontiguousarray(z, dtype=self.dtype), *arguments)
         return dict(zip(TERM_NAMES, rows, strict=True))
 
     def total(self, terms: dict[str, np.ndarray]) -> np.ndarray:
@@ -441,12 +370,13 @@ class EnergyModel:
     def __call__(self, z: np.ndarray) -> np.ndarray:
         """``E`` for latent points ``(n, d) -> (n,)`` float64, by the fused kernel."""
         if self.kernel == "direct":
-            return self._direct(z)
+            return self.total(self._definition_terms(z))
         energy = self._energy(np.asarray(z, dtype=self.dtype))
         return energy if energy.dtype == np.float64 else energy.astype(np.float64)
 
-    def _direct(self, z: np.ndarray) -> np.ndarray:
-        """``E`` from the terms' definitions on the decoded poses (:func:`pose_energy_terms`)."""
+    def _definition_terms(self, z: np.ndarray) -> dict[str, np.ndarray]:
+        """The terms by their definitions (:func:`pose_energy_terms`) on the decoded poses,
+        and the latent prior ``Ep = |z|^2 / d``, float64."""
         z = np.asarray(z, dtype=np.float64)
         terms = pose_energy_terms(
             self.latent.decode(z),
@@ -457,7 +387,7 @@ class EnergyModel:
             target=None if self.target is None else self.target.reshape(skeleton.NUM_JOINTS, 3),
         )
         terms["Ep"] = np.einsum("nd,nd->n", z, z) / max(z.shape[1], 1)
-        return self.total(terms)
+        return terms
 
 
 class StackedEnergy:

@@ -16,8 +16,8 @@ So the total energy of ``n`` points is one matrix product ``P = z @ M`` with a f
 the bone vectors) followed by cheap per-row reductions. :class:`EnergyTables` holds ``M`` and the
 constants of one frame; :func:`fused_energy` evaluates it, with a compiled (numba) kernel when
 ``fpg-gym[fast]`` is installed and a fused numpy kernel otherwise (same maths, same results to
-floating-point tolerance; ``tests/reference_energy.py`` keeps the previous implementation and the
-tests compare them).
+floating-point tolerance; ``tests/test_kernels.py`` checks both against the terms' definitions in
+:mod:`fpg_gym.reconstruct.energy`, with numba and without).
 
 The tables are plain arrays, so a batched caller (many streams) stacks them
 (:func:`stack_tables`: a leading axis of S frames) and evaluates S frames' points ``(S, n, d)``

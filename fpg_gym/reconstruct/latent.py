@@ -135,21 +135,32 @@ class LatentSpace:
         ValueError
             If ``poses`` is not ``(K, 20, 3)`` with K >= 1, or ``max_dim`` < 0.
         """
-        data = as_poses(poses, "poses", ndim=3).reshape(-1, POSE_SIZE).astype(np.float64)
-        if len(data) == 0:
-            raise ValueError("poses: expected at least one pose, got 0")
         if max_dim < 0:
             raise ValueError(f"max_dim: expected >= 0, got {max_dim}")
         if min_std <= 0:
             raise ValueError(f"min_std: expected > 0, got {min_std}")
-        count = len(data)
+        array = np.asarray(poses, dtype=np.float32)
+        count = len(array) if array.ndim else 0
         dim = min(max_dim, count - 1, POSE_SIZE)
-        mean = data.mean(axis=0)
-        centred = data - mean
+        compiled = (
+            compiled_module("fpg_gym.reconstruct.compiled_frame")
+            if 0 < dim and count <= POSE_SIZE and resolve_kernel(kernel) == "numba"
+            else None
+        )
+        centred = None
+        if compiled is not None and array.shape[1:] == (skeleton.NUM_JOINTS, 3):
+            # the checks, the mean and the centring in one call (numpy's to the bit)
+            mean, centred, finite = compiled.centre_poses(np.ascontiguousarray(array))
+            if not finite:
+                centred = None  # as_poses below names the value
+        if centred is None:
+            data = as_poses(array, "poses", ndim=3).reshape(-1, POSE_SIZE).astype(np.float64)
+            if len(data) == 0:
+                raise ValueError("poses: expected at least one pose, got 0")
+            mean = data.mean(axis=0)
+            centred = data - mean
         eigenpairs = None
-        if 0 < dim and count <= POSE_SIZE and resolve_kernel(kernel) == "numba":
-            compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
-            assert compiled is not None  # resolve_kernel checked numba
+        if compiled is not None:
             eigenpairs = gram_eigenpairs(centred)
             basis, std, degenerate, ratio, usable = compiled.whitened_axes(
                 centred, *eigenpairs, dim, min_std, GRAM_MAX_CONDITION
