@@ -155,6 +155,21 @@ def test_filter_sequence_equals_repeated_update_and_is_deterministic(
     np.testing.assert_array_equal(rest, stepwise[40:])
 
 
+@pytest.mark.parametrize("name", ["raw", "holt", "kalman", "one-euro"])
+def test_update_tracked_equals_update_of_tracked_frames(
+    name: str, rng: np.random.Generator
+) -> None:
+    positions = BASE + np.cumsum(rng.normal(0.0, 0.02, (30, J, 3)), axis=0)
+    times = np.cumsum(rng.uniform(0.030, 0.036, 30))
+    f, g = make_filter(name), make_filter(name)
+    for t in range(30):
+        np.testing.assert_array_equal(
+            f.update_tracked(positions[t], float(times[t])), g.update(positions[t], None, times[t])
+        )
+    with pytest.raises(ValueError, match="timestamp: expected finite seconds"):
+        f.update_tracked(positions[0], float("nan"))
+
+
 def test_raw_is_the_identity(rng: np.random.Generator) -> None:
     positions = rng.normal(size=(10, J, 3)).astype(np.float32)
     states = rng.integers(0, 3, size=(10, J))

@@ -89,6 +89,9 @@ def test_fused_energy_and_terms_equal_the_definition_on_random_problems(
                 terms[name], expected[name], rtol=1e-9, atol=1e-12, err_msg=name
             )
         np.testing.assert_allclose(model.total(terms), got, rtol=1e-10, atol=1e-12)
+        both = model.terms_and_total(z)  # the compiled total: total()'s sums, to the bit
+        assert np.array_equal(both.pop("E"), model.total(terms))
+        assert all(np.array_equal(both[name], terms[name]) for name in TERM_NAMES)
 
 
 def test_kernels_agree_and_float32_is_close(rng: np.random.Generator) -> None:

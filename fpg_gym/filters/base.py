@@ -18,6 +18,7 @@ tracked whatever its state says.
 
 from __future__ import annotations
 
+import math
 from abc import ABC, abstractmethod
 from collections.abc import Mapping
 from dataclasses import asdict, fields, replace
@@ -90,6 +91,7 @@ class JointFilter(ABC):
     def __init__(self) -> None:
         self._num_joints: int | None = None
         self._last_time: float | None = None
+        self._tracked: npt.NDArray[np.int8] | None = None  # update_tracked's states
 
     # -- public API --------------------------------------------------------------------------
 
@@ -135,6 +137,18 @@ class JointFilter(ABC):
                 raise ValueError(f"timestamp: expected finite seconds, got {timestamp!r}")
         dt = self._advance(frame.shape[0], time)
         return self._step(frame, state, dt).astype(np.float32)
+
+    def update_tracked(self, frame: FloatArray, timestamp: float) -> Float32Array:
+        """:meth:`update` of a frame its caller has checked: ``(J, 3)`` float64 positions of
+        tracked joints (a reconstructor's own outputs, every frame: the checks of :meth:`update`
+        cost more than the filter's step)."""
+        if not math.isfinite(timestamp):
+            raise ValueError(f"timestamp: expected finite seconds, got {timestamp!r}")
+        count = frame.shape[0]
+        if self._tracked is None or len(self._tracked) != count:
+            self._tracked = np.full(count, TRACKED, dtype=np.int8)
+        dt = self._advance(count, timestamp)
+        return self._step(frame, self._tracked, dt).astype(np.float32)
 
     def filter_sequence(
         self,

@@ -231,18 +231,34 @@ def energy_setup(
 
 @numba.njit(cache=True, nogil=True)
 def latent_terms(
-    z, mean, components, sensor, joint_weights, y, y_sq, r_sq, std, lengths, target, child, parent
+    z,
+    mean,
+    components,
+    sensor,
+    joint_weights,
+    y,
+    y_sq,
+    r_sq,
+    std,
+    lengths,
+    target,
+    child,
+    parent,
+    weights,
 ):
     """``Ec``, ``Es``, ``Ek``, ``Em``, ``Ep`` (Shum Eqs. 11-14 and the latent prior) of points
-    ``(n, d)``, as rows of a ``(5, n)`` float64 array, from :func:`energy_setup`'s working
-    arrays (in the points' dtype); ``target`` empty gives ``Em = 0``."""
+    ``(n, d)`` and their weighted sum ``E`` (Eq. 10; ``weights`` ``(5,)``, the prior's added
+    when its weight is not 0, in :meth:`EnergyModel.total
+    <fpg_gym.reconstruct.energy.EnergyModel.total>`'s order), as rows of a ``(6, n)`` float64
+    array, from :func:`energy_setup`'s working arrays (in the points' dtype); ``target`` empty
+    gives ``Em = 0``."""
     n, d = z.shape
     size = mean.shape[0]
     joints = size // 3
     bones = lengths.shape[0]
     k = y.shape[0]
     x = z @ components
-    out = np.zeros((5, n))
+    out = np.zeros((6, n))
     u = np.empty(d, dtype=z.dtype)
     for i in range(n):
         for c in range(size):
@@ -283,6 +299,11 @@ def latent_terms(
         out[2, i] = ek / bones  # Eq. 13
         out[3, i] = em / joints  # Eq. 14
         out[4, i] = zz / max(d, 1)  # latent prior (beyond the papers)
+        total = weights[0] * out[0, i] + weights[1] * out[1, i]
+        total = total + weights[2] * out[2, i] + weights[3] * out[3, i]
+        if weights[4] != 0.0:
+            total = total + weights[4] * out[4, i]
+        out[5, i] = total
     return out
 
 

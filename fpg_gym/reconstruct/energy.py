@@ -171,6 +171,7 @@ _CHILD_COORDS = (3 * skeleton.BONES[:, 1][:, None] + np.arange(3)).reshape(-1)
 _PARENT_COORDS = (3 * skeleton.BONES[:, 0][:, None] + np.arange(3)).reshape(-1)
 #: The compiled kernels' "no motion target" (``Em = 0``).
 _NO_TARGET = np.zeros(0)
+_TERMS_AND_TOTAL = (*TERM_NAMES, "E")
 _FLOAT64 = np.dtype(np.float64)
 _DTYPES = (np.dtype(np.float32), _FLOAT64)
 
@@ -250,11 +251,6 @@ class EnergyModel:
             self.tables = self._setup_compiled(compiled, latent, flat)
         if self.dtype != _FLOAT64:
             self.tables = self.tables.astype(self.dtype)
-            if self._terms_arguments is not None:
-                self._terms_arguments = tuple(
-                    a.astype(self.dtype) if isinstance(a, np.ndarray) and a.dtype == _FLOAT64 else a
-                    for a in self._terms_arguments
-                )
         self._energy: Callable[[np.ndarray], np.ndarray] = bind_energy(
             self.tables, self.fused_kernel
         )
@@ -279,20 +275,16 @@ class EnergyModel:
             _CHILD_COORDS,
             _PARENT_COORDS,
         )
+        arrays = (latent.mean, components, self.sensor, joint_weights, y, y_sq, r_sq)
+        arrays += (latent.std, self.lengths, target)
+        if self.dtype != _FLOAT64:  # the terms' arithmetic in the model's dtype
+            arrays = tuple(a.astype(self.dtype) for a in arrays)
         self._terms_arguments = (
             compiled.latent_terms,
-            latent.mean,
-            components,
-            self.sensor,
-            joint_weights,
-            y,
-            y_sq,
-            r_sq,
-            latent.std,
-            self.lengths,
-            target,
+            *arrays,
             _CHILD_COORDS,
             _PARENT_COORDS,
+            self._w,
         )
         return EnergyTables(matrix, float(c0), ycst, b0, self.lengths, float(wk))
 
@@ -355,11 +347,19 @@ class EnergyModel:
         """``Ec``, ``Es``, ``Ek``, ``Em``, ``Ep`` for latent points ``(n, d)``, each ``(n,)``
         float64: compiled with numba (in the model's dtype), else :func:`pose_energy_terms` on
         the decoded poses."""
+        terms = self.terms_and_total(z)
+        del terms["E"]
+        return terms
+
+    def terms_and_total(self, z: np.ndarray) -> dict[str, np.ndarray]:
+        """:meth:`terms` and ``E``, their :meth:`total` (one compiled call with numba)."""
         if self._terms_arguments is None:
-            return self._definition_terms(z)
+            terms = self._definition_terms(z)
+            terms["E"] = self.total(terms)
+            return terms
         function, *arguments = self._terms_arguments
         rows = function(np.ascontiguousarray(z, dtype=self.dtype), *arguments)
-        return dict(zip(TERM_NAMES, rows, strict=True))
+        return dict(zip(_TERMS_AND_TOTAL, rows, strict=True))
 
     def total(self, terms: dict[str, np.ndarray]) -> np.ndarray:
         """Weighted sum of terms (Eq. 10, plus the prior when its weight is not 0)."""

@@ -191,8 +191,7 @@ class SearchProblem:
         Adds the rows to ``evaluations`` unless ``count=False``.
         """
         z = self._check(z)
-        terms = self.energy.terms(z)
-        terms["E"] = self.energy.total(terms)
+        terms = self.energy.terms_and_total(z)
         if count:
             self.evaluations += len(z)
         return terms

@@ -341,7 +341,7 @@ class Reconstructor(FrameDrivers):
         if timestamp is None:
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)
-        no_body = not bool(np.any(states > 0))
+        no_body = not bool((states > 0).any())
         self._restart_after_gap(timestamp)
         first = not self._history
         dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)

@@ -533,7 +533,7 @@ class ReliabilityEstimator:
         del history.minima[cfg.smoothing_frames :]
         w = self._weights[: len(history.minima)]
         reliability = (w / w.sum()) @ np.asarray(history.minima)
-        if not np.any(states > 0):
+        if not (states > 0).any():
             # No body in view: nothing the sensor says is reliable, whatever the filter holds,
             # and the positions must not enter the motion history.
             reliability = np.zeros(skeleton.NUM_JOINTS)

@@ -150,11 +150,11 @@ class PlacementSmoother:
     def update(self, placement: pose_utils.Placement, timestamp: float) -> pose_utils.Placement:
         """The smoothed placement of the next frame (``timestamp`` in seconds)."""
         yaw = float(np.asarray(placement.yaw))
-        root = self._root.update(
-            np.asarray(placement.root, dtype=np.float64)[None], None, timestamp
+        root = self._root.update_tracked(
+            np.asarray(placement.root, dtype=np.float64)[None], timestamp
         )
         heading = np.array([[np.sin(yaw), 0.0, np.cos(yaw)]])
-        smooth = self._heading.update(heading, None, timestamp)[0].astype(np.float64)
+        smooth = self._heading.update_tracked(heading, timestamp)[0].astype(np.float64)
         if np.hypot(smooth[0], smooth[2]) < 1e-6:  # a half turn within one filter step
             smooth = heading[0]
         return pose_utils.Placement(
@@ -177,7 +177,7 @@ class OutputSmoother:
         """Filter one pose ``(20, 3)`` (camera space) and give it ``lengths`` ``(19,)``."""
         pose = np.asarray(pose, dtype=np.float64)
         root = pose[skeleton.ROOT]
-        local = self._filter.update(pose - root, None, timestamp).astype(np.float64)
+        local = self._filter.update_tracked(pose - root, timestamp).astype(np.float64)
         local -= local[skeleton.ROOT]
         out = pose_utils.retarget(local, lengths).astype(np.float64) + root
         return out.astype(np.float32)
