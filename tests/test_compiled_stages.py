@@ -313,3 +313,30 @@ def test_compiled_energy_setup_and_terms_agree_with_numpy(
                 fast_terms[name], slow_terms[name], rtol=50 * tolerance, atol=1e-12, err_msg=name
             )
         np.testing.assert_allclose(fast(z), slow(z), rtol=50 * tolerance)
+
+
+@pytest.mark.parametrize("damping", [1.0, 0.6])
+def test_compiled_continuity_equals_numpy_to_the_bit(
+    rng: np.random.Generator, damping: float
+) -> None:
+    """The previous output and the prediction (FPG Eq. 6) of one compiled call: numpy's
+    arithmetic around the compiled turn (``place_pose``) to the bit, and the numpy turn to
+    rounding (two, one or no previous outputs, a frame without a body, irregular timestamps)."""
+    from fpg_gym.reconstruct.temporal import continuity
+
+    for trial in range(20):
+        history = [
+            (poses.rest_pose() + rng.normal(0.0, 0.3, (skeleton.NUM_JOINTS, 3)), t)
+            for t in (0.0, float(rng.uniform(0.0, 0.05)))
+        ][: trial % 3]
+        args = (history, np.asarray(rng.uniform(-np.pi, np.pi)), float(rng.uniform(0.01, 0.1)))
+        for no_body in (False, True):
+            got = continuity(*args, no_body, damping)
+            with only_compiled(["fpg_gym.core.compiled_poses"]):
+                expected = continuity(*args, no_body, damping)
+            with numpy_only():
+                numpy_path = continuity(*args, no_body, damping)
+            for a, b, c in zip(got, expected, numpy_path, strict=True):
+                assert (a is None and b is None and c is None) or np.array_equal(a, b)
+                if a is not None:
+                    np.testing.assert_allclose(a, c, rtol=0, atol=1e-12)

@@ -77,7 +77,7 @@ def as_poses(value: object, name: str = "poses", *, ndim: int | None = None) -> 
         or (ndim is not None and array.ndim != ndim)
     ):
         raise ValueError(f"{name}: expected shape {expected}, got {array.shape}")
-    if not np.all(np.isfinite(array)):
+    if not np.isfinite(array).all():
         bad = np.argwhere(~np.isfinite(array))[0]
         raise ValueError(f"{name}: non-finite value at index {tuple(int(i) for i in bad)}")
     return array

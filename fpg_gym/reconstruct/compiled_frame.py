@@ -17,8 +17,11 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fpg_gym.core.compiled_poses import place_pose
+
 __all__ = [
     "centre_poses",
+    "continuity_poses",
     "energy_setup",
     "labelling_costs",
     "latent_terms",
@@ -305,6 +308,26 @@ def latent_terms(
             total = total + weights[4] * out[4, i]
         out[5, i] = total
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def continuity_poses(last, before, root, yaw, ratio, damping):
+    """:func:`fpg_gym.reconstruct.temporal.continuity` of two previous outputs ``(20, 3)``
+    (``before`` with no rows: one output only): each root-relative and turned by ``-yaw``
+    (``place_pose``), and the prediction ``previous + (previous - before) * ratio``, its velocity
+    scaled by ``damping`` (FPG Eq. 6; the same operations as the numpy code, to the bit)."""
+    previous = place_pose(last, last[root], yaw, False)
+    prediction = previous.copy()
+    if before.shape[0] == 0:
+        return previous, prediction
+    turned = place_pose(before, before[root], yaw, False)
+    for j in range(previous.shape[0]):
+        for c in range(3):
+            target = previous[j, c] + (previous[j, c] - turned[j, c]) * ratio
+            if damping != 1.0:
+                target = previous[j, c] + damping * (target - previous[j, c])
+            prediction[j, c] = target
+    return previous, prediction
 
 
 @numba.njit(cache=True, nogil=True)

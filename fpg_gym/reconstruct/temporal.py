@@ -46,10 +46,14 @@ import numpy as np
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.filters import make_filter
 from fpg_gym.filters.one_euro import OneEuroFilter
 from fpg_gym.reconstruct.energy import motion_target
 from fpg_gym.reconstruct.latent import LatentSpace
+
+#: :func:`continuity`'s compiled call without a second previous output.
+_NO_POSE = np.zeros((0, 3))
 
 __all__ = [
     "OutputSmoother",
@@ -226,6 +230,19 @@ def continuity(
     Eq. 6), which is also the motion target of Em (Shum Eq. 14), its velocity scaled by
     ``damping`` (:attr:`TemporalConfig.velocity_damping`). Both None on a stream's first frame."""
     previous = prediction = None
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    if history and compiled is not None:  # one compiled call, the same arithmetic
+        last = np.ascontiguousarray(history[-1][0], dtype=np.float64)
+        ratio = 1.0
+        before = _NO_POSE
+        if len(history) >= 2 and not no_body:
+            before = np.ascontiguousarray(history[-2][0], dtype=np.float64)
+            dt_prev = history[-1][1] - history[-2][1]
+            ratio = 1.0 if not dt_prev or dt_prev <= 0 else dt / dt_prev  # as motion_target
+        previous, prediction = compiled.continuity_poses(
+            last, before, skeleton.ROOT, float(yaw), ratio, float(damping)
+        )
+        return previous, prediction
     if history:
         previous = _rotate_into(history[-1][0], yaw)
         if len(history) >= 2 and not no_body:
