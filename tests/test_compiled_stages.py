@@ -340,3 +340,26 @@ def test_compiled_continuity_equals_numpy_to_the_bit(
                 assert (a is None and b is None and c is None) or np.array_equal(a, b)
                 if a is not None:
                     np.testing.assert_allclose(a, c, rtol=0, atol=1e-12)
+
+
+def test_compiled_output_smoother_equals_numpy_to_the_bit(rng: np.random.Generator) -> None:
+    """The output stage's pose after its filter (root-relative, retargeted, put back): numpy's
+    operations around the compiled retarget, to the bit, and the numpy retarget to rounding."""
+    from fpg_gym.reconstruct.temporal import OutputSmoother, TemporalConfig
+
+    smoothers = [OutputSmoother(TemporalConfig()) for _ in range(3)]
+    contexts = [
+        contextlib.nullcontext,
+        lambda: only_compiled(["fpg_gym.core.compiled_poses", "fpg_gym.filters.compiled_filters"]),
+        numpy_only,
+    ]
+    for t in range(30):
+        pose = poses.rest_pose() + rng.normal(0.0, 0.05, (skeleton.NUM_JOINTS, 3)) + [0, 0, 2]
+        lengths = poses.DEFAULT_BONE_LENGTHS * rng.uniform(0.9, 1.1, skeleton.NUM_BONES)
+        outputs = []
+        for smoother, context in zip(smoothers, contexts, strict=True):
+            with context():
+                outputs.append(smoother.update(pose, lengths, t / 30.0))
+        assert outputs[0].dtype == np.float32
+        np.testing.assert_array_equal(outputs[0], outputs[1])
+        np.testing.assert_allclose(outputs[0], outputs[2], rtol=0, atol=1e-6)

@@ -17,7 +17,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from fpg_gym.core.compiled_poses import place_pose
+from fpg_gym.core.compiled_poses import place_pose, retarget_pose
 
 __all__ = [
     "centre_poses",
@@ -27,6 +27,7 @@ __all__ = [
     "latent_terms",
     "merge_sorted",
     "remove_sorted",
+    "restore_output",
     "whitened_axes",
 ]
 
@@ -328,6 +329,26 @@ def continuity_poses(last, before, root, yaw, ratio, damping):
                 target = previous[j, c] + damping * (target - previous[j, c])
             prediction[j, c] = target
     return previous, prediction
+
+
+@numba.njit(cache=True, nogil=True)
+def restore_output(filtered, lengths, root, root_index, bones, rest_directions):
+    """:class:`fpg_gym.reconstruct.temporal.OutputSmoother`'s output from its filter's
+    root-relative float32 pose ``(20, 3)``: root-relative again, retargeted to ``lengths``
+    (``retarget_pose``, float32), put back at ``root`` in float64 and returned as float32 (the
+    numpy code's operations, to the bit)."""
+    joints = filtered.shape[0]
+    local = np.empty((joints, 3))
+    for c in range(3):
+        origin = np.float64(filtered[root_index, c])
+        for j in range(joints):
+            local[j, c] = np.float64(filtered[j, c]) - origin
+    placed = retarget_pose(local, lengths, bones, rest_directions)
+    out = np.empty((joints, 3), dtype=np.float32)
+    for j in range(joints):
+        for c in range(3):
+            out[j, c] = np.float64(placed[j, c]) + root[c]
+    return out
 
 
 @numba.njit(cache=True, nogil=True)

@@ -181,7 +181,21 @@ class OutputSmoother:
         """Filter one pose ``(20, 3)`` (camera space) and give it ``lengths`` ``(19,)``."""
         pose = np.asarray(pose, dtype=np.float64)
         root = pose[skeleton.ROOT]
-        local = self._filter.update_tracked(pose - root, timestamp).astype(np.float64)
+        filtered = self._filter.update_tracked(pose - root, timestamp)
+        lengths = np.asarray(lengths, dtype=np.float64)
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        one_pose = filtered.shape == (skeleton.NUM_JOINTS, 3)
+        if compiled is not None and one_pose and lengths.shape == (skeleton.NUM_BONES,):
+            restored: np.ndarray = compiled.restore_output(  # the lines below in one call
+                filtered,
+                lengths,
+                root,
+                skeleton.ROOT,
+                skeleton.BONES,
+                pose_utils.REST_DIRECTIONS,
+            )
+            return restored
+        local = filtered.astype(np.float64)
         local -= local[skeleton.ROOT]
         out = pose_utils.retarget(local, lengths).astype(np.float64) + root
         return out.astype(np.float32)
