@@ -142,7 +142,7 @@ class BoneSettler:
         )
         self._low, self._high = np.minimum(self._low, moved), np.maximum(self._high, moved)
         change = moved - self._lengths
-        if np.any(np.abs(change) > 1e-9):
+        if (np.abs(change) > 1e-9).any():
             self.events.append(
                 {
                     "time_s": timestamp,
