@@ -275,8 +275,8 @@ class EnergyModel:
             _CHILD_COORDS,
             _PARENT_COORDS,
         )
-        arrays = (latent.mean, components, self.sensor, joint_weights, y, y_sq, r_sq)
-        arrays += (latent.std, self.lengths, target)
+        arrays: tuple[np.ndarray, ...] = (latent.mean, components, self.sensor, joint_weights)
+        arrays += (y, y_sq, r_sq, latent.std, self.lengths, target)
         if self.dtype != _FLOAT64:  # the terms' arithmetic in the model's dtype
             arrays = tuple(a.astype(self.dtype) for a in arrays)
         self._terms_arguments = (
