@@ -251,9 +251,9 @@ class EnergyModel:
             self.tables = self._setup_compiled(compiled, latent, flat)
         if self.dtype != _FLOAT64:
             self.tables = self.tables.astype(self.dtype)
-        self._energy: Callable[[np.ndarray], np.ndarray] = bind_energy(
-            self.tables, self.fused_kernel
-        )
+        # The fused kernel bound to the tables, on the first call (a compiled local search
+        # takes the tables themselves).
+        self._energy: Callable[[np.ndarray], np.ndarray] | None = None
 
     def _setup_compiled(
         self, compiled: ModuleType, latent: LatentSpace, flat: np.ndarray
@@ -371,6 +371,8 @@ class EnergyModel:
         """``E`` for latent points ``(n, d) -> (n,)`` float64, by the fused kernel."""
         if self.kernel == "direct":
             return self.total(self._definition_terms(z))
+        if self._energy is None:
+            self._energy = bind_energy(self.tables, self.fused_kernel)
         energy = self._energy(np.asarray(z, dtype=self.dtype))
         return energy if energy.dtype == np.float64 else energy.astype(np.float64)
 
