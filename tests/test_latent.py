@@ -98,3 +98,21 @@ def test_principal_axes_of_duplicates_are_the_svds() -> None:
     _, expected, vt = np.linalg.svd(centred, full_matrices=False)
     np.testing.assert_array_equal(singular, expected)
     np.testing.assert_array_equal(basis, vt[:5])
+
+
+@pytest.mark.parametrize("k", [5, 30, 60])
+def test_fit_is_the_svd_of_the_centred_candidates(rng: np.random.Generator, k: int) -> None:
+    """The whitened space against its definition, the SVD of the centred candidates: the
+    compiled axes with numba, the numpy ones without (CI runs this file both ways)."""
+    data = candidates(rng, k)
+    space = LatentSpace.fit(data)
+    flat = data.reshape(k, -1).astype(np.float64)
+    mean = flat.mean(axis=0)
+    np.testing.assert_array_equal(space.mean, mean)
+    _, singular, vt = np.linalg.svd(flat - mean, full_matrices=False)
+    dim = min(20, k - 1)
+    expected = vt[:dim] * np.sign(vt[np.arange(dim), np.argmax(np.abs(vt[:dim]), axis=1)])[:, None]
+    np.testing.assert_allclose(space.basis, expected, atol=1e-9)
+    np.testing.assert_allclose(space.std, singular[:dim] / np.sqrt(k - 1), rtol=1e-10)
+    ratio = np.sum(singular[:dim] ** 2) / np.sum(singular**2)
+    assert space.explained_variance_ratio == pytest.approx(ratio, rel=1e-12)

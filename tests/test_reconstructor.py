@@ -425,3 +425,33 @@ def test_a_bare_recording_like_stream_runs_at_frame_dt() -> None:
     # Other timestamps change the continuity terms, so the stamps are really read.
     slow = SimpleNamespace(positions=bare.positions, states=bare.states, timestamps=np.arange(12))
     assert not np.array_equal(a.poses, r.reconstruct(slow, "local-search", rng=2).poses)
+
+
+@pytest.mark.parametrize("numpy_twin", [False, True])
+def test_left_right_costs_are_their_definition_in_each_twin(numpy_twin: bool) -> None:
+    """Each labelling's cost, the compiled twin's (when numba is installed) and the numpy one's,
+    against its definition written out joint by joint: the tracking-weighted mean distance
+    (tracked 1, inferred 0.5, not tracked 0) of the relabelled root-relative sensor joints to
+    the root-relative prediction."""
+    import contextlib
+
+    from fpg_gym.core.compiled import numpy_only
+    from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, left_right_costs
+
+    rng = np.random.default_rng(3)
+    for _ in range(20):
+        positions = rng.normal(0.0, 0.4, (20, 3)) + np.array([0.0, 1.0, 2.5])
+        prediction = positions + rng.normal(0.0, 0.05, (20, 3))
+        states = rng.choice([0, 1, 2], 20).astype(np.int8)
+        with numpy_only() if numpy_twin else contextlib.nullcontext():
+            costs = left_right_costs(positions, states, prediction)
+        weight = {0: 0.0, 1: 0.5, 2: 1.0}
+        for labelling, permutation in enumerate(LABEL_PERMUTATIONS):
+            total = count = 0.0
+            for j, source in enumerate(permutation):
+                w = weight[int(states[source])]
+                sensor = positions[source] - positions[skeleton.ROOT]
+                target = prediction[j] - prediction[skeleton.ROOT]
+                total += w * float(np.linalg.norm(sensor - target))
+                count += w
+            assert costs[labelling] == pytest.approx(total / max(count, 1e-9), rel=1e-12)
