@@ -54,6 +54,22 @@ def test_deterministic_for_a_seed(walk: Clip) -> None:
         assert np.array_equal(simulator.simulate(walk, seed=7).positions, first.positions)
 
 
+def test_kept_ray_casts_give_the_same_streams(walk: Clip) -> None:
+    run = walk.positions[20:60]
+    with (
+        KinectSimulator("right45-many") as keeping,
+        KinectSimulator("right45-many", traces_kept=0) as casting,
+    ):
+        for clip, seed in [(walk, 1), (run, 2), (walk, 3), (run, 3), (walk, 1)]:
+            kept, cast = keeping.simulate(clip, seed), casting.simulate(clip, seed)
+            assert np.array_equal(kept.positions, cast.positions)
+            assert np.array_equal(kept.states, cast.states)
+            assert np.array_equal(kept.occluded, cast.occluded)
+        assert len(keeping._traces) == 2 and not casting._traces
+    with pytest.raises(ValueError, match="traces_kept"):
+        KinectSimulator("front-many", traces_kept=-1)
+
+
 @pytest.mark.parametrize("scenario", ["clean", "front-few", "left45-many", "right45-many"])
 def test_ground_truth_is_the_clip_in_camera_space(walk: Clip, scenario: str) -> None:
     recording = simulate(walk, scenario, seed=1)
