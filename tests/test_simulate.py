@@ -20,11 +20,13 @@ from fpg_gym.simulate import (
     Camera,
     KinectSimulator,
     OcclusionModel,
+    RayCaster,
     Scenario,
     get_scenario,
     place,
     simulate,
 )
+from fpg_gym.simulate.ray_bounds import segment_distances
 
 REPO = Path(__file__).resolve().parents[1]
 HAND_RIGHT = skeleton.joint_index("HandRight")
@@ -52,6 +54,41 @@ def test_deterministic_for_a_seed(walk: Clip) -> None:
     with KinectSimulator("front-many") as simulator:  # a reused simulator gives the same
         assert np.array_equal(simulator.simulate(walk, seed=7).positions, first.positions)
         assert np.array_equal(simulator.simulate(walk, seed=7).positions, first.positions)
+
+
+@pytest.mark.parametrize(
+    ("clip_name", "scenario"),
+    [("walk", "front-many"), ("kick", "left45-many"), ("dance_b", "right45-few")],
+)
+def test_ray_bounds_give_pybullets_answer(clip_name: str, scenario: str) -> None:
+    """The rays the bounds settle without pybullet get the answer pybullet gives them."""
+    clip = next(c for c in load_default_clips() if c.name == clip_name)
+    spec = get_scenario(scenario)
+    placement = place(clip.positions, spec)
+    stage = placement.to_stage(clip.positions)
+    heading = poses.facing_yaw(stage)
+    with RayCaster() as caster:
+        caster.build(stage, spec.occluders)
+        fast = caster.trace(placement.camera.position, stage, spec.occluders, heading)
+        every = caster.trace(
+            placement.camera.position, stage, spec.occluders, heading, bounds=False
+        )
+    assert np.array_equal(fast.visible, every.visible)
+    assert np.array_equal(fast.blocker, every.blocker)
+    assert np.array_equal(fast.hit_point, every.hit_point)
+    assert (every.blocker != -1).any() and (every.visible < 1).any()
+
+
+def test_segment_distances_match_a_dense_search(rng: np.random.Generator) -> None:
+    start, end, first, second = (rng.normal(size=(200, 3)) for _ in range(4))
+    second[:20] = first[:20]  # a point
+    distances = segment_distances(start, end, first, second)
+    s = np.linspace(0.0, 1.0, 401)
+    one = start[:, None] + s[:, None] * (end - start)[:, None]  # (200, 401, 3)
+    other = first[:, None] + s[:, None] * (second - first)[:, None]
+    dense = np.linalg.norm(one[:, :, None] - other[:, None], axis=-1).min(axis=(1, 2))
+    assert np.all(distances <= dense + 1e-12)
+    assert np.all(dense - distances < 0.01)
 
 
 def test_kept_ray_casts_give_the_same_streams(walk: Clip) -> None:
