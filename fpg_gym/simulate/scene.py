@@ -422,19 +422,26 @@ class RayCaster:
         if not bounds:
             cast, shape = np.ones_like(cast), np.full_like(shape, -1)
         hit_points = flat_targets.copy()
-        start = camera.tolist()
+        per_frame = cast.sum(axis=1)
+        ends = flat_targets[cast].tolist()  # the cast rays, frame by frame
+        start, first = camera.tolist(), 0
+        results: list[Any] = []
         client, reset, uid_list = self.client, pybullet.resetBasePositionAndOrientation, self._uids
-        for t in np.flatnonzero(cast.any(axis=1)):
+        for t in np.flatnonzero(per_frame):
             pos_t, quat_t = shape_pos[t].tolist(), shape_quat[t].tolist()
             for k in moving:
-                reset(uid_list[k], pos_t[k], quat_t[k], physicsClientId=client)
-            which = np.flatnonzero(cast[t])
-            result = pybullet.rayTestBatch(
-                [start] * len(which), flat_targets[t, which].tolist(), physicsClientId=client
+                reset(uid_list[k], pos_t[k], quat_t[k], client)
+            last = first + int(per_frame[t])
+            results.extend(
+                pybullet.rayTestBatch(
+                    [start] * (last - first), ends[first:last], physicsClientId=client
+                )
             )
-            uids = np.array([r[0] for r in result], dtype=np.intp)
-            shape[t, which] = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
-            hit_points[t, which] = [r[3] for r in result]
+            first = last
+        if results:
+            uids = np.fromiter((r[0] for r in results), dtype=np.intp, count=len(results))
+            shape[cast] = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
+            hit_points[cast] = [r[3] for r in results]
         shape = shape.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint)
         own = np.zeros(shape.shape, dtype=bool)
         is_body = (shape >= 0) & (shape < NUM_BODY_SHAPES)
