@@ -24,6 +24,7 @@ from fpg_gym.simulate import (
     Scenario,
     get_scenario,
     place,
+    scene,
     simulate,
 )
 from fpg_gym.simulate.ray_bounds import segment_distances
@@ -77,6 +78,31 @@ def test_ray_bounds_give_pybullets_answer(clip_name: str, scenario: str) -> None
     assert np.array_equal(fast.blocker, every.blocker)
     assert np.array_equal(fast.hit_point, every.hit_point)
     assert (every.blocker != -1).any() and (every.visible < 1).any()
+
+
+def test_a_rebuilt_ray_caster_traces_as_a_new_one(
+    walk: Clip, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Rebuilding keeps the boxes and remakes the body's shapes (the scene is reset every few
+    builds): the same result as a new caster."""
+    monkeypatch.setattr(scene, "_REMOVALS_PER_RESET", 2)
+    spec = get_scenario("front-many")
+    clips = [walk.positions[:30], walk.positions[30:60], walk.positions[10:50]]
+    stages = [place(c, spec).to_stage(c) for c in clips]
+    camera = place(clips[0], spec).camera.position
+    with RayCaster() as reused:
+        for _ in range(3):
+            for stage in stages:
+                heading = poses.facing_yaw(stage)
+                reused.build(stage, spec.occluders)
+                again = reused.trace(camera, stage, spec.occluders, heading)
+                with RayCaster() as fresh:
+                    fresh.build(stage, spec.occluders)
+                    first = fresh.trace(camera, stage, spec.occluders, heading)
+                assert np.array_equal(again.visible, first.visible)
+                assert np.array_equal(again.blocker, first.blocker)
+                assert np.array_equal(again.hit_point, first.hit_point)
+        assert reused._removals == 2  # 9 builds: reset, removed, removed, reset, ...
 
 
 def test_segment_distances_match_a_dense_search(rng: np.random.Generator) -> None:

@@ -98,6 +98,9 @@ def _own_shapes() -> np.ndarray:
 
 OWN_SHAPES = _own_shapes()
 
+#: Builds that remove the body's shapes before one resets the whole scene.
+_REMOVALS_PER_RESET = 64
+
 
 @dataclass(frozen=True)
 class Box:
@@ -275,6 +278,8 @@ class RayCaster:
         self._shape_of_uid = np.zeros(0, dtype=np.intp)
         self._radius = self._half_height = np.zeros(0)
         self._box_half = np.zeros((0, 3))
+        self._boxes: tuple[Box, ...] = ()
+        self._removals = 0
 
     # -- lifecycle
     def close(self) -> None:
@@ -316,8 +321,29 @@ class RayCaster:
         self._uids.append(int(uid))
 
     def build(self, joints: np.ndarray, boxes: Sequence[Box]) -> None:
-        """Create the body shapes (sized from ``joints`` ``(T, 20, 3)``) and the boxes."""
-        self._reset_scene()
+        """Create the body shapes (sized from ``joints`` ``(T, 20, 3)``) and the boxes.
+
+        The boxes of the last build stay when they are the same (a simulator builds its
+        scenario's boxes once): only the body's shapes are removed and made again, and every
+        :data:`_REMOVALS_PER_RESET` builds the whole scene is reset instead (pybullet keeps the
+        collision shapes of removed bodies).
+        """
+        boxes = tuple(boxes)
+        kept: list[int] = []
+        if (
+            boxes == self._boxes
+            and len(self._uids) == NUM_BODY_SHAPES + len(boxes)
+            and self._removals < _REMOVALS_PER_RESET
+        ):
+            for uid in self._uids[:NUM_BODY_SHAPES]:
+                pybullet.removeBody(uid, physicsClientId=self.client)
+            kept = self._uids[NUM_BODY_SHAPES:]
+            self._uids = []
+            self._removals += 1
+        else:
+            self._reset_scene()
+            self._removals = 0
+        self._boxes = boxes
         lengths = np.median(poses.bone_lengths(joints)[:, LIMB_BONES], axis=0)
         client = self.client
         radii, heights = [], []
@@ -341,7 +367,7 @@ class RayCaster:
                 pybullet.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=client
             )
         )
-        for box in boxes:
+        for box in boxes if not kept else ():
             self._add(
                 pybullet.createCollisionShape(
                     pybullet.GEOM_BOX,
@@ -349,6 +375,7 @@ class RayCaster:
                     physicsClientId=client,
                 )
             )
+        self._uids.extend(kept)
         # The shapes as rays_to_cast takes them: capsules (the head a sphere), then boxes.
         self._radius = np.array([*radii, HEAD_RADIUS])
         self._half_height = np.array([*heights, 0.0]) / 2
