@@ -450,25 +450,26 @@ class RayCaster:
             cast, shape = np.ones_like(cast), np.full_like(shape, -1)
         hit_points = flat_targets.copy()
         per_frame = cast.sum(axis=1)
-        ends = flat_targets[cast].tolist()  # the cast rays, frame by frame
+        ends = flat_targets[cast]  # the cast rays, frame by frame
+        uids = np.empty(len(ends), dtype=np.intp)
+        stops = ends.copy()
         start, first = camera.tolist(), 0
-        results: list[Any] = []
         client, reset, uid_list = self.client, pybullet.resetBasePositionAndOrientation, self._uids
+        # Python objects live one frame at a time: a clip's worth at once sets off the garbage
+        # collector, whose full passes cost as much as the rest in a process holding many.
         for t in np.flatnonzero(per_frame):
             pos_t, quat_t = shape_pos[t].tolist(), shape_quat[t].tolist()
             for k in moving:
                 reset(uid_list[k], pos_t[k], quat_t[k], client)
             last = first + int(per_frame[t])
-            results.extend(
-                pybullet.rayTestBatch(
-                    [start] * (last - first), ends[first:last], physicsClientId=client
-                )
+            result = pybullet.rayTestBatch(
+                [start] * (last - first), ends[first:last].tolist(), physicsClientId=client
             )
+            uids[first:last] = [r[0] for r in result]
+            stops[first:last] = [r[3] for r in result]
             first = last
-        if results:
-            uids = np.fromiter((r[0] for r in results), dtype=np.intp, count=len(results))
-            shape[cast] = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
-            hit_points[cast] = [r[3] for r in results]
+        shape[cast] = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
+        hit_points[cast] = stops
         shape = shape.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint)
         own = np.zeros(shape.shape, dtype=bool)
         is_body = (shape >= 0) & (shape < NUM_BODY_SHAPES)
