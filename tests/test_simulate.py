@@ -18,6 +18,7 @@ from fpg_gym.simulate import (
     SCENARIOS,
     Box,
     Camera,
+    EpisodeSimulator,
     KinectSimulator,
     OcclusionModel,
     RayCaster,
@@ -103,6 +104,21 @@ def test_a_rebuilt_ray_caster_traces_as_a_new_one(
                 assert np.array_equal(again.blocker, first.blocker)
                 assert np.array_equal(again.hit_point, first.hit_point)
         assert reused._removals == 2  # 9 builds: reset, removed, removed, reset, ...
+
+
+def test_simulators_sharing_a_caster_give_their_own_streams(walk: Clip) -> None:
+    """An episode simulator's scenarios cast in one pybullet client, taking turns."""
+    run = walk.positions[15:55]
+    names = ["front-many", "left45-few", "clean", "right45-many"]
+    with EpisodeSimulator(names) as shared:
+        for clip, seed in [(walk, 1), (run, 2), (walk, 3)]:
+            for name in names:
+                got = shared.simulator(name).simulate(clip, seed)
+                alone = simulate(clip, name, seed)
+                assert np.array_equal(got.positions, alone.positions)
+                assert np.array_equal(got.states, alone.states)
+    with RayCaster(rays_per_joint=1) as caster, pytest.raises(ValueError, match="rays per joint"):
+        KinectSimulator("front-many", caster=caster)
 
 
 def test_segment_distances_match_a_dense_search(rng: np.random.Generator) -> None:

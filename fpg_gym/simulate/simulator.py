@@ -166,6 +166,9 @@ class KinectSimulator:
         How many clips' ray casts to keep (32; 0: none). The visibility of a clip's joints does
         not depend on the seed, so a clip simulated again (another seed, the next episode of an
         env) skips the ray casts, with the same result.
+    caster : RayCaster, optional
+        A ray caster to share (one pybullet client for many scenarios' simulators; it stays
+        open when this simulator closes). None: one of its own, made on first use.
 
     Examples
     --------
@@ -176,21 +179,31 @@ class KinectSimulator:
     """
 
     def __init__(
-        self, scenario: str | Scenario, *, rays_per_joint: int = 5, traces_kept: int = 32
+        self,
+        scenario: str | Scenario,
+        *,
+        rays_per_joint: int = 5,
+        traces_kept: int = 32,
+        caster: RayCaster | None = None,
     ) -> None:
         if traces_kept < 0:
             raise ValueError(f"traces_kept: expected >= 0, got {traces_kept}")
+        if caster is not None and caster.rays_per_joint != rays_per_joint:
+            raise ValueError(
+                f"caster: casts {caster.rays_per_joint} rays per joint, expected {rays_per_joint}"
+            )
         self.scenario = get_scenario(scenario)
         self.rays_per_joint = rays_per_joint
         self.traces_kept = int(traces_kept)
-        self._caster: RayCaster | None = None
+        self._caster = caster
+        self._owns_caster = caster is None
         self._traces: OrderedDict[bytes, TraceResult] = OrderedDict()
 
     def close(self) -> None:
-        """Release the pybullet client."""
-        if self._caster is not None:
+        """Release the pybullet client (not a shared caster's)."""
+        if self._caster is not None and self._owns_caster:
             self._caster.close()
-            self._caster = None
+        self._caster = None
 
     def __enter__(self) -> KinectSimulator:
         return self
@@ -227,6 +240,8 @@ class KinectSimulator:
                 hit_point=stage.copy(),
             )
         if self._caster is None:
+            if not self._owns_caster:
+                raise RuntimeError("KinectSimulator: closed (its shared caster is gone)")
             self._caster = RayCaster(rays_per_joint=self.rays_per_joint)
         self._caster.build(stage, scenario.occluders)
         result = self._caster.trace(camera.position, stage, scenario.occluders, heading)
