@@ -300,7 +300,8 @@ class ObservationLayout:
             float(p.context.dt) / frame_dt,
             progress,
         )
-        np.nan_to_num(out, copy=False)  # NaN -> 0, +-inf -> +-max, then clipped to the bounds
+        if not np.isfinite(out).all():  # NaN -> 0, +-inf -> +-max, then clipped to the bounds
+            np.nan_to_num(out, copy=False)
         np.clip(out, self.low, self.high, out=out)
         return out
 

@@ -18,13 +18,17 @@ from fpg_gym.simulate import (
     SCENARIOS,
     Box,
     Camera,
+    EpisodeSimulator,
     KinectSimulator,
     OcclusionModel,
+    RayCaster,
     Scenario,
     get_scenario,
     place,
+    scene,
     simulate,
 )
+from fpg_gym.simulate.ray_bounds import segment_distances
 
 REPO = Path(__file__).resolve().parents[1]
 HAND_RIGHT = skeleton.joint_index("HandRight")
@@ -52,6 +56,97 @@ def test_deterministic_for_a_seed(walk: Clip) -> None:
     with KinectSimulator("front-many") as simulator:  # a reused simulator gives the same
         assert np.array_equal(simulator.simulate(walk, seed=7).positions, first.positions)
         assert np.array_equal(simulator.simulate(walk, seed=7).positions, first.positions)
+
+
+@pytest.mark.parametrize(
+    ("clip_name", "scenario"),
+    [("walk", "front-many"), ("kick", "left45-many"), ("dance_b", "right45-few")],
+)
+def test_ray_bounds_give_pybullets_answer(clip_name: str, scenario: str) -> None:
+    """The rays the bounds settle without pybullet get the answer pybullet gives them."""
+    clip = next(c for c in load_default_clips() if c.name == clip_name)
+    spec = get_scenario(scenario)
+    placement = place(clip.positions, spec)
+    stage = placement.to_stage(clip.positions)
+    heading = poses.facing_yaw(stage)
+    with RayCaster() as caster:
+        caster.build(stage, spec.occluders)
+        fast = caster.trace(placement.camera.position, stage, spec.occluders, heading)
+        every = caster.trace(
+            placement.camera.position, stage, spec.occluders, heading, bounds=False
+        )
+    assert np.array_equal(fast.visible, every.visible)
+    assert np.array_equal(fast.blocker, every.blocker)
+    assert np.array_equal(fast.hit_point, every.hit_point)
+    assert (every.blocker != -1).any() and (every.visible < 1).any()
+
+
+def test_a_rebuilt_ray_caster_traces_as_a_new_one(
+    walk: Clip, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """Rebuilding keeps the boxes and remakes the body's shapes (the scene is reset every few
+    builds): the same result as a new caster."""
+    monkeypatch.setattr(scene, "_REMOVALS_PER_RESET", 2)
+    spec = get_scenario("front-many")
+    clips = [walk.positions[:30], walk.positions[30:60], walk.positions[10:50]]
+    stages = [place(c, spec).to_stage(c) for c in clips]
+    camera = place(clips[0], spec).camera.position
+    with RayCaster() as reused:
+        for _ in range(3):
+            for stage in stages:
+                heading = poses.facing_yaw(stage)
+                reused.build(stage, spec.occluders)
+                again = reused.trace(camera, stage, spec.occluders, heading)
+                with RayCaster() as fresh:
+                    fresh.build(stage, spec.occluders)
+                    first = fresh.trace(camera, stage, spec.occluders, heading)
+                assert np.array_equal(again.visible, first.visible)
+                assert np.array_equal(again.blocker, first.blocker)
+                assert np.array_equal(again.hit_point, first.hit_point)
+        assert reused._removals == 2  # 9 builds: reset, removed, removed, reset, ...
+
+
+def test_simulators_sharing_a_caster_give_their_own_streams(walk: Clip) -> None:
+    """An episode simulator's scenarios cast in one pybullet client, taking turns."""
+    run = walk.positions[15:55]
+    names = ["front-many", "left45-few", "clean", "right45-many"]
+    with EpisodeSimulator(names) as shared:
+        for clip, seed in [(walk, 1), (run, 2), (walk, 3)]:
+            for name in names:
+                got = shared.simulator(name).simulate(clip, seed)
+                alone = simulate(clip, name, seed)
+                assert np.array_equal(got.positions, alone.positions)
+                assert np.array_equal(got.states, alone.states)
+    with RayCaster(rays_per_joint=1) as caster, pytest.raises(ValueError, match="rays per joint"):
+        KinectSimulator("front-many", caster=caster)
+
+
+def test_segment_distances_match_a_dense_search(rng: np.random.Generator) -> None:
+    start, end, first, second = (rng.normal(size=(200, 3)) for _ in range(4))
+    second[:20] = first[:20]  # a point
+    distances = segment_distances(start, end, first, second)
+    s = np.linspace(0.0, 1.0, 401)
+    one = start[:, None] + s[:, None] * (end - start)[:, None]  # (200, 401, 3)
+    other = first[:, None] + s[:, None] * (second - first)[:, None]
+    dense = np.linalg.norm(one[:, :, None] - other[:, None], axis=-1).min(axis=(1, 2))
+    assert np.all(distances <= dense + 1e-12)
+    assert np.all(dense - distances < 0.01)
+
+
+def test_kept_ray_casts_give_the_same_streams(walk: Clip) -> None:
+    run = walk.positions[20:60]
+    with (
+        KinectSimulator("right45-many") as keeping,
+        KinectSimulator("right45-many", traces_kept=0) as casting,
+    ):
+        for clip, seed in [(walk, 1), (run, 2), (walk, 3), (run, 3), (walk, 1)]:
+            kept, cast = keeping.simulate(clip, seed), casting.simulate(clip, seed)
+            assert np.array_equal(kept.positions, cast.positions)
+            assert np.array_equal(kept.states, cast.states)
+            assert np.array_equal(kept.occluded, cast.occluded)
+        assert len(keeping._traces) == 2 and not casting._traces
+    with pytest.raises(ValueError, match="traces_kept"):
+        KinectSimulator("front-many", traces_kept=-1)
 
 
 @pytest.mark.parametrize("scenario", ["clean", "front-few", "left45-many", "right45-many"])

@@ -133,6 +133,9 @@ _BODY_GROUP, _FLOOR_GROUP = 1, 2
 #: Rebuilds that remove the body before one resets the whole simulation (which frees the
 #: collision shapes pybullet keeps after a body is removed).
 _REBUILDS_PER_RESET = 64
+#: ``pybullet.changeConstraint``'s values that leave a setting as it is: maxForce, gearRatio,
+#: gearAuxLink, relativePositionTarget, erp (positional, in pybullet's order).
+_UNCHANGED = (-1.0, 0.0, -1, 1e32, -1.0)
 
 
 class PhysicsError(FpgGymError, RuntimeError):
@@ -502,12 +505,10 @@ class Ragdoll:
         for k in range(n):  # the pybullet call boundary: one call per body part and step
             centres_k, orientations_k = centres[k], orientations[k]
             for bone, constraint in pairs:
-                change(
-                    constraint,
-                    jointChildPivot=centres_k[bone],
-                    jointChildFrameOrientation=orientations_k[bone],
-                    physicsClientId=cid,
-                )
+                # Positional (half the cost of keywords): the pivot and orientation, then
+                # pybullet's "leave unchanged" maxForce, gearRatio, gearAuxLink,
+                # relativePositionTarget and erp, then the client.
+                change(constraint, centres_k[bone], orientations_k[bone], *_UNCHANGED, cid)
             step(physicsClientId=cid)
         self._goal = goal
         self._target = target.copy()

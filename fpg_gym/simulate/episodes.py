@@ -37,6 +37,7 @@ from fpg_gym.core.seeding import derive_seed
 from fpg_gym.io.clip import Clip
 from fpg_gym.io.recording import Recording
 from fpg_gym.simulate.scenarios import Scenario, get_scenario
+from fpg_gym.simulate.scene import RayCaster
 from fpg_gym.simulate.simulator import KinectSimulator
 
 __all__ = [
@@ -142,7 +143,8 @@ def unique_names(names: Iterable[str]) -> list[str]:
 
 
 class EpisodeSimulator:
-    """Simulates planned episodes with one :class:`KinectSimulator` per scenario, reused.
+    """Simulates planned episodes with one :class:`KinectSimulator` per scenario, reused, all
+    casting their rays in one pybullet client (:class:`~fpg_gym.simulate.scene.RayCaster`).
 
     Parameters
     ----------
@@ -167,13 +169,17 @@ class EpisodeSimulator:
                     "expected one scenario per name"
                 )
         self._simulators: dict[str, KinectSimulator] = {}
+        self._caster: RayCaster | None = None
 
     def simulator(self, scenario: str) -> KinectSimulator:
         """The (cached) simulator of a scenario name."""
         simulator = self._simulators.get(scenario)
-        if simulator is None:  # one per scenario: no new pybullet client per episode
+        if simulator is None:  # one per scenario, one pybullet client for all
             spec = self._scenarios.get(scenario) or get_scenario(scenario)
-            simulator = self._simulators[scenario] = KinectSimulator(spec)
+            if self._caster is None and spec.occlusion_effects:
+                self._caster = RayCaster()
+            caster = self._caster if spec.occlusion_effects else None
+            simulator = self._simulators[scenario] = KinectSimulator(spec, caster=caster)
         return simulator
 
     def simulate(
@@ -184,10 +190,13 @@ class EpisodeSimulator:
         return recording.head(max_frames)
 
     def close(self) -> None:
-        """Release the simulators' pybullet clients (idempotent)."""
+        """Release the simulators' pybullet client (idempotent)."""
         for simulator in self._simulators.values():
             simulator.close()
         self._simulators = {}
+        if self._caster is not None:
+            self._caster.close()
+            self._caster = None
 
     def __enter__(self) -> EpisodeSimulator:
         return self

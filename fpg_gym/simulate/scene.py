@@ -11,8 +11,10 @@ share of rays that reach their point. A ray is blocked by any scene box, and by 
 that does not belong to the joint itself (a hand is hidden by the torso, not by its own
 forearm). The body is made of simple shapes sized from the clip's bone lengths: one capsule per
 limb bone, a sphere for the head, a box for the torso. All shapes are static collision objects
-in a pybullet DIRECT client of the caster's own, moved every frame with
-``resetBasePositionAndOrientation``; one ``rayTestBatch`` per frame casts every ray.
+in a pybullet DIRECT client of the caster's own, moved with ``resetBasePositionAndOrientation``;
+one ``rayTestBatch`` per frame casts the rays that bounds do not settle
+(:func:`fpg_gym.simulate.ray_bounds.rays_to_cast`: pybullet's answer without asking it), and
+frames without such a ray cast nothing.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ import numpy.typing as npt
 from fpg_gym.core import poses, skeleton
 from fpg_gym.core.rotations import matrix_to_quaternion_xyzw, shortest_arc
 from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
+from fpg_gym.simulate.ray_bounds import rays_to_cast
 
 __all__ = ["Box", "RayCaster", "TraceResult", "body_shape_poses", "box_poses"]
 
@@ -94,6 +97,9 @@ def _own_shapes() -> np.ndarray:
 
 
 OWN_SHAPES = _own_shapes()
+
+#: Builds that remove the body's shapes before one resets the whole scene.
+_REMOVALS_PER_RESET = 64
 
 
 @dataclass(frozen=True)
@@ -242,7 +248,8 @@ class TraceResult:
         What stops the joint's central ray: -1 nothing, -2 another body part, k >= 0 scene
         box k.
     hit_point : ndarray, shape (T, 20, 3), float64
-        Where the central ray stops, stage coordinates (the target itself when unblocked).
+        Where the central ray stops, stage coordinates (the target itself when nothing but the
+        joint's own body part is in its way).
     """
 
     visible: np.ndarray
@@ -269,6 +276,10 @@ class RayCaster:
         self._client: int | None = connect_direct(renderer=False)
         self._uids: list[int] = []
         self._shape_of_uid = np.zeros(0, dtype=np.intp)
+        self._radius = self._half_height = np.zeros(0)
+        self._box_half = np.zeros((0, 3))
+        self._boxes: tuple[Box, ...] = ()
+        self._removals = 0
 
     # -- lifecycle
     def close(self) -> None:
@@ -310,19 +321,41 @@ class RayCaster:
         self._uids.append(int(uid))
 
     def build(self, joints: np.ndarray, boxes: Sequence[Box]) -> None:
-        """Create the body shapes (sized from ``joints`` ``(T, 20, 3)``) and the boxes."""
-        self._reset_scene()
+        """Create the body shapes (sized from ``joints`` ``(T, 20, 3)``) and the boxes.
+
+        The boxes of the last build stay when they are the same (a simulator builds its
+        scenario's boxes once): only the body's shapes are removed and made again, and every
+        :data:`_REMOVALS_PER_RESET` builds the whole scene is reset instead (pybullet keeps the
+        collision shapes of removed bodies).
+        """
+        boxes = tuple(boxes)
+        kept: list[int] = []
+        if (
+            boxes == self._boxes
+            and len(self._uids) == NUM_BODY_SHAPES + len(boxes)
+            and self._removals < _REMOVALS_PER_RESET
+        ):
+            for uid in self._uids[:NUM_BODY_SHAPES]:
+                pybullet.removeBody(uid, physicsClientId=self.client)
+            kept = self._uids[NUM_BODY_SHAPES:]
+            self._uids = []
+            self._removals += 1
+        else:
+            self._reset_scene()
+            self._removals = 0
+        self._boxes = boxes
         lengths = np.median(poses.bone_lengths(joints)[:, LIMB_BONES], axis=0)
         client = self.client
+        radii, heights = [], []
         for bone, length in zip(LIMB_BONES, lengths, strict=True):
             radius = LIMB_RADIUS[skeleton.JOINT_NAMES[skeleton.BONES[bone, 1]]]
+            height = max(float(length), 1e-3)
             shape = pybullet.createCollisionShape(
-                pybullet.GEOM_CAPSULE,
-                radius=radius,
-                height=max(float(length), 1e-3),
-                physicsClientId=client,
+                pybullet.GEOM_CAPSULE, radius=radius, height=height, physicsClientId=client
             )
             self._add(shape)
+            radii.append(radius)
+            heights.append(height)
         self._add(
             pybullet.createCollisionShape(
                 pybullet.GEOM_SPHERE, radius=HEAD_RADIUS, physicsClientId=client
@@ -334,7 +367,7 @@ class RayCaster:
                 pybullet.GEOM_BOX, halfExtents=half.tolist(), physicsClientId=client
             )
         )
-        for box in boxes:
+        for box in boxes if not kept else ():
             self._add(
                 pybullet.createCollisionShape(
                     pybullet.GEOM_BOX,
@@ -342,6 +375,11 @@ class RayCaster:
                     physicsClientId=client,
                 )
             )
+        self._uids.extend(kept)
+        # The shapes as rays_to_cast takes them: capsules (the head a sphere), then boxes.
+        self._radius = np.array([*radii, HEAD_RADIUS])
+        self._half_height = np.array([*heights, 0.0]) / 2
+        self._box_half = np.array([half, *(np.asarray(box.size) / 2 for box in boxes)])
         lookup = np.full(max(self._uids) + 1, -1, dtype=np.intp)
         lookup[self._uids] = np.arange(len(self._uids))
         self._shape_of_uid = lookup
@@ -352,8 +390,11 @@ class RayCaster:
         joints: np.ndarray,
         boxes: Sequence[Box],
         heading: np.ndarray,
+        *,
+        bounds: bool = True,
     ) -> TraceResult:
-        """Cast every joint's rays in every frame (one ``rayTestBatch`` per frame).
+        """Cast every joint's rays in every frame (one ``rayTestBatch`` per frame, with the rays
+        that :func:`~fpg_gym.simulate.ray_bounds.rays_to_cast` leaves).
 
         Parameters
         ----------
@@ -365,6 +406,9 @@ class RayCaster:
             The scene boxes, as given to :meth:`build`.
         heading : ndarray, shape (T,)
             The body's facing yaw per frame (for carried boxes).
+        bounds : bool
+            False: pybullet casts every ray (the same result, slower; what the bounds are
+            tested against).
         """
         joints = np.asarray(joints, dtype=np.float64)
         count = len(joints)
@@ -389,21 +433,43 @@ class RayCaster:
         targets = self._targets(camera, joints)  # (T, 20, K, 3)
         rays = skeleton.NUM_JOINTS * self.rays_per_joint
         flat_targets = targets.reshape(count, rays, 3)
-        starts = [camera.tolist()] * rays
-        uids = np.empty((count, rays), dtype=np.intp)
-        hits = np.empty((count, skeleton.NUM_JOINTS, 3))
-        center_rays = np.arange(skeleton.NUM_JOINTS) * self.rays_per_joint
+        own_shapes = np.zeros((rays, len(self._uids)), dtype=bool)
+        own_shapes[:, :NUM_BODY_SHAPES] = np.repeat(OWN_SHAPES, self.rays_per_joint, axis=0)
+        cast, shape = rays_to_cast(
+            camera,
+            flat_targets,
+            shape_pos,
+            shape_quat,
+            self._radius,
+            self._half_height,
+            self._box_half,
+            own_shapes,
+            np.arange(rays) % self.rays_per_joint == 0,
+        )
+        if not bounds:
+            cast, shape = np.ones_like(cast), np.full_like(shape, -1)
+        hit_points = flat_targets.copy()
+        per_frame = cast.sum(axis=1)
+        ends = flat_targets[cast]  # the cast rays, frame by frame
+        uids = np.empty(len(ends), dtype=np.intp)
+        stops = ends.copy()
+        start, first = camera.tolist(), 0
         client, reset, uid_list = self.client, pybullet.resetBasePositionAndOrientation, self._uids
-        for t in range(count):
+        # Python objects live one frame at a time: a clip's worth at once sets off the garbage
+        # collector, whose full passes cost as much as the rest in a process holding many.
+        for t in np.flatnonzero(per_frame):
             pos_t, quat_t = shape_pos[t].tolist(), shape_quat[t].tolist()
             for k in moving:
-                reset(uid_list[k], pos_t[k], quat_t[k], physicsClientId=client)
-            result = pybullet.rayTestBatch(starts, flat_targets[t].tolist(), physicsClientId=client)
-            uids[t] = [r[0] for r in result]
-            hits[t] = [
-                result[i][3] if result[i][0] >= 0 else flat_targets[t, i] for i in center_rays
-            ]
-        shape = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
+                reset(uid_list[k], pos_t[k], quat_t[k], client)
+            last = first + int(per_frame[t])
+            result = pybullet.rayTestBatch(
+                [start] * (last - first), ends[first:last].tolist(), physicsClientId=client
+            )
+            uids[first:last] = [r[0] for r in result]
+            stops[first:last] = [r[3] for r in result]
+            first = last
+        shape[cast] = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
+        hit_points[cast] = stops
         shape = shape.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint)
         own = np.zeros(shape.shape, dtype=bool)
         is_body = (shape >= 0) & (shape < NUM_BODY_SHAPES)
@@ -417,6 +483,8 @@ class RayCaster:
         blocker = np.where(
             ~blocked[..., 0], -1, np.where(center >= NUM_BODY_SHAPES, center - NUM_BODY_SHAPES, -2)
         )
+        central = hit_points.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint, 3)[:, :, 0]
+        hits = np.where(blocked[..., :1], central, targets[:, :, 0])
         return TraceResult(visible=visible, blocker=blocker, hit_point=hits)
 
     def _targets(self, camera: np.ndarray, joints: np.ndarray) -> np.ndarray:

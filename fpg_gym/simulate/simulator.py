@@ -1,7 +1,7 @@
 """Turn a clean mocap clip into a Kinect-like :class:`~fpg_gym.io.recording.Recording`.
 
-Steps for one clip (all vectorised over frames and joints except the per-frame ray casts and the
-per-frame occlusion state update, which depends on the previous frame):
+Steps for one clip (all vectorised over frames and joints except the ray casts of the frames
+that need pybullet and the reported bones of hidden joints, which follow the previous frame's):
 
 1. **Placement.** The clip is turned about the vertical so that its mean heading (circular mean
    of :func:`fpg_gym.core.poses.facing_yaw`) faces +Z, and moved so that its mean root position is
@@ -27,7 +27,9 @@ The per-frame parameters of the models assume about 30 frames per second (the Ki
 
 from __future__ import annotations
 
+import hashlib
 import time
+from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Any
 
@@ -160,6 +162,13 @@ class KinectSimulator:
         A name from :func:`~fpg_gym.simulate.scenarios.scenario_names` or a custom scenario.
     rays_per_joint : int
         1 or 5 rays per joint (5 measures partial occlusion).
+    traces_kept : int
+        How many clips' ray casts to keep (32; 0: none). The visibility of a clip's joints does
+        not depend on the seed, so a clip simulated again (another seed, the next episode of an
+        env) skips the ray casts, with the same result.
+    caster : RayCaster, optional
+        A ray caster to share (one pybullet client for many scenarios' simulators; it stays
+        open when this simulator closes). None: one of its own, made on first use.
 
     Examples
     --------
@@ -169,16 +178,32 @@ class KinectSimulator:
     ...     recording = sim.simulate(load_default_clips()[0], seed=0)
     """
 
-    def __init__(self, scenario: str | Scenario, *, rays_per_joint: int = 5) -> None:
+    def __init__(
+        self,
+        scenario: str | Scenario,
+        *,
+        rays_per_joint: int = 5,
+        traces_kept: int = 32,
+        caster: RayCaster | None = None,
+    ) -> None:
+        if traces_kept < 0:
+            raise ValueError(f"traces_kept: expected >= 0, got {traces_kept}")
+        if caster is not None and caster.rays_per_joint != rays_per_joint:
+            raise ValueError(
+                f"caster: casts {caster.rays_per_joint} rays per joint, expected {rays_per_joint}"
+            )
         self.scenario = get_scenario(scenario)
         self.rays_per_joint = rays_per_joint
-        self._caster: RayCaster | None = None
+        self.traces_kept = int(traces_kept)
+        self._caster = caster
+        self._owns_caster = caster is None
+        self._traces: OrderedDict[bytes, TraceResult] = OrderedDict()
 
     def close(self) -> None:
-        """Release the pybullet client."""
-        if self._caster is not None:
+        """Release the pybullet client (not a shared caster's)."""
+        if self._caster is not None and self._owns_caster:
             self._caster.close()
-            self._caster = None
+        self._caster = None
 
     def __enter__(self) -> KinectSimulator:
         return self
@@ -187,6 +212,25 @@ class KinectSimulator:
         self.close()
 
     def _trace(self, stage: np.ndarray, camera: Camera, heading: np.ndarray) -> TraceResult:
+        """The visibility of ``stage``'s joints, from the kept traces when it was cast before."""
+        if self.traces_kept == 0:
+            return self._cast(stage, camera, heading)
+        key = hashlib.blake2b(stage.tobytes(), digest_size=16, person=b"fpg-trace")
+        key.update(np.asarray(stage.shape, dtype=np.int64).tobytes())
+        digest = key.digest()
+        result = self._traces.get(digest)
+        if result is None:
+            result = self._cast(stage, camera, heading)
+            for array in (result.visible, result.blocker, result.hit_point):
+                array.flags.writeable = False
+            self._traces[digest] = result
+            if len(self._traces) > self.traces_kept:
+                self._traces.popitem(last=False)
+        else:
+            self._traces.move_to_end(digest)
+        return result
+
+    def _cast(self, stage: np.ndarray, camera: Camera, heading: np.ndarray) -> TraceResult:
         scenario = self.scenario
         count = len(stage)
         if not scenario.occlusion_effects:
@@ -196,6 +240,8 @@ class KinectSimulator:
                 hit_point=stage.copy(),
             )
         if self._caster is None:
+            if not self._owns_caster:
+                raise RuntimeError("KinectSimulator: closed (its shared caster is gone)")
             self._caster = RayCaster(rays_per_joint=self.rays_per_joint)
         self._caster.build(stage, scenario.occluders)
         result = self._caster.trace(camera.position, stage, scenario.occluders, heading)
@@ -397,108 +443,33 @@ class _OcclusionDraws:
 _NEVER = np.iinfo(np.intp).max
 
 
-@dataclass
-class _HiddenEpisodes:
-    """Per joint, the hidden episode it is in: its mode (snap, freeze, swing, collapse), the
-    reported bone, the bone it froze at, its swing, its collapse, the frames hidden so far and
-    after how many it is reported not tracked."""
+def _hidden_episodes(hidden: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Per frame and joint ``(T, J)``: whether a hidden episode begins, how many frames it has
+    been hidden (0 when seen) and the frame its latest hidden episode began (-1 before any)."""
+    frame = np.arange(len(hidden))[:, None]
+    before = np.zeros_like(hidden)
+    before[1:] = hidden[:-1]
+    begin = hidden & ~before
+    last_seen = np.maximum.accumulate(np.where(hidden, -1, frame), axis=0)
+    run = np.where(hidden, frame - last_seen, 0)
+    began = np.maximum.accumulate(np.where(begin, frame, -1), axis=0)
+    return begin, run, began
 
-    mode: np.ndarray
-    bone_rep: np.ndarray
-    frozen: np.ndarray
-    turn: np.ndarray
-    shrink: np.ndarray
-    run: np.ndarray
-    limit: np.ndarray
 
-    @classmethod
-    def start(cls, joints: int) -> _HiddenEpisodes:
-        """No joint hidden yet."""
-        return cls(
-            mode=np.zeros(joints, dtype=np.intp),
-            bone_rep=np.zeros((joints, 3)),  # reported bone of hidden joints
-            frozen=np.zeros((joints, 3)),
-            turn=np.tile(np.eye(3), (joints, 1, 1)),
-            shrink=np.ones(joints),
-            run=np.zeros(joints, dtype=np.intp),
-            limit=np.full(joints, _NEVER),
-        )
+def _unit_axes(axes: np.ndarray) -> np.ndarray:
+    """Rows of ``axes`` ``(N, 3)`` scaled to unit length (+Z for a zero row)."""
+    norm = np.linalg.norm(axes, axis=-1, keepdims=True)
+    return np.where(norm > 1e-9, axes / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
 
-    def begin(
-        self,
-        model: OcclusionModel,
-        draws: _OcclusionDraws,
-        t: int,
-        begin: np.ndarray,
-        previous: np.ndarray,
-        bone_t: np.ndarray,
-        can_snap: np.ndarray,
-    ) -> None:
-        """Start the hidden episodes of the joints ``begin`` at frame ``t`` (``previous``: their
-        reported bones in the frame before)."""
-        u = draws.u_mode[t]
-        self.mode = np.where(
-            begin,
-            np.where(
-                can_snap & (draws.u_snap[t] < model.snap_probability),
-                _SNAP,
-                np.where(
-                    u < model.freeze_probability,
-                    _FREEZE,
-                    np.where(
-                        u < model.freeze_probability + model.swing_probability,
-                        _SWING,
-                        _COLLAPSE,
-                    ),
-                ),
-            ),
-            self.mode,
-        )
-        self.bone_rep = np.where(begin[:, None], previous, self.bone_rep)
-        self.frozen = np.where(begin[:, None], previous, self.frozen)
-        axis = np.cross(bone_t, draws.axis_draw[t])
-        norm = np.linalg.norm(axis, axis=-1, keepdims=True)
-        axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
-        self.turn = np.where(
-            begin[:, None, None], axis_angle_matrix(axis, draws.angle_draw[t]), self.turn
-        )
-        self.shrink = np.where(begin, draws.shrink_draw[t], self.shrink)
-        self.limit = np.where(
-            begin,
-            np.where(
-                draws.u_not_tracked[t] < model.not_tracked_probability,
-                draws.after_draw[t],
-                _NEVER,
-            ),
-            self.limit,
-        )
 
-    def glitch(self, draws: _OcclusionDraws, t: int, jumps: np.ndarray) -> None:
-        """Turn the reported bones of the hidden limb joints ``jumps`` that glitch at ``t``."""
-        if not jumps.any():
-            return
-        axis = np.cross(self.bone_rep[jumps], draws.glitch_axis[t, jumps])
-        norm = np.linalg.norm(axis, axis=-1, keepdims=True)
-        axis = np.where(norm > 1e-9, axis / np.maximum(norm, 1e-9), (0.0, 0.0, 1.0))
-        turned = np.einsum(
-            "jab,jb->ja",
-            axis_angle_matrix(axis, draws.glitch_angle[t, jumps]),
-            self.bone_rep[jumps],
-        )
-        self.bone_rep[jumps] = turned
-
-    def states(self, h: np.ndarray) -> np.ndarray:
-        """The states the sensor reports: a snapped joint tracked, a hidden one inferred until
-        its limit, then not tracked; a seen joint tracked."""
-        return np.where(
-            h,
-            np.where(
-                self.mode == _SNAP,
-                TRACKED,
-                np.where(self.run > self.limit, NOT_TRACKED, INFERRED),
-            ),
-            TRACKED,
-        )
+def _glitch(bone_rep: np.ndarray, draws: _OcclusionDraws, t: int, jumps: np.ndarray) -> None:
+    """Turn, in place, the reported bones of the hidden limb joints ``jumps`` that glitch at
+    ``t``."""
+    axis = _unit_axes(np.cross(bone_rep[jumps], draws.glitch_axis[t, jumps]))
+    turned = np.einsum(
+        "jab,jb->ja", axis_angle_matrix(axis, draws.glitch_angle[t, jumps]), bone_rep[jumps]
+    )
+    bone_rep[jumps] = turned
 
 
 def _propagate(
@@ -506,16 +477,15 @@ def _propagate(
 ) -> None:
     """Update, in place, each joint's occlusion error: a hidden joint's is its parent's plus
     its own bone error (``own``), a seen joint's decays; a hidden root drifts on its own."""
-    # Root: no bone; a hidden root drifts on its own (pulled back like a bone).
-    excess[0] = np.where(
-        h[0],
-        (1.0 - model.approach_rate) * excess[0] + kick,
-        model.recovery * excess[0],
-    )
+    decayed = model.recovery * excess
+    root = (1.0 - model.approach_rate) * excess[0] + kick  # pulled back like a bone
+    excess[:] = decayed
+    if h[0]:
+        excess[0] = root
     for level, parents in zip(_LEVELS, _LEVEL_PARENTS, strict=True):
-        excess[level] = np.where(
-            h[level, None], excess[parents] + own[level], model.recovery * excess[level]
-        )
+        seen = h[level]
+        if seen.any():
+            excess[level] = np.where(seen[:, None], excess[parents] + own[level], decayed[level])
 
 
 def occlusion_effects(
@@ -532,7 +502,9 @@ def occlusion_effects(
     Each hidden joint's reported bone (vector from its parent) follows a target drawn per
     hidden episode (frozen, swung or collapsed bone) with drift and glitches; its error is its
     parent's error plus its own bone error, so hidden chains move together while seen joints
-    stay where the sensor sees them.
+    stay where the sensor sees them. What each hidden episode does (its mode, swing, collapse,
+    when it turns not tracked) and the reported states are found for every frame at once; only
+    the reported bones and errors, which follow the previous frame's, go frame by frame.
 
     Parameters
     ----------
@@ -554,59 +526,87 @@ def occlusion_effects(
     parent = np.where(skeleton.PARENTS >= 0, skeleton.PARENTS, np.arange(joints))
     bones = truth - truth[:, parent]  # (T, 20, 3): joint minus parent, zero for the root
     near = np.linalg.norm(hits - truth, axis=-1) < model.snap_max_distance
-    can_snap_all = (blocker >= 0) & near
-
+    can_snap = (blocker >= 0) & near
     lost = (~hidden).sum(axis=1) < model.min_visible_joints
+
+    # Each hidden episode, drawn at the frame it begins and kept while it lasts.
+    begin, run, began = _hidden_episodes(hidden)
+    u = draws.u_mode
+    modes = np.where(
+        can_snap & (draws.u_snap < model.snap_probability),
+        _SNAP,
+        np.where(
+            u < model.freeze_probability,
+            _FREEZE,
+            np.where(u < model.freeze_probability + model.swing_probability, _SWING, _COLLAPSE),
+        ),
+    )
+    limits = np.where(draws.u_not_tracked < model.not_tracked_probability, draws.after_draw, _NEVER)
+    turns = np.tile(np.eye(3), (count, joints, 1, 1))
+    starts = np.nonzero(begin)
+    axes = _unit_axes(np.cross(bones[starts], draws.axis_draw[starts]))
+    turns[starts] = axis_angle_matrix(axes, draws.angle_draw[starts])
+    episode = (np.maximum(began, 0), np.arange(joints))
+    mode, limit = modes[episode], limits[episode]
+    swung = np.einsum("tjab,tjb->tja", turns[episode], bones)
+    # The bone a hidden joint heads for, but a frozen one's (the reported bone it froze at).
+    aim = np.where(
+        (mode == _SWING)[..., None], swung, draws.shrink_draw[episode][..., None] * bones
+    )
+    freeze = mode == _FREEZE
+
+    # The reported states (all frames).
+    snapped = mode == _SNAP
+    states = np.where(
+        hidden,
+        np.where(snapped, TRACKED, np.where(run > limit, NOT_TRACKED, INFERRED)),
+        TRACKED,
+    ).astype(np.int8)
+    if draws.flicker is not None:  # a seen joint reported inferred for a few frames
+        states = np.where(draws.flicker & ~hidden, INFERRED, states).astype(np.int8)
+    calm = np.zeros((count, joints), dtype=bool)
+    if model.inferred_calm > 0:  # inferred joints move calmly (smoothed)
+        calm[1:] = (states[1:] == INFERRED) & np.where(
+            lost[:-1, None], False, states[:-1] == INFERRED
+        )
+    states[lost] = NOT_TRACKED
+    snap_here = hidden & snapped & (blocker >= 0)
+    shake = np.where((hidden & ~snapped)[..., None], draws.vibration, 0.0)
+    glitches = draws.glitch & hidden
+
     out = np.empty_like(reported)
-    states = np.full((count, joints), TRACKED, dtype=np.int8)
     excess = np.zeros((joints, 3))  # occlusion error on top of the sensor noise
-    episode = _HiddenEpisodes.start(joints)
-    snaps = 0
+    bone_rep = np.zeros((joints, 3))  # reported bones of hidden joints
+    frozen = np.zeros((joints, 3))
+    begins, glitching, calming = (np.asarray(m.any(axis=1)) for m in (begin, glitches, calm))
     for t in range(count):
         h = hidden[t]
         bone_t = bones[t]
-        begin = h & (episode.run == 0)
-        if begin.any():
+        if begins[t]:
             previous = out[t - 1] - out[t - 1, parent] if t > 0 else bone_t
-            episode.begin(model, draws, t, begin, previous, bone_t, can_snap_all[t])
-        episode.run = np.where(h, episode.run + 1, 0)
-        target = np.where(
-            (episode.mode == _FREEZE)[:, None],
-            episode.frozen,
-            np.where(
-                (episode.mode == _SWING)[:, None],
-                np.einsum("jab,jb->ja", episode.turn, bone_t),
-                episode.shrink[:, None] * bone_t,
-            ),
-        )
-        episode.bone_rep = np.where(
+            bone_rep = np.where(begin[t, :, None], previous, bone_rep)
+            frozen = np.where(begin[t, :, None], previous, frozen)
+        target = np.where(freeze[t, :, None], frozen, aim[t])
+        bone_rep = np.where(
             h[:, None],
-            episode.bone_rep + model.approach_rate * (target - episode.bone_rep) + draws.kicks[t],
+            bone_rep + model.approach_rate * (target - bone_rep) + draws.kicks[t],
             bone_t,
         )
-        episode.glitch(draws, t, draws.glitch[t] & h)
-        _propagate(model, excess, episode.bone_rep - bone_t, h, draws.kicks[t, 0])
-        snap_here = h & (episode.mode == _SNAP) & (blocker[t] >= 0)
-        excess = np.where(snap_here[:, None], hits[t] - truth[t], excess)
-        shake = np.where((h & (episode.mode != _SNAP))[:, None], draws.vibration[t], 0.0)
-        out[t] = reported[t] + excess + shake
-        states[t] = episode.states(h)
-        if draws.flicker is not None:  # a seen joint reported inferred for a few frames
-            states[t] = np.where(draws.flicker[t] & ~h, INFERRED, states[t])
-        if model.inferred_calm > 0 and t > 0:  # inferred joints move calmly (smoothed)
-            calm = (states[t] == INFERRED) & (states[t - 1] == INFERRED)
-            out[t] = np.where(
-                calm[:, None],
-                model.inferred_calm * out[t - 1] + (1.0 - model.inferred_calm) * out[t],
-                out[t],
+        if glitching[t]:
+            _glitch(bone_rep, draws, t, glitches[t])
+        _propagate(model, excess, bone_rep - bone_t, h, draws.kicks[t, 0])
+        excess = np.where(snap_here[t, :, None], hits[t] - truth[t], excess)
+        row = reported[t] + excess + shake[t]
+        if calming[t]:
+            row = np.where(
+                calm[t, :, None],
+                model.inferred_calm * out[t - 1] + (1.0 - model.inferred_calm) * row,
+                row,
             )
-        snaps += int(np.count_nonzero(snap_here))
-        if lost[t]:
-            states[t] = NOT_TRACKED
-            out[t] = out[t - 1] if t > 0 else out[t]
+        out[t] = out[t - 1] if lost[t] and t > 0 else row
     stats = {
         "hidden_share": float(hidden.mean()),
-        "snapped_share": snaps / hidden.size,
+        "snapped_share": int(np.count_nonzero(snap_here)) / hidden.size,
         "lost_frames": int(lost.sum()),
     }
     return out, states, stats
