@@ -36,9 +36,10 @@ further back means the sender's clock jumped or restarted: the frame is reconstr
 after the last one and the stream goes on from there (``clock_jumps``, and a notice). A jump
 forward is a gap: longer than the reconstructor's ``max_gap_s`` (0.5 s), the stream restarts.
 
-Every frame goes through one per-frame call, :meth:`fpg_gym.reconstruct.Reconstructor.\
-reconstruct_frame`, the same one :meth:`~fpg_gym.reconstruct.Reconstructor.reconstruct` makes
-offline: with no frame dropped and the same seed, the live output equals the offline one.
+Every frame goes through the one run path (:func:`fpg_gym.reconstruct.streams.step_streams` on
+a :class:`~fpg_gym.reconstruct.streams.Stream`), the same one
+:meth:`~fpg_gym.reconstruct.Reconstructor.reconstruct` runs offline: with no frame dropped and
+the same seed, the live output equals the offline one.
 """
 
 from __future__ import annotations
@@ -59,6 +60,7 @@ from fpg_gym.filters import make_filter
 from fpg_gym.io.live_frames import FrameError, LiveFrame, is_end, parse_frame
 from fpg_gym.methods import Method
 from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.reconstruct.streams import Stream, step_streams
 from optimizers import make
 
 __all__ = [
@@ -272,8 +274,9 @@ def emit_frame(frame: LiveFrame, pose: np.ndarray, ms: float, stats: LiveStats) 
 
 
 class ReconstructorStep:
-    """The per-frame step of a live run: :meth:`Reconstructor.reconstruct_frame` with one
-    optimiser object and one generator, as :meth:`Reconstructor.iter_frames` uses them.
+    """The per-frame step of a live run: a :class:`~fpg_gym.reconstruct.streams.Stream` with
+    one optimiser object and one generator, given each frame as it arrives, as
+    :meth:`Reconstructor.reconstruct` runs a recording's.
 
     Parameters
     ----------
@@ -291,12 +294,13 @@ class ReconstructorStep:
         # The compiled kernels load (numba: import and disk cache, about 1 s) now, before the
         # stream, not on its first frames, where they would stall it and drop frames.
         self.reconstructor.warm_up(self.optimizer)
+        self.stream = Stream(reconstructor, optimizer=self.optimizer, rng=self.rng)
 
     def __call__(self, frame: LiveFrame) -> np.ndarray:
-        pose, _ = self.reconstructor.reconstruct_frame(
-            frame.positions, frame.states, frame.timestamp, self.optimizer, self.rng
+        (output,) = step_streams(
+            [self.stream], frames=[(frame.positions, frame.states, frame.timestamp)]
         )
-        return pose
+        return output.pose
 
 
 class FilterStep:

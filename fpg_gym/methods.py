@@ -72,8 +72,8 @@ from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.filters import PRESETS, make_filter
 from fpg_gym.physics.ragdoll import Ragdoll
 from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
-from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.config import RagdollFactory
+from fpg_gym.reconstruct.streams import run_streams
 from optimizers import make
 
 __all__ = [
@@ -567,10 +567,10 @@ class MethodRunner:
         seeds: Sequence[int | np.random.Generator],
     ) -> list[MethodResult]:
         """Run ``method`` on many recordings; ``shum``/``fpg`` reconstruct them side by side
-        with their searches batched (:func:`fpg_gym.reconstruct.batched.run_streams`).
+        with their searches batched (:func:`fpg_gym.reconstruct.streams.run_streams`).
 
         Each result equals ``run(method, recordings[i], seeds[i])`` (timings aside: a batched
-        frame's search time is the batch's, see :mod:`fpg_gym.reconstruct.batched`).
+        frame's search time is the batch's, see :mod:`fpg_gym.reconstruct.streams`).
         """
         spec = parse_method(method) if isinstance(method, str) else method
         if len(seeds) != len(recordings):

@@ -5,7 +5,7 @@ The env's vector mode (``gym.make_vec("fpg_gym/KinectPose-v0", num_envs=N)``). I
 merged ``infos``) whose sub-envs share one pose graph, with one addition:
 :meth:`KinectPoseVectorEnv.search` runs an optimiser on every sub-env's waiting frame problem
 side by side, the energies of all streams evaluated with one stacked kernel call per search
-iteration (:func:`fpg_gym.reconstruct.batched.search_together`), and returns the batch of
+iteration (:func:`fpg_gym.reconstruct.search.search_together`), and returns the batch of
 actions that step exactly the points found. Driving N episodes is then::
 
     import gymnasium as gym
@@ -36,7 +36,7 @@ from gymnasium.vector import AutoresetMode, SyncVectorEnv
 from fpg_gym.core.validation import check_integer
 from fpg_gym.env import ExactAction, KinectPoseEnv
 from fpg_gym.reconstruct import SearchProblem
-from fpg_gym.reconstruct.batched import (
+from fpg_gym.reconstruct.search import (
     OptimizerSpec,
     make_generators,
     make_optimizers,
@@ -263,7 +263,7 @@ class KinectPoseVectorEnv(SyncVectorEnv[Any, Any]):
 
         One :class:`optimizers.OptimizerRun` per sub-env in :attr:`searching`, on its
         ``problem``, within its budget (the env's ``max_evaluations`` and the reconstructor's
-        ``time_budget_s``), all run by :func:`~fpg_gym.reconstruct.batched.search_together`. Each
+        ``time_budget_s``), all run by :func:`~fpg_gym.reconstruct.search.search_together`. Each
         search equals :meth:`Reconstructor.search <fpg_gym.reconstruct.Reconstructor.search>` on
         that sub-env with the same optimiser and generator.
 

@@ -4,7 +4,7 @@
 :class:`~fpg_gym.reconstruct.Reconstructor` and records, on every frame, the sampler's
 observation and the latent point it should propose. The recordings are reconstructed side by
 side, ``batch`` at a time, with their searches' energies evaluated together
-(:func:`fpg_gym.reconstruct.batched.search_together`), and split between ``workers`` local
+(:func:`fpg_gym.reconstruct.search.search_together`), and split between ``workers`` local
 processes or, with ``backend="ray"``, Ray tasks (``fpg-gym[distributed]``: the graph put once in
 the object store, each task carrying its recordings). Each episode draws from its own generator
 (``SeedSequence(seed).spawn``), so the pairs do not depend on ``batch``, ``workers`` or the
@@ -26,8 +26,9 @@ from tqdm.auto import tqdm
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core.skeleton import ROOT
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
-from fpg_gym.reconstruct.batched import search_together
 from fpg_gym.reconstruct.energy import EnergyWeights
+from fpg_gym.reconstruct.search import search_together
+from fpg_gym.reconstruct.streams import Choice, Stream, reconstruct_streams
 from fpg_gym.runtime.ray_session import ray_session, require_ray, task_result
 from optimizers import OptimizerRun, make, run_optimizer
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
@@ -203,7 +204,7 @@ def frame_caps(recordings: Sequence[Any], frames: int | None) -> list[int]:
 def _best_of(
     problems: Sequence[Any],
     optimizers: Sequence[Any],
-    rngs: Sequence[np.random.Generator],
+    rngs: Sequence[np.random.Generator | None],
 ) -> list[Any]:
     """One search per problem, run side by side; their results."""
     runs = [OptimizerRun(p, o, r) for p, o, r in zip(problems, optimizers, rngs, strict=True)]
@@ -211,83 +212,105 @@ def _best_of(
     return [run.result() for run in runs]
 
 
+class _Pairs:
+    """The chooser of the imitation streams (:data:`~fpg_gym.reconstruct.streams.Chooser`): on
+    every frame the searches (or the anchor) run on the streams' problems side by side, each
+    frame's pair is recorded and the stream continues from the point ``follow`` names."""
+
+    def __init__(self, chunk: _Chunk, job: _Collection) -> None:
+        spec = job.spec
+        self.job, self.recordings = job, chunk.recordings
+        self.delta = spec.action_mode == "delta"
+        self.anchor_only = LearnedSampler(AnchorSampler(spec), samples=1)
+        anchored = None
+        if job.target == "best" and spec.anchor != "none":
+            anchored = LearnedSearch(
+                AnchorSampler(spec), samples=1, iterations=20, search_samples=100
+            )
+        streams = range(len(chunk.recordings))
+        # One optimiser object per stream, reset on every frame.
+        self.searches = [make("local-search") for _ in streams]
+        self.anchored = [copy.deepcopy(anchored) for _ in streams] if anchored else []
+        rows = sum(chunk.caps)
+        self.observations = np.zeros((rows, spec.layout.size), np.float32)
+        self.actions = np.zeros((rows, spec.latent_dim), np.float32)
+        self.masks = np.zeros((rows, spec.latent_dim), np.float32)
+        self.energies = np.zeros(rows)
+        # Each episode's rows are contiguous: stream i's frame t goes to row start[i] + t.
+        self.start = np.cumsum([0, *chunk.caps])[:-1]
+        self.labels = np.repeat(np.asarray(chunk.episodes, np.int64), chunk.caps)
+
+    def _found(self, problems: Sequence[Any], streams: Sequence[Stream]) -> list[Any]:
+        """The search results the frames' pairs and points come from."""
+        generators = [s.rng for s in streams]
+        if self.job.follow != "search":
+            return [
+                run_optimizer(p, self.anchor_only, r)
+                for p, r in zip(problems, generators, strict=True)
+            ]
+        found = _best_of(problems, [self.searches[s.index] for s in streams], generators)
+        if self.anchored:
+            others = _best_of(problems, [self.anchored[s.index] for s in streams], generators)
+            # The best of both searches (the lowest energy found).
+            found = [o if o.energy < f.energy else f for f, o in zip(found, others, strict=True)]
+        return found
+
+    def __call__(self, problems: Sequence[Any], streams: Sequence[Stream]) -> list[Choice]:
+        spec, target = self.job.spec, self.job.target
+        latent_dim, scale = spec.latent_dim, spec.action_scale
+        choices = []
+        for stream, problem, result in zip(
+            streams, problems, self._found(problems, streams), strict=True
+        ):
+            i, t = stream.index, stream.next
+            z = result.x
+            d = min(problem.dim, latent_dim)
+            if target in TRUTH_TARGETS:
+                truth = self.recordings[i].ground_truth
+                placement = stream.reconstructor.placement
+                assert truth is not None and placement is not None
+                metric = "bones" if target == "bones" else "joints"
+                z_target = truth_latent(problem, placement, truth[t], metric)
+                if self.job.follow == "truth":
+                    z = z_target
+            else:
+                z_target = z
+            row = self.start[i] + t
+            origin = problem.x0 if self.delta else 0.0
+            self.actions[row, :d] = ((z_target - origin) / scale)[:d]
+            self.masks[row, :d] = 1.0
+            self.observations[row] = problem_observation(
+                problem, spec.layout, action_scale=scale, delta=self.delta, frame_dt=spec.frame_dt
+            )
+            self.energies[row] = result.energy
+            choices.append(Choice(z))
+        return choices
+
+    def data(self) -> ImitationData:
+        """The pairs recorded."""
+        return ImitationData(
+            self.observations, self.actions, self.masks, self.labels, self.energies
+        )
+
+
 def _collect_episodes(
     graph: Any, chunk: _Chunk, job: _Collection, progress: Any = None
 ) -> ImitationData:
-    """The pairs of the chunk's episodes (at least one, at most ``batch``), side by side."""
-    recordings, episodes, caps, rngs = chunk.recordings, chunk.episodes, chunk.caps, chunk.rngs
-    spec, target, follow = job.spec, job.target, job.follow
-    layout, latent_dim, scale = spec.layout, spec.latent_dim, spec.action_scale
-    delta = spec.action_mode == "delta"
-    anchor_only = LearnedSampler(AnchorSampler(spec), samples=1)
-    anchored = None
-    if target == "best" and spec.anchor != "none":
-        anchored = LearnedSearch(AnchorSampler(spec), samples=1, iterations=20, search_samples=100)
-    streams = range(len(recordings))
-    reconstructors = [Reconstructor(graph, **job.options) for _ in streams]
-    # One optimiser object per stream, reset on every frame.
-    searches = [make("local-search") for _ in streams]
-    anchored_searches = [copy.deepcopy(anchored) for _ in streams] if anchored else []
-    observations = np.zeros((sum(caps), layout.size), np.float32)
-    actions = np.zeros((sum(caps), latent_dim), np.float32)
-    masks = np.zeros((sum(caps), latent_dim), np.float32)
-    energies = np.zeros(sum(caps))
-    # Each episode's rows are contiguous: stream i's frame t goes to row start[i] + t.
-    start = np.cumsum([0, *caps])[:-1]
+    """The pairs of the chunk's episodes (at least one, at most ``batch``), side by side
+    (:func:`~fpg_gym.reconstruct.streams.reconstruct_streams` with :class:`_Pairs`)."""
+    streams = [
+        Stream(Reconstructor(graph, **job.options), recording, rng=rng, frames=cap, index=i)
+        for i, (recording, cap, rng) in enumerate(
+            zip(chunk.recordings, chunk.caps, chunk.rngs, strict=True)
+        )
+    ]
+    pairs = _Pairs(chunk, job)
     try:
-        for t in range(max(caps)):
-            active = [i for i in streams if t < caps[i]]
-            problems = [
-                reconstructors[i].prepare(
-                    recordings[i].positions[t],
-                    recordings[i].states[t],
-                    float(recordings[i].timestamps[t]),
-                )
-                for i in active
-            ]
-            generators = [rngs[i] for i in active]
-            if follow == "search":
-                found = _best_of(problems, [searches[i] for i in active], generators)
-                if anchored_searches:
-                    others = _best_of(problems, [anchored_searches[i] for i in active], generators)
-                    # The best of both searches (the lowest energy found).
-                    found = [
-                        o if o.energy < f.energy else f for f, o in zip(found, others, strict=True)
-                    ]
-            else:
-                found = [
-                    run_optimizer(p, anchor_only, r)
-                    for p, r in zip(problems, generators, strict=True)
-                ]
-            for i, problem, result in zip(active, problems, found, strict=True):
-                reconstructor = reconstructors[i]
-                z = result.x
-                d = min(problem.dim, latent_dim)
-                if target in TRUTH_TARGETS:
-                    truth = recordings[i].ground_truth
-                    assert truth is not None and reconstructor.placement is not None
-                    metric = "bones" if target == "bones" else "joints"
-                    z_target = truth_latent(problem, reconstructor.placement, truth[t], metric)
-                    if follow == "truth":
-                        z = z_target
-                else:
-                    z_target = z
-                row = start[i] + t
-                origin = problem.x0 if delta else 0.0
-                actions[row, :d] = ((z_target - origin) / scale)[:d]
-                masks[row, :d] = 1.0
-                observations[row] = problem_observation(
-                    problem, layout, action_scale=scale, delta=delta, frame_dt=spec.frame_dt
-                )
-                energies[row] = result.energy
-                reconstructor.finish(z)
-            if progress is not None:
-                progress.update(len(active))
+        reconstruct_streams(streams, pairs, on_step=None if progress is None else progress.update)
     finally:
-        for reconstructor in reconstructors:
-            reconstructor.close()
-    labels = np.repeat(np.asarray(episodes, np.int64), caps)
-    return ImitationData(observations, actions, masks, labels, energies)
+        for stream in streams:
+            stream.reconstructor.close()
+    return pairs.data()
 
 
 #: The graph of this worker process (set once by the pool's initializer).

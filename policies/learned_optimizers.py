@@ -123,7 +123,7 @@ class LearnedSampler(BaseOptimizer):
 
     def __deepcopy__(self, memo: dict[int, Any]) -> LearnedSampler:
         """A copy with its own search state that shares the model (read-only while searching):
-        streams searched side by side (:func:`fpg_gym.reconstruct.batched.make_optimizers`)
+        streams searched side by side (:func:`fpg_gym.reconstruct.search.make_optimizers`)
         need one optimiser each, not one network each, and a trained torch module holding
         tensors of its last backward pass cannot be deep-copied at all."""
         clone = copy.copy(self)

@@ -23,8 +23,8 @@ use only APIs both checkouts have:
     without the ragdoll: steps per CPU second.
 ``streams``
     16 simulated recordings reconstructed side by side in one process
-    (:func:`fpg_gym.reconstruct.batched.run_streams`, local search, no ragdoll): frames per CPU
-    second.
+    (:func:`fpg_gym.reconstruct.streams.run_streams`, ``batched`` in older checkouts; local
+    search, no ragdoll): frames per CPU second.
 
 Usage::
 
@@ -142,7 +142,11 @@ def measure(sections: tuple[str, ...], repeats: int, env_steps: int) -> dict[str
     from fpg_gym.episodes import measure_env_throughput
     from fpg_gym.experiments.bench import BenchSettings, _build, _episodes, _load_data
     from fpg_gym.reconstruct import Reconstructor
-    from fpg_gym.reconstruct.batched import run_streams
+
+    try:
+        from fpg_gym.reconstruct.streams import run_streams
+    except ImportError:  # a checkout before the one run path (issue 37)
+        from fpg_gym.reconstruct.batched import run_streams  # type: ignore[no-redef]
     from fpg_gym.reconstruct.kernels import compile_kernels
 
     threadpool_limits(limits=1, user_api="blas")
@@ -277,8 +281,16 @@ def main(argv: list[str] | None = None) -> int:
         medians[figure] = (base, new)
         print(f"| {figure} | {base:.4g} | {new:.4g} | {new / base:.2f} |")
     if args.json:
-        args.json.write_text(json.dumps({"trees": {k: str(v) for k, v in trees.items()},
-                                         "rounds": rounds, "medians": medians}, indent=1))
+        args.json.write_text(
+            json.dumps(
+                {
+                    "trees": {k: str(v) for k, v in trees.items()},
+                    "rounds": rounds,
+                    "medians": medians,
+                },
+                indent=1,
+            )
+        )
     return 0
 
 

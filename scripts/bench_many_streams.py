@@ -4,7 +4,7 @@ Simulates ``--streams`` recordings (the embedded clips in the ``*-many`` scenari
 number, the first ``--frames`` frames each) and reconstructs them, in one run:
 
 1. one by one: ``Reconstructor.reconstruct`` per stream (the first ``--alone`` streams);
-2. side by side in this process: :func:`fpg_gym.reconstruct.batched.run_streams`;
+2. side by side in this process: :func:`fpg_gym.reconstruct.streams.run_streams`;
 3. side by side in ``--processes`` spawned processes (the streams split between them with about
    equal frames).
 
@@ -38,8 +38,8 @@ import numpy as np
 from fpg_gym.graph import load_graph
 from fpg_gym.io import load_default_clips
 from fpg_gym.reconstruct import Reconstructor
-from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.kernels import compile_kernels
+from fpg_gym.reconstruct.streams import run_streams
 from fpg_gym.simulate import simulate
 from optimizers.local_search import LocalSearch
 

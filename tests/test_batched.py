@@ -1,4 +1,4 @@
-"""Many streams in one process (fpg_gym.reconstruct.batched): same output per stream as alone,
+"""Many streams in one process (fpg_gym.reconstruct.streams): same output per stream as alone,
 the stacked energy equals the per-frame energies, and the budget loop steps like run_optimizer."""
 
 from __future__ import annotations
@@ -11,9 +11,10 @@ import pytest
 
 from fpg_gym.reconstruct import STAGES, EnergyWeights, Reconstructor
 from fpg_gym.reconstruct import search as search_module
-from fpg_gym.reconstruct.batched import reconstruct_many, run_streams, search_together
 from fpg_gym.reconstruct.energy import StackedEnergy
 from fpg_gym.reconstruct.kernels import available_kernels, stack_tables
+from fpg_gym.reconstruct.search import search_together
+from fpg_gym.reconstruct.streams import reconstruct_many, run_streams
 from optimizers import OptimizerRun, run_optimizer
 from optimizers.local_search import LocalSearch
 from tests.test_reconstructor import graph, recording

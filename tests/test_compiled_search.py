@@ -10,8 +10,8 @@ import pytest
 
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct import search as search_module
-from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.search import compiled_search_available, complete_compiled, run_search
+from fpg_gym.reconstruct.streams import run_streams
 from optimizers import OptimizerRun, SearchResult, run_optimizer
 from optimizers.local_search import LocalSearch
 from tests.test_reconstructor import recording

@@ -15,7 +15,6 @@ from fpg_gym.core import metrics, skeleton
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.io import load_default_clips
 from fpg_gym.reconstruct import Reconstructor
-from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.bones import BoneSettlingConfig
 from fpg_gym.reconstruct.output_correction import (
     CORRECTION_FEATURES,
@@ -26,6 +25,7 @@ from fpg_gym.reconstruct.output_correction import (
     correction_targets,
     smooth_corrections,
 )
+from fpg_gym.reconstruct.streams import run_streams
 from optimizers.none import NoSearch
 from policies.output_correction import (
     CorrectionData,

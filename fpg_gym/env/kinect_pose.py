@@ -33,6 +33,7 @@ from fpg_gym.reconstruct import (
     SearchProblem,
     TemporalConfig,
 )
+from fpg_gym.reconstruct.streams import Stream
 from fpg_gym.rendering import HumanWindow, render_panels
 
 __all__ = ["ENV_ID", "KinectPoseEnv"]
@@ -268,6 +269,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._recording: Recording | None = None
         self._episode: dict[str, Any] = {}
         self._problem: SearchProblem | None = None
+        self._stream: Stream | None = None  # the episode's frames through the reconstructor
         self._t = 0
         self._elapsed = 0
         self._last_obs: np.ndarray | None = None
@@ -460,6 +462,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         # Reconstructor.reset() starts a stream that does not depend on earlier episodes (same
         # seed, same episode): fresh ragdoll physics and no cached retargeted database.
         self.reconstructor.reset()
+        self._stream = Stream(self.reconstructor, recording)
         obs_vector = self._prepare()
         info: dict[str, Any] = dict(episode)
         info.update(self._frame_info())
@@ -496,7 +499,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         recording = self._recording
         assert recording is not None
         z, clipped = self._latent_point(action, problem)
-        pose, record = self.reconstructor.finish(z)
+        assert self._stream is not None
+        pose, record = self._stream.finish(z)
         if record.ragdoll:
             self._counts["ragdoll_divergences"] += int(record.ragdoll.get("new_divergences", 0))
         t = self._t
@@ -615,14 +619,12 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
 
     def _prepare(self) -> np.ndarray:
         """Prepare frame ``self._t``; returns (and keeps) its observation vector."""
-        recording = self._recording
-        assert recording is not None
+        recording, stream = self._recording, self._stream
+        assert recording is not None and stream is not None
         t = self._t
         states = recording.states[t]
         t0 = time.perf_counter()
-        problem = self.reconstructor.prepare(
-            recording.positions[t], states, float(recording.timestamps[t])
-        )
+        problem = stream.prepare()
         self._problem = problem
         t1 = time.perf_counter()
         obs = self.layout.build(

@@ -19,7 +19,7 @@ Sections (each a list of rows, see :func:`run_bench`):
     exact brute force (compiled with numba, else one GEMV on augmented vectors) and the direct
     Eq. 9 score of every node.
 ``streams``
-    Many streams (:func:`fpg_gym.reconstruct.batched.run_streams`): the same simulated
+    Many streams (:func:`fpg_gym.reconstruct.streams.run_streams`): the same simulated
     recordings reconstructed one by one and side by side in this process (local search, no
     ragdoll), frames per CPU-second of each, interleaved, and the largest difference between
     the two outputs.
@@ -72,8 +72,8 @@ from fpg_gym.graph import DEFAULT_EMBEDDED_THRES1, DEFAULT_THRES1, FilteredPoseG
 from fpg_gym.io import load_clips, load_default_clips
 from fpg_gym.physics.ragdoll import Ragdoll
 from fpg_gym.reconstruct import STAGES, Reconstructor
-from fpg_gym.reconstruct.batched import run_streams
 from fpg_gym.reconstruct.kernels import compile_kernels
+from fpg_gym.reconstruct.streams import run_streams
 from fpg_gym.simulate import plan_episode, simulate_plan, unique_names
 
 __all__ = ["BenchSettings", "run_bench"]

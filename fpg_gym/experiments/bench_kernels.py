@@ -20,7 +20,7 @@ from __future__ import annotations
 
 import functools
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -38,6 +38,7 @@ from fpg_gym.reconstruct.selection import (
     shum_best_k,
     shum_score,
 )
+from fpg_gym.reconstruct.streams import Choice, Stream, reconstruct_streams
 from optimizers.local_search import LocalSearch
 
 __all__ = [
@@ -185,6 +186,20 @@ def floor_row(dim: int = 20, k: int = 30, evaluations: int = 2000) -> dict[str, 
     }
 
 
+def _search_keeping(
+    kept: list[SearchProblem],
+    step: int,
+    problems: Sequence[SearchProblem],
+    streams: Sequence[Stream],
+) -> list[Choice]:
+    """A stream's chooser: local search seeded with the frame's number, every ``step``-th
+    frame's problem kept in ``kept``."""
+    (problem,), (stream,) = problems, streams
+    if stream.next % step == 0:
+        kept.append(problem)
+    return [Choice(stream.reconstructor.search("local-search", stream.next).x)]
+
+
 def search_rows(
     graph: Any, recordings: list[Any], frames: int = 30, repeats: int = 3
 ) -> list[dict[str, Any]]:
@@ -193,17 +208,10 @@ def search_rows(
     (``fpg_gym.reconstruct.search.run_search``), interleaved problem by problem, for both
     proposal sources; ``differ`` counts the problems whose results (point, energy, asks) are not
     equal. ``frames`` problems per recording, each searched ``repeats`` times."""
-    problems = []
+    problems: list[SearchProblem] = []
     for recording in recordings:
-        reconstructor = Reconstructor(graph)
-        step = max(1, recording.num_frames // frames)
-        for t in range(recording.num_frames):
-            problem = reconstructor.prepare(
-                recording.positions[t], recording.states[t], recording.timestamps[t]
-            )
-            if t % step == 0:
-                problems.append(problem)
-            reconstructor.finish(reconstructor.search("local-search", t).x)
+        keep = functools.partial(_search_keeping, problems, max(1, recording.num_frames // frames))
+        reconstruct_streams([Stream(Reconstructor(graph), recording)], keep)
     rows = []
     for proposals in ("normal", "table"):
         cpu = {"loop": 0.0, "compiled": 0.0}

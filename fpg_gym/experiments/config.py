@@ -100,7 +100,7 @@ class CompareConfig:
         Processes; 1 runs in this process (local backend).
     batch : int
         Episodes of one reconstruction method reconstructed side by side in one process, their
-        searches batched (:func:`fpg_gym.reconstruct.batched.run_streams`; same rows as one by
+        searches batched (:func:`fpg_gym.reconstruct.streams.run_streams`; same rows as one by
         one, timings aside); 1 runs them one by one.
     backend : {"local", "ray"}
         Where the tasks run: this machine's processes, or a Ray cluster (``fpg-gym

@@ -28,7 +28,7 @@ from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.left_right import LABELLINGS, left_right_costs
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
 from fpg_gym.reconstruct.reconstructor import Reconstructor
-from fpg_gym.reconstruct.records import STAGES, FrameRecord, ReconstructionResult
+from fpg_gym.reconstruct.records import STAGES, FrameOutput, FrameRecord, ReconstructionResult
 from fpg_gym.reconstruct.reliability import (
     ReliabilityConfig,
     ReliabilityEstimator,
@@ -68,6 +68,7 @@ __all__ = [
     "EnergyModel",
     "EnergyWeights",
     "FrameContext",
+    "FrameOutput",
     "FrameRecord",
     "GraphSelector",
     "LatentSpace",

@@ -399,9 +399,9 @@ class StackedEnergy:
     :class:`~fpg_gym.reconstruct.kernels.EnergyTables` stacked
     (:func:`~fpg_gym.reconstruct.kernels.stack_tables`) and evaluated by the same fused kernel,
     so ``StackedEnergy.of(models).total(z)[s]`` equals ``models[s](z[s])`` (to the last bit with
-    the compiled kernel, to floating-point rounding with numpy's). The many-stream path
-    (:mod:`fpg_gym.reconstruct.batched`) evaluates one search iteration of every stream with
-    one call.
+    the compiled kernel, to floating-point rounding with numpy's). The many-stream search
+    (:func:`fpg_gym.reconstruct.search.search_together`) evaluates one search iteration of
+    every stream with one call.
     """
 
     def __init__(self, tables: EnergyTables, kernel: str) -> None:

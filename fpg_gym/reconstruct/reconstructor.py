@@ -14,7 +14,8 @@ One frame::
         optional ragdoll
 
 :meth:`Reconstructor.reconstruct_frame` runs both with an optimiser in between and
-:meth:`Reconstructor.reconstruct` runs a whole recording.
+:meth:`Reconstructor.reconstruct` runs a whole recording, both through the one run path
+(:mod:`fpg_gym.reconstruct.streams`).
 
 Frames of reference
 -------------------

@@ -1,18 +1,19 @@
-"""What a reconstruction returns: one :class:`FrameRecord` per frame and the stream's
-:class:`ReconstructionResult` (poses, records, the bone lengths' report).
+"""What a reconstruction returns: one :class:`FrameOutput` (the pose and its
+:class:`FrameRecord`) per frame and the stream's :class:`ReconstructionResult` (poses, records,
+the bone lengths' report).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
 from fpg_gym.reconstruct.energy import TERM_NAMES
 from fpg_gym.reconstruct.left_right import LABELLINGS
 
-__all__ = ["STAGES", "FrameRecord", "ReconstructionResult"]
+__all__ = ["STAGES", "FrameOutput", "FrameRecord", "ReconstructionResult"]
 
 STAGES: tuple[str, ...] = (
     "normalise",
@@ -82,6 +83,20 @@ class FrameRecord:
     ragdoll: dict[str, Any] | None = None
     labelling: str = "as-reported"
     bone_lengths: np.ndarray | None = None
+
+
+class FrameOutput(NamedTuple):
+    """One reconstructed frame: the pose and what happened (unpacks as ``pose, record``).
+
+    Attributes
+    ----------
+    pose : ndarray, shape (20, 3), float32
+        The reconstruction in the input's camera space.
+    record : FrameRecord
+    """
+
+    pose: np.ndarray
+    record: FrameRecord
 
 
 @dataclass

@@ -15,7 +15,7 @@ import numpy as np
 
 from fpg_gym.core import metrics
 from fpg_gym.reconstruct import Reconstructor, TemporalConfig
-from fpg_gym.reconstruct.batched import run_streams
+from fpg_gym.reconstruct.streams import run_streams
 from optimizers.local_search import LocalSearch
 from optimizers.random_search import RandomSearch
 from policies.learned_optimizers import LearnedSampler, LearnedSearch
@@ -51,7 +51,7 @@ def evaluate_agents(
     """
 
     # One reconstructor per recording: the recordings run side by side, their searches batched
-    # (fpg_gym.reconstruct.batched; each stream as alone with seed + i).
+    # (fpg_gym.reconstruct.streams; each stream as alone with seed + i).
     reconstructors = [
         Reconstructor(
             graph,
