@@ -59,6 +59,7 @@ from fpg_gym.core import metrics  # noqa: E402
 from fpg_gym.core.compiled import numpy_only  # noqa: E402
 from fpg_gym.core.holdout import HOLDOUT_SEED, HOLDOUT_SHARE, split_takes  # noqa: E402
 from fpg_gym.experiments.bench_kernels import (  # noqa: E402
+    frame_problem,
     interleaved_cpu_us,
     recorded_queries,
     search_rows,
@@ -141,12 +142,7 @@ def frame_table(graph: Any, recordings: list[Any], repeats: int) -> list[dict[st
 def energy_table(graph: Any, recording: Any, frame: int = 60) -> dict[str, float]:
     """CPU µs of the energy of 100 points of a real frame, the definition vs the fused kernel
     (interleaved)."""
-    reconstructor = Reconstructor(graph)
-    frame = min(frame, recording.num_frames - 1)
-    reconstructor.reconstruct(recording.head(frame), "local-search", rng=0)
-    problem = reconstructor.prepare(
-        recording.positions[frame], recording.states[frame], recording.timestamps[frame]
-    )
+    problem = frame_problem(graph, recording, frame)
     e = problem.energy
     previous = type(e)(
         e.latent,

@@ -27,6 +27,7 @@ import numpy as np
 
 import optimizers
 from fpg_gym.core import skeleton
+from fpg_gym.core.seeding import as_generator
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct.kernels import available_kernels, fused_energy
 from fpg_gym.reconstruct.problem import SearchProblem
@@ -38,13 +39,14 @@ from fpg_gym.reconstruct.selection import (
     shum_best_k,
     shum_score,
 )
-from fpg_gym.reconstruct.streams import Choice, Stream, reconstruct_streams
+from fpg_gym.reconstruct.streams import Choice, Stream, reconstruct_streams, step_streams
 from optimizers.local_search import LocalSearch
 
 __all__ = [
     "cpu_median_us",
     "energy_rows",
     "floor_row",
+    "frame_problem",
     "frame_rows",
     "search_rows",
     "selection_rows",
@@ -73,19 +75,21 @@ def interleaved_cpu_us(
     return {name: 1e6 * float(np.median(values)) for name, values in times.items()}
 
 
-def _problem(graph: Any, recording: Any, frame: int) -> SearchProblem:
-    """The search problem of ``frame`` of ``recording`` (graph selection, local search before)."""
-    reconstructor = Reconstructor(graph)
-    frame = max(1, min(frame, recording.num_frames - 1))
-    reconstructor.reconstruct(recording.head(frame), "local-search", rng=0)
-    return reconstructor.prepare(
-        recording.positions[frame], recording.states[frame], recording.timestamps[frame]
+def frame_problem(graph: Any, recording: Any, frame: int) -> SearchProblem:
+    """The search problem of ``frame`` of ``recording`` (at least 1, at most the last), the
+    frames before it reconstructed (graph selection, local search, seed 0)."""
+    stream = Stream(
+        Reconstructor(graph), recording, optimizers.make("local-search"), as_generator(0)
     )
+    frame = max(1, min(frame, recording.num_frames - 1))
+    while stream.next < frame:
+        step_streams([stream])
+    return stream.prepare()
 
 
 def energy_rows(graph: Any, recording: Any, quick: bool = False) -> list[dict[str, Any]]:
     """CPU microseconds of the energy of 100 points for each kernel and the definition."""
-    problem = _problem(graph, recording, 20 if quick else 60)
+    problem = frame_problem(graph, recording, 20 if quick else 60)
     z = np.random.default_rng(0).standard_normal((100, problem.dim))
     energy = problem.energy
     direct = type(energy)(
