@@ -18,11 +18,11 @@ from typing import Any
 import numpy as np
 import pytest
 
-from fpg_gym import live
 from fpg_gym.cli import main
 from fpg_gym.core import skeleton
 from fpg_gym.graph import FilteredPoseGraph, default_graph
 from fpg_gym.io import Recording, live_frames, load_default_clips, udp, write_recording
+from fpg_gym.methods import live
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.simulate import simulate
 

@@ -74,15 +74,15 @@ def run(args: argparse.Namespace) -> int:
     print the counts and latencies to stderr as one JSON line.
 
     The input is bound and read first, then the graph loads and the pipeline warms up: the
-    frames that arrive meanwhile wait and are all reconstructed (:class:`fpg_gym.live.FrameQueue`).
+    frames that arrive meanwhile wait and are all reconstructed
+    (:class:`fpg_gym.methods.live.FrameQueue`).
     Two lines on stderr mark the start: ``listening on udp://...`` (UDP input, once bound) and
     ``ready`` (the first frame can be reconstructed at once).
     """
     import threading
 
-    from fpg_gym import live
     from fpg_gym.io import udp
-    from fpg_gym.methods import parse_method, ragdoll_factory
+    from fpg_gym.methods import live, parse_method, ragdoll_factory
     from fpg_gym.reconstruct import EnergyWeights, Reconstructor
 
     if args.queue < 1:

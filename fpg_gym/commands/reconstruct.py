@@ -362,9 +362,9 @@ def run(args: argparse.Namespace) -> int:
     import numpy as np
 
     from fpg_gym.core.outputs import interrupts_deferred
-    from fpg_gym.methods import ragdoll_factory
-    from fpg_gym.reconstruct import EnergyWeights, Reconstructor
-    from optimizers import make
+    from fpg_gym.methods import Method, MethodRunner
+    from fpg_gym.methods.names import BASE_OF_SELECTOR
+    from fpg_gym.reconstruct import EnergyWeights
 
     _check_arguments(args)
     args.selector = args.selector or "graph"
@@ -385,33 +385,23 @@ def run(args: argparse.Namespace) -> int:
     chosen = choose_pipeline(args, recording, graph)
     args.pipeline = chosen.summary()
     args.optimizer = args.optimizer or chosen.optimizer or "local-search"
-    optimizer = make(args.optimizer)
-    reconstructor = Reconstructor(
-        graph,
-        ragdoll=ragdoll_factory(not args.no_ragdoll),
-        selector=args.selector,
-        k=args.k,
-        max_evaluations=args.budget,
-        weights=EnergyWeights(prior=args.prior),
-        **chosen.options,
-    )
+    method = Method(BASE_OF_SELECTOR[args.selector], args.optimizer, not args.no_ragdoll)
+    options = {"k": args.k, "weights": EnergyWeights(prior=args.prior), **chosen.options}
     start = time.perf_counter()
 
     def checkpoint(partial: Any) -> None:  # survives kill -9: the frames done so far, on disk
         _save_result(args, recording, partial, time.perf_counter() - start, partial=True)
 
-    try:
-        result = reconstructor.reconstruct(
+    with MethodRunner(graph, budget=args.budget, reconstructor_options=options) as runner:
+        result = runner.run(
+            method,
             recording,
-            optimizer,
-            rng=np.random.default_rng(args.seed),
+            np.random.default_rng(args.seed),
             progress=_show_progress(args),
             stop_on_interrupt=True,
             checkpoint=checkpoint,
             checkpoint_s=args.checkpoint_s,
         )
-    finally:
-        reconstructor.close()
     # the frames are done: an interrupt from here on waits until they are written
     with interrupts_deferred():
         summary, out = _save_result(args, recording, result, time.perf_counter() - start)
@@ -572,7 +562,7 @@ def _run_filter(args: argparse.Namespace, method: Any) -> int:
     with MethodRunner(reconstructor_options=options) as runner:
         result = runner.run(method, recording)
     seconds = time.perf_counter() - start
-    arrays: dict[str, Any] = {"poses": result.poses, "ms_per_frame": result.ms}
+    arrays: dict[str, Any] = result.arrays()
     summary: dict[str, Any] = {
         "frames": result.num_frames,
         "input_frames": recording.num_frames,

@@ -74,7 +74,8 @@ from fpg_gym.experiments.store import (
 )
 from fpg_gym.graph import load_graph
 from fpg_gym.io.recording import load_recording
-from fpg_gym.methods import Method, MethodResult, MethodRunner, parse_method
+from fpg_gym.methods import Method, MethodRunner, parse_method
+from fpg_gym.reconstruct import ReconstructionResult
 from fpg_gym.reconstruct.presets import choose_pipeline, default_graph_name, sensor_of
 from fpg_gym.runtime.ray_session import check_address
 from optimizers import make
@@ -153,7 +154,7 @@ def _row(
     method: Method,
     task: _Task,
     recording: Any,
-    result: MethodResult,
+    result: ReconstructionResult,
     seconds: float,
 ) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The CSV row and the per-frame arrays of one method's result on one episode."""

@@ -1,8 +1,8 @@
-"""The live wire format: one JSON object per line, UTF-8 (:mod:`fpg_gym.live` reads it).
+"""The live wire format: one JSON object per line, UTF-8 (:mod:`fpg_gym.methods.live` reads it).
 
 ``{"timestamp": 12.033, "joints": [[x, y, z], ... 20 ...], "states": [2, 2, 1, ...]}``
 
-(the fields in :mod:`fpg_gym.live`'s docstring); ``{"end": true}`` ends a stream.
+(the fields in :mod:`fpg_gym.methods.live`'s docstring); ``{"end": true}`` ends a stream.
 :func:`parse_frame` reads a line into a :class:`LiveFrame` or raises a :class:`FrameError` whose
 ``reason`` is a short category for the counts; :func:`frame_line` writes one (what a sender
 writes); :func:`is_end` recognises the end marker.

@@ -58,7 +58,7 @@ from fpg_gym.core.validation import check_integer, check_number
 from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.filters import make_filter
 from fpg_gym.io.live_frames import FrameError, LiveFrame, is_end, parse_frame
-from fpg_gym.methods import Method
+from fpg_gym.methods.names import Method
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct.streams import Stream, step_streams
 from optimizers import make

@@ -101,34 +101,68 @@ class FrameOutput(NamedTuple):
 
 @dataclass
 class ReconstructionResult:
-    """A reconstructed stream: poses and per-frame records.
+    """A stream's output, whatever made it: a reconstruction (poses and per-frame records) or a
+    reference filter (poses and per-stage times, no records).
 
     Attributes
     ----------
     poses : ndarray, shape (T, 20, 3), float32
-        Reconstructed poses in the input's camera space, frame for frame.
+        Output poses in the input's camera space, frame for frame.
     records : list of FrameRecord
+        One per frame of a reconstruction; empty for a filter.
     interrupted : bool
         True when the run stopped early (Ctrl-C); ``poses`` then holds the frames done.
     bones : dict
         When the bone lengths settled and how much they changed afterwards
-        (:meth:`fpg_gym.reconstruct.bones.BoneSettler.report`).
+        (:meth:`fpg_gym.reconstruct.bones.BoneSettler.report`; empty for a filter).
+    info : dict
+        Further facts of the run (recoveries, ragdoll divergences, a filter's parameters, ...).
+    stage_times : dict of str to ndarray (T,), optional
+        Milliseconds per stage of a stream without records (a filter: ``filter``, ``ragdoll``);
+        None for a reconstruction (its records hold them).
     """
 
     poses: np.ndarray
-    records: list[FrameRecord]
+    records: list[FrameRecord] = field(default_factory=list)
     interrupted: bool = False
     bones: dict[str, Any] = field(default_factory=dict)
+    info: dict[str, Any] = field(default_factory=dict)
+    stage_times: dict[str, np.ndarray] | None = None
 
     @property
     def num_frames(self) -> int:
-        """Frames reconstructed."""
-        return len(self.records)
+        """Frames output."""
+        return len(self.poses)
 
     @property
-    def ms_per_frame(self) -> np.ndarray:
-        """Total milliseconds per frame ``(T,)``."""
-        return np.array([r.ms["total"] for r in self.records])
+    def stage_ms(self) -> dict[str, np.ndarray]:
+        """Milliseconds of each stage per frame, ``(T,)`` each: the reconstructor's
+        :data:`STAGES` or a filter's stages."""
+        if self.stage_times is not None:
+            return dict(self.stage_times)
+        return {s: np.array([r.ms[s] for r in self.records]) for s in STAGES}
+
+    @property
+    def ms(self) -> np.ndarray:
+        """Milliseconds per frame ``(T,)``, every stage."""
+        if self.stage_times is None:
+            return np.array([r.ms["total"] for r in self.records])
+        stages = list(self.stage_times.values())
+        return np.sum(stages, axis=0) if stages else np.zeros(len(self.poses))
+
+    @property
+    def evaluations(self) -> np.ndarray | None:
+        """Energy evaluations per frame ``(T,)`` (None for a filter)."""
+        if self.stage_times is not None:
+            return None
+        return np.array([r.evaluations for r in self.records], dtype=np.float64)
+
+    @property
+    def energy(self) -> np.ndarray | None:
+        """Energy of the chosen point per frame ``(T,)`` (None for a filter)."""
+        if self.stage_times is not None:
+            return None
+        return np.array([r.energy for r in self.records], dtype=np.float64)
 
     def arrays(self) -> dict[str, np.ndarray]:
         """Everything as arrays (the ``reconstruct`` command's ``.npz`` keys).
@@ -137,9 +171,12 @@ class ReconstructionResult:
         ``tracking`` (T,20), ``nodes``/``node_scores`` (T,K) (−1 / NaN padded), ``num_scored``,
         ``evaluations`` (T,), ``energy``, ``energy_x0`` (T,), ``energy_terms`` (T,5) in
         ``energy_term_names`` order, ``full_search``/``recovered``/``first``/``no_body`` (T,)
-        bool, ``ms_per_frame`` (T,), ``ms_stages`` (T,S) in ``stage_names`` order.
+        bool, ``ms_per_frame`` (T,), ``ms_stages`` (T,S) in ``stage_names`` order. A filter's
+        (``stage_times`` given): ``poses`` and ``ms_per_frame``.
         """
         records = self.records
+        if self.stage_times is not None:
+            return {"poses": np.asarray(self.poses, dtype=np.float32), "ms_per_frame": self.ms}
         t = len(records)
         k = max((len(r.nodes) for r in records), default=0)
         nodes = np.full((t, k), -1, dtype=np.int64)
@@ -174,7 +211,7 @@ class ReconstructionResult:
             "no_body": np.array([r.no_body for r in records], dtype=bool),
             "labelling": np.array([LABELLINGS.index(r.labelling) for r in records], dtype=np.int8),
             "labelling_names": np.array(LABELLINGS),
-            "ms_per_frame": self.ms_per_frame,
+            "ms_per_frame": self.ms,
             "ms_stages": np.array([[r.ms[s] for s in STAGES] for r in records]).reshape(
                 t, len(STAGES)
             ),

@@ -14,7 +14,7 @@ Every driver of a :class:`~fpg_gym.reconstruct.Reconstructor`'s per-frame pipeli
   one stream;
 * a caller whose point comes later (the env: its agent acts between the observation and the
   step) calls :meth:`Stream.prepare` and :meth:`Stream.finish` itself; a live stream
-  (:mod:`fpg_gym.live`) gives :func:`step_streams` each frame as it arrives.
+  (:mod:`fpg_gym.methods.live`) gives :func:`step_streams` each frame as it arrives.
 
 Each stream has its own reconstructor (its history, bone lengths, selector state), optimiser
 and generator, so a stream's output is the same alone or beside others, with the same seed (to
