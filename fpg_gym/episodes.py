@@ -46,13 +46,14 @@ from fpg_gym.core import metrics
 from fpg_gym.core.seeding import as_generator
 from fpg_gym.env import KinectPoseEnv
 from fpg_gym.methods import METHOD_BASES, MethodRunner, parse_method
+from fpg_gym.reconstruct import ReconstructionResult
 
 __all__ = ["EpisodeResult", "measure_env_throughput", "run_episode"]
 
 
 @dataclass
 class EpisodeResult:
-    """One episode, frame by frame.
+    """One episode, frame by frame: the reconstructed stream and how it scored.
 
     Attributes
     ----------
@@ -60,13 +61,12 @@ class EpisodeResult:
         The episode (``info["recording"]`` at reset: a recording name, or clip/scenario/seed).
     agent : str
         What acted (the optimiser's name, or the policy's class name).
-    poses : ndarray, shape (T, 20, 3), float32
-        The reconstructions, in the recording's camera space.
-    rewards, energies : ndarray, shape (T,)
+    reconstruction : ReconstructionResult
+        The episode's stream: poses (in the recording's camera space) and per-frame records
+        (none for a filter).
+    rewards : ndarray, shape (T,)
     frame_errors, raw_frame_errors : ndarray, shape (T,), or None
         FPG Eq. 13 per frame of the reconstruction and of the sensor stream (ground truth only).
-    evaluations : ndarray, shape (T,), int
-        Energy evaluations spent per frame.
     agent_ms, step_ms : ndarray, shape (T,)
         Milliseconds the agent took to choose the action, and ``env.step`` took.
     terminated, truncated : bool
@@ -78,18 +78,35 @@ class EpisodeResult:
 
     name: str
     agent: str
-    poses: np.ndarray
+    reconstruction: ReconstructionResult
     rewards: np.ndarray
-    energies: np.ndarray
     frame_errors: np.ndarray | None
     raw_frame_errors: np.ndarray | None
-    evaluations: np.ndarray
     agent_ms: np.ndarray
     step_ms: np.ndarray
     terminated: bool
     truncated: bool
     reset_info: dict[str, Any] = field(default_factory=dict)
     infos: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def poses(self) -> np.ndarray:
+        """The reconstructions ``(T, 20, 3)`` float32, in the recording's camera space."""
+        return self.reconstruction.poses
+
+    @property
+    def energies(self) -> np.ndarray:
+        """Energy of each frame's output ``(T,)`` (NaN for a filter)."""
+        energy = self.reconstruction.energy
+        return np.full(self.steps, np.nan) if energy is None else energy
+
+    @property
+    def evaluations(self) -> np.ndarray:
+        """Energy evaluations spent per frame ``(T,)`` int (0 for a filter)."""
+        evaluations = self.reconstruction.evaluations
+        if evaluations is None:
+            return np.zeros(self.steps, dtype=np.int64)
+        return evaluations.astype(np.int64)
 
     @property
     def steps(self) -> int:
@@ -256,8 +273,14 @@ def run_episode(
     finally:
         if bar is not None:
             bar.close()
+    stream = base.stream  # the episode's frames through the reconstructor
     return steps.result(
-        str(reset_info.get("recording", "")), label, terminated, truncated, reset_info
+        str(reset_info.get("recording", "")),
+        label,
+        stream.result(),
+        terminated,
+        truncated,
+        reset_info,
     )
 
 
@@ -265,12 +288,9 @@ def run_episode(
 class _Steps:
     """What :func:`run_episode` keeps of each step."""
 
-    poses: list[np.ndarray] = field(default_factory=list)
     rewards: list[float] = field(default_factory=list)
-    energies: list[float] = field(default_factory=list)
     errors: list[float] = field(default_factory=list)
     raw_errors: list[float] = field(default_factory=list)
-    evaluations: list[int] = field(default_factory=list)
     agent_ms: list[float] = field(default_factory=list)
     step_ms: list[float] = field(default_factory=list)
     infos: list[dict[str, Any]] = field(default_factory=list)
@@ -279,13 +299,10 @@ class _Steps:
         self, info: dict[str, Any], reward: float, agent_ms: float, step_ms: float, keep: bool
     ) -> None:
         """One step's ``info`` and reward, the agent's and the step's milliseconds."""
-        self.poses.append(info["pose"])
         self.rewards.append(reward)
-        self.energies.append(info["energy"])
         if "frame_error" in info:
             self.errors.append(info["frame_error"])
             self.raw_errors.append(info["raw_frame_error"])
-        self.evaluations.append(info["evaluations"])
         self.agent_ms.append(agent_ms)
         self.step_ms.append(step_ms)
         if keep:
@@ -295,24 +312,23 @@ class _Steps:
         self,
         name: str,
         agent: str,
+        reconstruction: ReconstructionResult,
         terminated: bool,
         truncated: bool,
         reset_info: dict[str, Any],
     ) -> EpisodeResult:
-        """The episode's :class:`EpisodeResult`."""
+        """The episode's :class:`EpisodeResult` (``reconstruction``: its stream's)."""
         count = len(self.rewards)
         errors, raw_errors = self.errors, self.raw_errors
         return EpisodeResult(
             name=name,
             agent=agent,
-            poses=np.asarray(self.poses, dtype=np.float32).reshape(count, -1, 3),
+            reconstruction=reconstruction,
             rewards=np.asarray(self.rewards, dtype=np.float64),
-            energies=np.asarray(self.energies, dtype=np.float64),
             frame_errors=np.asarray(errors) if len(errors) == count and count else None,
             raw_frame_errors=(
                 np.asarray(raw_errors) if len(raw_errors) == count and count else None
             ),
-            evaluations=np.asarray(self.evaluations, dtype=np.int64),
             agent_ms=np.asarray(self.agent_ms),
             step_ms=np.asarray(self.step_ms),
             terminated=bool(terminated),
@@ -361,16 +377,13 @@ def _run_filter_episode(
     with MethodRunner(reconstructor_options=options) as runner:
         result = runner.run(method, part)
     truth = part.ground_truth
-    nan = np.full(count, np.nan)
     return EpisodeResult(
         name=str(reset_info.get("recording", "")),
         agent=label,
-        poses=result.poses,
-        rewards=nan,
-        energies=nan.copy(),
+        reconstruction=result,
+        rewards=np.full(count, np.nan),
         frame_errors=None if truth is None else metrics.frame_error(truth, result.poses),
         raw_frame_errors=None if truth is None else metrics.frame_error(truth, part.positions),
-        evaluations=np.zeros(count, dtype=np.int64),
         agent_ms=result.ms,
         step_ms=np.zeros(count),
         terminated=count == recording.num_frames,

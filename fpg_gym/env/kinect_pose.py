@@ -353,6 +353,13 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         return self._recording
 
     @property
+    def stream(self) -> Stream | None:
+        """The current episode's frames through the reconstructor
+        (:class:`~fpg_gym.reconstruct.streams.Stream`: ``result()`` gives the poses and records
+        of the steps so far; None before ``reset``)."""
+        return self._stream
+
+    @property
     def episode(self) -> dict[str, Any]:
         """The current episode: ``recording`` (name), ``clip``, ``scenario``, ``seed``,
         ``num_frames``, ``has_ground_truth`` (a copy)."""
