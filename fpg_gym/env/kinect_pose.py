@@ -178,6 +178,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     """
 
     metadata = {"render_modes": list(RENDER_MODES), "render_fps": 30}  # noqa: RUF012
+    _stream: Stream | None = None  # the episode's frames through the reconstructor (reset)
 
     def __init__(
         self,
@@ -269,7 +270,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._recording: Recording | None = None
         self._episode: dict[str, Any] = {}
         self._problem: SearchProblem | None = None
-        self._stream: Stream | None = None  # the episode's frames through the reconstructor
         self._t = 0
         self._elapsed = 0
         self._last_obs: np.ndarray | None = None

@@ -18,7 +18,7 @@ from fpg_gym.filters import make_filter
 from fpg_gym.methods.names import Method, parse_method
 from fpg_gym.methods.ragdoll import RagdollStage, ragdoll_factory, reference_bone_lengths
 from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
-from fpg_gym.reconstruct.streams import Stream, reconstruct_streams
+from fpg_gym.reconstruct.streams import Stream, reconstruct_stream, reconstruct_streams
 from optimizers import make
 
 __all__ = ["MethodRunner"]
@@ -114,15 +114,15 @@ class MethodRunner:
         spec = parse_method(method) if isinstance(method, str) else method
         if spec.is_filter:
             return self._run_filter(spec, recording)
-        (result,) = self._reconstruct(
-            spec,
-            [recording],
-            [seed],
-            stop_on_interrupt=stop_on_interrupt,
+        (stream,) = self._streams(spec, [recording], [seed])
+        result = reconstruct_stream(
+            stream,
             progress=progress,
-            checkpoint=None if checkpoint is None else lambda results: checkpoint(results[0]),
+            stop_on_interrupt=stop_on_interrupt,
+            checkpoint=checkpoint,
             checkpoint_s=checkpoint_s,
         )
+        result.info.update(_reconstruction_info(result))
         return result
 
     def run_many(
@@ -144,27 +144,26 @@ class MethodRunner:
             )
         if spec.is_filter:
             return [self._run_filter(spec, recording) for recording in recordings]
-        return self._reconstruct(spec, recordings, seeds)
+        results = reconstruct_streams(self._streams(spec, recordings, seeds))
+        for result in results:
+            result.info.update(_reconstruction_info(result))
+        return results
 
-    def _reconstruct(
+    def _streams(
         self,
         spec: Method,
         recordings: Sequence[RecordingLike],
         seeds: Sequence[int | np.random.Generator],
-        **options: Any,
-    ) -> list[ReconstructionResult]:
-        """``shum``/``fpg`` on the recordings, one stream each, side by side."""
+    ) -> list[Stream]:
+        """One stream per recording for ``shum``/``fpg``: its reconstructor, the method's
+        optimiser and the seed's generator."""
         assert spec.optimizer is not None
-        streams = [
+        return [
             Stream(reconstructor, recording, make(spec.optimizer), as_generator(seed), index=i)
             for i, (reconstructor, recording, seed) in enumerate(
                 zip(self._reconstructors(spec, len(recordings)), recordings, seeds, strict=True)
             )
         ]
-        results = reconstruct_streams(streams, **options)
-        for result in results:
-            result.info.update(_reconstruction_info(result))
-        return results
 
     def _run_filter(self, spec: Method, recording: RecordingLike) -> ReconstructionResult:
         """A reference filter frame by frame (then the ragdoll, ``+ragdoll``)."""

@@ -17,7 +17,7 @@ from fpg_gym.reconstruct.bones import BoneSettler
 from fpg_gym.reconstruct.config import ReconstructorConfig
 from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.reconstruct.records import FrameOutput, ReconstructionResult
-from fpg_gym.reconstruct.streams import Stream, reconstruct_streams, step_streams
+from fpg_gym.reconstruct.streams import Stream, reconstruct_stream, step_streams
 from optimizers import Optimizer, make
 
 __all__ = ["FrameDrivers"]
@@ -84,8 +84,8 @@ class FrameDrivers:
         checkpoint: Callable[[ReconstructionResult], None] | None = None,
         checkpoint_s: float = 30.0,
     ) -> ReconstructionResult:
-        """Reconstruct a whole recording (:func:`~fpg_gym.reconstruct.streams.reconstruct_streams`
-        of one stream).
+        """Reconstruct a whole recording
+        (:func:`~fpg_gym.reconstruct.streams.reconstruct_stream`).
 
         Parameters
         ----------
@@ -107,11 +107,10 @@ class FrameDrivers:
             Seconds between checkpoints (30).
         """
         stream = Stream(self, recording, make(optimizer), as_generator(rng))  # type: ignore[arg-type]
-        (result,) = reconstruct_streams(
-            [stream],
+        return reconstruct_stream(
+            stream,
             progress=progress,
             stop_on_interrupt=stop_on_interrupt,
-            checkpoint=None if checkpoint is None else lambda results: checkpoint(results[0]),
+            checkpoint=checkpoint,
             checkpoint_s=checkpoint_s,
         )
-        return result

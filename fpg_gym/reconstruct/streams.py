@@ -61,6 +61,7 @@ __all__ = [
     "Chooser",
     "Stream",
     "reconstruct_many",
+    "reconstruct_stream",
     "reconstruct_streams",
     "run_streams",
     "search_streams",
@@ -360,6 +361,27 @@ def reconstruct_streams(
     finally:
         bar.close()
     return [s.result(interrupted) for s in streams]
+
+
+def reconstruct_stream(
+    stream: Stream,
+    choose: Chooser = search_streams,
+    *,
+    progress: bool = False,
+    stop_on_interrupt: bool = False,
+    checkpoint: Callable[[ReconstructionResult], None] | None = None,
+    checkpoint_s: float = 30.0,
+) -> ReconstructionResult:
+    """:func:`reconstruct_streams` of one stream (``checkpoint`` gets its one result)."""
+    (result,) = reconstruct_streams(
+        [stream],
+        choose,
+        progress=progress,
+        stop_on_interrupt=stop_on_interrupt,
+        checkpoint=None if checkpoint is None else lambda results: checkpoint(results[0]),
+        checkpoint_s=checkpoint_s,
+    )
+    return result
 
 
 def run_streams(
