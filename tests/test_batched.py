@@ -9,12 +9,13 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from fpg_gym.methods import reconstruct_many
 from fpg_gym.reconstruct import STAGES, EnergyWeights, Reconstructor
 from fpg_gym.reconstruct import search as search_module
 from fpg_gym.reconstruct.energy import StackedEnergy
 from fpg_gym.reconstruct.kernels import available_kernels, stack_tables
 from fpg_gym.reconstruct.search import search_together
-from fpg_gym.reconstruct.streams import reconstruct_many, run_streams
+from fpg_gym.reconstruct.streams import run_streams
 from optimizers import OptimizerRun, run_optimizer
 from optimizers.local_search import LocalSearch
 from tests.test_reconstructor import graph, recording

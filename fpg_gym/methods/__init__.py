@@ -20,7 +20,7 @@ from fpg_gym.methods.names import (
     parse_methods,
 )
 from fpg_gym.methods.ragdoll import RagdollStage, ragdoll_factory, reference_bone_lengths
-from fpg_gym.methods.runner import MethodRunner
+from fpg_gym.methods.runner import MethodRunner, reconstruct_many
 
 __all__ = [
     "BASELINE",
@@ -35,5 +35,6 @@ __all__ = [
     "parse_method",
     "parse_methods",
     "ragdoll_factory",
+    "reconstruct_many",
     "reference_bone_lengths",
 ]

@@ -18,10 +18,17 @@ from fpg_gym.filters import make_filter
 from fpg_gym.methods.names import Method, parse_method
 from fpg_gym.methods.ragdoll import RagdollStage, ragdoll_factory, reference_bone_lengths
 from fpg_gym.reconstruct import EnergyWeights, ReconstructionResult, Reconstructor
-from fpg_gym.reconstruct.streams import Stream, reconstruct_stream, reconstruct_streams
+from fpg_gym.reconstruct.config import ReconstructorConfig
+from fpg_gym.reconstruct.search import OptimizerSpec
+from fpg_gym.reconstruct.streams import (
+    Stream,
+    reconstruct_stream,
+    reconstruct_streams,
+    run_streams,
+)
 from optimizers import make
 
-__all__ = ["MethodRunner"]
+__all__ = ["MethodRunner", "reconstruct_many"]
 
 
 def _reconstruction_info(result: ReconstructionResult) -> dict[str, Any]:
@@ -214,3 +221,33 @@ class MethodRunner:
 
     def __exit__(self, *exc: object) -> None:
         self.close()
+
+
+def reconstruct_many(
+    graph: Any,
+    recordings: Sequence[Any],
+    optimizer: OptimizerSpec = "local-search",
+    rngs: Sequence[np.random.Generator | int] | None = None,
+    *,
+    config: ReconstructorConfig | None = None,
+    progress: bool = False,
+    **overrides: Any,
+) -> list[ReconstructionResult]:
+    """Reconstruct many recordings against one graph in one process, searches batched.
+
+    One :class:`Reconstructor` per recording (``config`` and ``overrides`` as for
+    :class:`~fpg_gym.reconstruct.Reconstructor`), then
+    :func:`~fpg_gym.reconstruct.streams.run_streams`.
+
+    Examples
+    --------
+    >>> seeds = range(len(recordings))                                   # doctest: +SKIP
+    >>> results = reconstruct_many(graph, recordings, rngs=seeds)        # doctest: +SKIP
+    >>> [r.num_frames for r in results]                                  # doctest: +SKIP
+    """
+    reconstructors = [Reconstructor(graph, config, **overrides) for _ in recordings]
+    try:
+        return run_streams(reconstructors, recordings, optimizer, rngs, progress=progress)
+    finally:
+        for r in reconstructors:
+            r.close()

@@ -41,7 +41,6 @@ from tqdm import tqdm
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
-from fpg_gym.reconstruct.config import ReconstructorConfig
 from fpg_gym.reconstruct.output_correction import OutputCorrection, output_correction_of
 from fpg_gym.reconstruct.problem import SearchProblem
 from fpg_gym.reconstruct.records import FrameOutput, FrameRecord, ReconstructionResult
@@ -60,7 +59,6 @@ __all__ = [
     "Choice",
     "Chooser",
     "Stream",
-    "reconstruct_many",
     "reconstruct_stream",
     "reconstruct_streams",
     "run_streams",
@@ -430,36 +428,3 @@ def run_streams(
     for stream, opt, rng in zip(streams, optimizers, make_generators(rngs, count), strict=True):
         stream.optimizer, stream.rng = opt, rng
     return reconstruct_streams(streams, progress=progress)
-
-
-def reconstruct_many(
-    graph: Any,
-    recordings: Sequence[Any],
-    optimizer: OptimizerSpec = "local-search",
-    rngs: Sequence[np.random.Generator | int] | None = None,
-    *,
-    config: ReconstructorConfig | None = None,
-    progress: bool = False,
-    **overrides: Any,
-) -> list[ReconstructionResult]:
-    """Reconstruct many recordings against one graph in one process, searches batched.
-
-    One :class:`Reconstructor` per recording (``config`` and ``overrides`` as for
-    :class:`Reconstructor`), then :func:`run_streams`.
-
-    Examples
-    --------
-    >>> seeds = range(len(recordings))                                   # doctest: +SKIP
-    >>> results = reconstruct_many(graph, recordings, rngs=seeds)        # doctest: +SKIP
-    >>> [r.num_frames for r in results]                                  # doctest: +SKIP
-    """
-    # Imported here: the Reconstructor's own drivers (reconstruct, reconstruct_frame) run
-    # through this module.
-    from fpg_gym.reconstruct.reconstructor import Reconstructor
-
-    reconstructors = [Reconstructor(graph, config, **overrides) for _ in recordings]
-    try:
-        return run_streams(reconstructors, recordings, optimizer, rngs, progress=progress)
-    finally:
-        for r in reconstructors:
-            r.close()
