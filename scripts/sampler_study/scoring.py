@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import numpy as np
@@ -12,6 +13,7 @@ from fpg_gym.core import metrics
 from fpg_gym.filters import make_filter
 from fpg_gym.methods import MethodRunner
 from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.reconstruct.streams import Choice, Stream, reconstruct_stream
 from policies.learned_optimizers import LearnedSampler
 from policies.training import truth_latent
 
@@ -30,16 +32,17 @@ def _oracle(
     would give (a ceiling of every sampler; it sees the truth, so it is no method)."""
 
     truth = recording.ground_truth
-    out = np.empty_like(recording.positions)
-    with Reconstructor(graph, ragdoll=False, **options) as reconstructor:
-        for t in range(recording.num_frames):
-            problem = reconstructor.prepare(
-                recording.positions[t], recording.states[t], float(recording.timestamps[t])
+
+    def truth_points(problems: Sequence[Any], streams: Sequence[Stream]) -> list[Choice]:
+        return [
+            Choice(
+                truth_latent(problem, stream.reconstructor.placement, truth[stream.next], metric)
             )
-            assert reconstructor.placement is not None
-            z = truth_latent(problem, reconstructor.placement, truth[t], metric)
-            out[t] = reconstructor.finish(z)[0]
-    return out
+            for problem, stream in zip(problems, streams, strict=True)
+        ]
+
+    with Reconstructor(graph, ragdoll=False, **options) as reconstructor:
+        return reconstruct_stream(Stream(reconstructor, recording), truth_points).poses
 
 
 def _row(truth: np.ndarray, poses: np.ndarray, recording: Any) -> dict[str, float]:
