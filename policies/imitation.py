@@ -423,6 +423,29 @@ def collect_imitation_data(
     RayUnavailable
         ``backend="ray"`` without Ray installed.
     """
+    _check_collection(recordings, target, follow, batch, workers, backend)
+    job = _Collection(spec, target, follow, _collection_options(spec, reconstructor_options))
+    caps = _episode_caps(recordings, frames, skip)
+    children = np.random.SeedSequence(seed).spawn(len(recordings))
+    rngs = [np.random.default_rng(child) for child in children]
+    episodes = sum(n > 0 for n in caps)
+    if episodes == 0:  # no frame to collect, whatever the backend
+        return ImitationData.empty(spec.layout.size, spec.latent_dim)
+    bar = tqdm(
+        total=sum(caps), desc="imitation data", unit="frame", leave=False, disable=not progress
+    )
+    try:
+        return _collect_chunks(
+            graph, recordings, caps, rngs, job, bar, batch, workers, backend, address, on_chunk
+        )
+    finally:
+        bar.close()
+
+
+def _check_collection(
+    recordings: Sequence[Any], target: str, follow: str, batch: int, workers: int, backend: str
+) -> None:
+    """:func:`collect_imitation_data`'s argument checks, before any work."""
     if target not in TARGETS:
         raise ValueError(f"target: expected one of {TARGETS}, got {target!r}")
     if follow not in FOLLOW:
@@ -445,10 +468,18 @@ def collect_imitation_data(
             raise ValueError(
                 f"target {target!r} needs ground truth; recordings {missing} have none"
             )
+
+
+def _collection_options(
+    spec: SamplerSpec, reconstructor_options: dict[str, Any] | None
+) -> dict[str, Any]:
+    """The reconstructor's settings for the data of ``spec``: the env's per-frame problem
+    (its candidates, latent dimension and weights; no temporal stage, no ragdoll) unless
+    overridden, and no evaluation cap."""
     weights = dict(
         zip(("control", "style", "kinematic", "motion"), spec.energy_weights, strict=True)
     )
-    options: dict[str, Any] = {
+    return {
         "k": spec.candidates,
         "latent_dim": spec.latent_dim,
         "ragdoll": False,
@@ -457,38 +488,50 @@ def collect_imitation_data(
         **(reconstructor_options or {}),
         "max_evaluations": None,
     }
-    job = _Collection(spec, target, follow, options)
+
+
+def _episode_caps(
+    recordings: Sequence[Any], frames: int | None, skip: Collection[int]
+) -> list[int]:
+    """Frames to collect per episode (:func:`frame_caps`), none for those of ``skip``."""
     caps = frame_caps(recordings, frames)
     for episode in skip:
         if not 0 <= episode < len(recordings):
             raise ValueError(f"skip: episode {episode} is not in 0..{len(recordings) - 1}")
         caps[episode] = 0
-    children = np.random.SeedSequence(seed).spawn(len(recordings))
-    rngs = [np.random.default_rng(child) for child in children]
+    return caps
+
+
+def _collect_chunks(
+    graph: Any,
+    recordings: Sequence[Any],
+    caps: list[int],
+    rngs: list[np.random.Generator],
+    job: _Collection,
+    bar: Any,
+    batch: int,
+    workers: int,
+    backend: str,
+    address: str | None,
+    on_chunk: Callable[[list[int], ImitationData], object] | None,
+) -> ImitationData:
+    """The episodes' pairs, collected in chunks here, in local processes or on Ray."""
     episodes = sum(n > 0 for n in caps)
-    if episodes == 0:  # no frame to collect, whatever the backend
-        return ImitationData.empty(spec.layout.size, spec.latent_dim)
     # Chunks of at most ``batch`` episodes, fewer when that keeps every worker busy.
     size = max(1, min(batch, -(-episodes // workers)))
-    bar = tqdm(
-        total=sum(caps), desc="imitation data", unit="frame", leave=False, disable=not progress
-    )
     report = on_chunk or (lambda _episodes, _pairs: None)
-    try:
-        if backend == "ray":
-            return _collect_on_ray(
-                graph, _chunks(recordings, caps, rngs, size), job, workers, bar, address, report
-            )
-        if workers == 1 or episodes == 1:  # here, chunk after chunk
-            parts = []
-            for chunk in _chunks(recordings, caps, rngs, batch):
-                parts.append(_collect_episodes(graph, chunk, job, bar))
-                report(chunk.episodes, parts[-1])
-            return ImitationData.concatenate(parts)
-        chunks = _chunks(recordings, caps, rngs, size)
-        return _collect_in_pool(graph, chunks, job, workers, bar, report)
-    finally:
-        bar.close()
+    if backend == "ray":
+        return _collect_on_ray(
+            graph, _chunks(recordings, caps, rngs, size), job, workers, bar, address, report
+        )
+    if workers == 1 or episodes == 1:  # here, chunk after chunk
+        parts = []
+        for chunk in _chunks(recordings, caps, rngs, batch):
+            parts.append(_collect_episodes(graph, chunk, job, bar))
+            report(chunk.episodes, parts[-1])
+        return ImitationData.concatenate(parts)
+    chunks = _chunks(recordings, caps, rngs, size)
+    return _collect_in_pool(graph, chunks, job, workers, bar, report)
 
 
 def _collect_in_pool(
