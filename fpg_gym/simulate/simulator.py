@@ -529,37 +529,91 @@ def occlusion_effects(
     can_snap = (blocker >= 0) & near
     lost = (~hidden).sum(axis=1) < model.min_visible_joints
 
-    # Each hidden episode, drawn at the frame it begins and kept while it lasts.
-    begin, run, began = _hidden_episodes(hidden)
-    u = draws.u_mode
-    modes = np.where(
-        can_snap & (draws.u_snap < model.snap_probability),
-        _SNAP,
-        np.where(
-            u < model.freeze_probability,
-            _FREEZE,
-            np.where(u < model.freeze_probability + model.swing_probability, _SWING, _COLLAPSE),
-        ),
+    episodes = _HiddenEpisodes.draw(model, draws, bones, hidden, can_snap)
+    states, calm = _reported_states(model, draws, hidden, episodes, lost)
+    snap_here = hidden & episodes.snapped & (blocker >= 0)
+    out = _follow_hidden(
+        model, draws, truth, reported, bones, hidden, episodes, snap_here, calm, lost, hits
     )
-    limits = np.where(draws.u_not_tracked < model.not_tracked_probability, draws.after_draw, _NEVER)
-    turns = np.tile(np.eye(3), (count, joints, 1, 1))
-    starts = np.nonzero(begin)
-    axes = _unit_axes(np.cross(bones[starts], draws.axis_draw[starts]))
-    turns[starts] = axis_angle_matrix(axes, draws.angle_draw[starts])
-    episode = (np.maximum(began, 0), np.arange(joints))
-    mode, limit = modes[episode], limits[episode]
-    swung = np.einsum("tjab,tjb->tja", turns[episode], bones)
-    # The bone a hidden joint heads for, but a frozen one's (the reported bone it froze at).
-    aim = np.where(
-        (mode == _SWING)[..., None], swung, draws.shrink_draw[episode][..., None] * bones
-    )
-    freeze = mode == _FREEZE
+    stats = {
+        "hidden_share": float(hidden.mean()),
+        "snapped_share": int(np.count_nonzero(snap_here)) / hidden.size,
+        "lost_frames": int(lost.sum()),
+    }
+    return out, states, stats
 
-    # The reported states (all frames).
-    snapped = mode == _SNAP
+
+@dataclass(frozen=True)
+class _HiddenEpisodes:
+    """What each hidden episode of each joint does, at every frame (T, 20) of the stream: where
+    episodes begin, how long the current one has run, its mode and not-tracked limit, and the
+    bone a hidden joint heads for (``aim``; a frozen one's is the bone it froze at)."""
+
+    begin: np.ndarray
+    run: np.ndarray
+    mode: np.ndarray
+    limit: np.ndarray
+    aim: np.ndarray
+
+    @property
+    def freeze(self) -> np.ndarray:
+        return self.mode == _FREEZE
+
+    @property
+    def snapped(self) -> np.ndarray:
+        return self.mode == _SNAP
+
+    @classmethod
+    def draw(
+        cls,
+        model: OcclusionModel,
+        draws: _OcclusionDraws,
+        bones: np.ndarray,
+        hidden: np.ndarray,
+        can_snap: np.ndarray,
+    ) -> _HiddenEpisodes:
+        """Each hidden episode, drawn at the frame it begins and kept while it lasts."""
+        count, joints = hidden.shape
+        begin, run, began = _hidden_episodes(hidden)
+        u = draws.u_mode
+        modes = np.where(
+            can_snap & (draws.u_snap < model.snap_probability),
+            _SNAP,
+            np.where(
+                u < model.freeze_probability,
+                _FREEZE,
+                np.where(u < model.freeze_probability + model.swing_probability, _SWING, _COLLAPSE),
+            ),
+        )
+        limits = np.where(
+            draws.u_not_tracked < model.not_tracked_probability, draws.after_draw, _NEVER
+        )
+        turns = np.tile(np.eye(3), (count, joints, 1, 1))
+        starts = np.nonzero(begin)
+        axes = _unit_axes(np.cross(bones[starts], draws.axis_draw[starts]))
+        turns[starts] = axis_angle_matrix(axes, draws.angle_draw[starts])
+        episode = (np.maximum(began, 0), np.arange(joints))
+        mode, limit = modes[episode], limits[episode]
+        swung = np.einsum("tjab,tjb->tja", turns[episode], bones)
+        aim = np.where(
+            (mode == _SWING)[..., None], swung, draws.shrink_draw[episode][..., None] * bones
+        )
+        return cls(begin, run, mode, limit, aim)
+
+
+def _reported_states(
+    model: OcclusionModel,
+    draws: _OcclusionDraws,
+    hidden: np.ndarray,
+    episodes: _HiddenEpisodes,
+    lost: np.ndarray,
+) -> tuple[np.ndarray, np.ndarray]:
+    """The reported states (T, 20) of every frame, and which inferred joints move calmly."""
+    count, joints = hidden.shape
+    snapped = episodes.snapped
     states = np.where(
         hidden,
-        np.where(snapped, TRACKED, np.where(run > limit, NOT_TRACKED, INFERRED)),
+        np.where(snapped, TRACKED, np.where(episodes.run > episodes.limit, NOT_TRACKED, INFERRED)),
         TRACKED,
     ).astype(np.int8)
     if draws.flicker is not None:  # a seen joint reported inferred for a few frames
@@ -570,10 +624,29 @@ def occlusion_effects(
             lost[:-1, None], False, states[:-1] == INFERRED
         )
     states[lost] = NOT_TRACKED
-    snap_here = hidden & snapped & (blocker >= 0)
-    shake = np.where((hidden & ~snapped)[..., None], draws.vibration, 0.0)
-    glitches = draws.glitch & hidden
+    return states, calm
 
+
+def _follow_hidden(
+    model: OcclusionModel,
+    draws: _OcclusionDraws,
+    truth: np.ndarray,
+    reported: np.ndarray,
+    bones: np.ndarray,
+    hidden: np.ndarray,
+    episodes: _HiddenEpisodes,
+    snap_here: np.ndarray,
+    calm: np.ndarray,
+    lost: np.ndarray,
+    hits: np.ndarray,
+) -> np.ndarray:
+    """The reported stream, frame by frame: each hidden joint's bone approaches its episode's
+    aim from the previous frame's, and its error is its parent's error plus its own."""
+    count, joints = hidden.shape
+    parent = np.where(skeleton.PARENTS >= 0, skeleton.PARENTS, np.arange(joints))
+    begin, freeze, aim = episodes.begin, episodes.freeze, episodes.aim
+    shake = np.where((hidden & ~episodes.snapped)[..., None], draws.vibration, 0.0)
+    glitches = draws.glitch & hidden
     out = np.empty_like(reported)
     excess = np.zeros((joints, 3))  # occlusion error on top of the sensor noise
     bone_rep = np.zeros((joints, 3))  # reported bones of hidden joints
@@ -604,12 +677,7 @@ def occlusion_effects(
                 row,
             )
         out[t] = out[t - 1] if lost[t] and t > 0 else row
-    stats = {
-        "hidden_share": float(hidden.mean()),
-        "snapped_share": int(np.count_nonzero(snap_here)) / hidden.size,
-        "lost_frames": int(lost.sum()),
-    }
-    return out, states, stats
+    return out
 
 
 def _flicker(
