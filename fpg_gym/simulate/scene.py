@@ -422,14 +422,7 @@ class RayCaster:
         moving = list(range(NUM_BODY_SHAPES)) + [
             NUM_BODY_SHAPES + i for i, box in enumerate(boxes) if box.carried
         ]
-        for i, box in enumerate(boxes):  # static boxes are placed once
-            if not box.carried:
-                pybullet.resetBasePositionAndOrientation(
-                    self._uids[NUM_BODY_SHAPES + i],
-                    shape_pos[0, NUM_BODY_SHAPES + i].tolist(),
-                    shape_quat[0, NUM_BODY_SHAPES + i].tolist(),
-                    physicsClientId=self.client,
-                )
+        self._place_static_boxes(boxes, shape_pos[0], shape_quat[0])
         targets = self._targets(camera, joints)  # (T, 20, K, 3)
         rays = skeleton.NUM_JOINTS * self.rays_per_joint
         flat_targets = targets.reshape(count, rays, 3)
@@ -449,6 +442,37 @@ class RayCaster:
         if not bounds:
             cast, shape = np.ones_like(cast), np.full_like(shape, -1)
         hit_points = flat_targets.copy()
+        uids, stops = self._cast(camera, flat_targets, cast, shape_pos, shape_quat, moving)
+        shape[cast] = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
+        hit_points[cast] = stops
+        shape = shape.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint)
+        central = hit_points.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint, 3)[:, :, 0]
+        return _trace_result(shape, central, targets[:, :, 0])
+
+    def _place_static_boxes(
+        self, boxes: Sequence[Box], shape_pos: np.ndarray, shape_quat: np.ndarray
+    ) -> None:
+        """Put the boxes that stay where they are (not carried) at their place, once."""
+        for i, box in enumerate(boxes):
+            if not box.carried:
+                pybullet.resetBasePositionAndOrientation(
+                    self._uids[NUM_BODY_SHAPES + i],
+                    shape_pos[NUM_BODY_SHAPES + i].tolist(),
+                    shape_quat[NUM_BODY_SHAPES + i].tolist(),
+                    physicsClientId=self.client,
+                )
+
+    def _cast(
+        self,
+        camera: np.ndarray,
+        flat_targets: np.ndarray,
+        cast: np.ndarray,
+        shape_pos: np.ndarray,
+        shape_quat: np.ndarray,
+        moving: list[int],
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """pybullet's ray casts of the rays ``cast`` (T, rays), frame by frame with the moving
+        shapes placed: the body uid each hit (-1: none) and where each ray stopped."""
         per_frame = cast.sum(axis=1)
         ends = flat_targets[cast]  # the cast rays, frame by frame
         uids = np.empty(len(ends), dtype=np.intp)
@@ -468,24 +492,7 @@ class RayCaster:
             uids[first:last] = [r[0] for r in result]
             stops[first:last] = [r[3] for r in result]
             first = last
-        shape[cast] = np.where(uids >= 0, self._shape_of_uid[np.maximum(uids, 0)], -1)
-        hit_points[cast] = stops
-        shape = shape.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint)
-        own = np.zeros(shape.shape, dtype=bool)
-        is_body = (shape >= 0) & (shape < NUM_BODY_SHAPES)
-        joint_index = np.arange(skeleton.NUM_JOINTS)[None, :, None]
-        own[is_body] = OWN_SHAPES[
-            np.broadcast_to(joint_index, shape.shape)[is_body], shape[is_body]
-        ]
-        blocked = (shape >= 0) & ~own
-        visible = 1.0 - blocked.mean(axis=-1)
-        center = shape[..., 0]
-        blocker = np.where(
-            ~blocked[..., 0], -1, np.where(center >= NUM_BODY_SHAPES, center - NUM_BODY_SHAPES, -2)
-        )
-        central = hit_points.reshape(count, skeleton.NUM_JOINTS, self.rays_per_joint, 3)[:, :, 0]
-        hits = np.where(blocked[..., :1], central, targets[:, :, 0])
-        return TraceResult(visible=visible, blocker=blocker, hit_point=hits)
+        return uids, stops
 
     def _targets(self, camera: np.ndarray, joints: np.ndarray) -> np.ndarray:
         """Ray targets ``(T, 20, K, 3)``: the joint's front surface and a disc around it."""
@@ -501,3 +508,21 @@ class RayCaster:
         up = np.cross(side, view)
         offsets = np.stack([np.zeros_like(side), side, -side, up, -up], axis=-2) * self.spread
         return front[:, :, None, :] + offsets
+
+
+def _trace_result(shape: np.ndarray, central: np.ndarray, targets: np.ndarray) -> TraceResult:
+    """What the rays found: ``shape`` (T, 20, K) the shape each ray hit (-1: none), ``central``
+    (T, 20, 3) where each joint's central ray stopped, ``targets`` (T, 20, 3) the central rays'
+    targets."""
+    own = np.zeros(shape.shape, dtype=bool)
+    is_body = (shape >= 0) & (shape < NUM_BODY_SHAPES)
+    joint_index = np.arange(skeleton.NUM_JOINTS)[None, :, None]
+    own[is_body] = OWN_SHAPES[np.broadcast_to(joint_index, shape.shape)[is_body], shape[is_body]]
+    blocked = (shape >= 0) & ~own
+    visible = 1.0 - blocked.mean(axis=-1)
+    center = shape[..., 0]
+    blocker = np.where(
+        ~blocked[..., 0], -1, np.where(center >= NUM_BODY_SHAPES, center - NUM_BODY_SHAPES, -2)
+    )
+    hits = np.where(blocked[..., :1], central, targets)
+    return TraceResult(visible=visible, blocker=blocker, hit_point=hits)
