@@ -4,7 +4,7 @@ A real stream with independent ground truth (UI-PRMD's Kinect v2 against Vicon) 
 occlusion; this module hides parts of the body in it. Joints that stay visible keep the real
 sensor's report, noise and definitions untouched; hidden joints report what a Kinect reports
 for joints it cannot see, by the simulator's :class:`~fpg_gym.simulate.models.OcclusionModel`
-(:func:`~fpg_gym.simulate.simulator.occlusion_effects`) run on the real stream: a hidden joint's
+(:func:`~fpg_gym.simulate.hidden_joints.occlusion_effects`) run on the real stream: a hidden joint's
 bone (from its parent) freezes, swings or collapses and drifts, the hidden joints of a chain move
 together, a joint hidden by a nearby surface may snap onto it and stay *tracked*, long
 occlusions may end as *not tracked*. The base parameters are those measured on the real
@@ -43,9 +43,10 @@ import numpy as np
 
 from fpg_gym.core import skeleton
 from fpg_gym.io.recording import Recording
+from fpg_gym.simulate.hidden_joints import occlusion_effects
 from fpg_gym.simulate.models import OcclusionModel
 from fpg_gym.simulate.scenarios import KINECT_V2_OCCLUSION
-from fpg_gym.simulate.simulator import ARM_JOINTS, LEG_JOINTS, occlusion_effects
+from fpg_gym.simulate.simulator import ARM_JOINTS, LEG_JOINTS
 
 __all__ = [
     "OCCLUSION_CASES",
