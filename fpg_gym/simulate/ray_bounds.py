@@ -138,18 +138,9 @@ def rays_to_cast(
     near = np.zeros(along.shape, dtype=bool)
     c, t, r = np.nonzero(closest < bound * bound)
     if len(t):
-        q = shape_quat[t, c]  # the capsules' axes: the rotation's Z column
-        axis = (
-            np.stack(
-                [
-                    2.0 * (q[:, 0] * q[:, 2] + q[:, 3] * q[:, 1]),
-                    2.0 * (q[:, 1] * q[:, 2] - q[:, 3] * q[:, 0]),
-                    1.0 - 2.0 * (q[:, 0] * q[:, 0] + q[:, 1] * q[:, 1]),
-                ],
-                axis=-1,
-            )
-            * half_height[c, None]
-        )
+        # The capsules' axes: their rotations' Z columns, (T, C, 3).
+        z_axes = quaternion_to_matrix(shape_quat[:, :capsules][..., [3, 0, 1, 2]])[..., 2]
+        axis = z_axes[t, c] * half_height[c, None]
         middle = shape_pos[t, c]
         distance = segment_distances(camera, targets[t, r], middle - axis, middle + axis)
         near[c, t, r] = distance < radius[c] + margin
