@@ -213,6 +213,7 @@ class KinectSimulator:
             return self._cast(stage, camera, heading)
         key = hashlib.blake2b(stage.tobytes(), digest_size=16, person=b"fpg-trace")
         key.update(np.asarray(stage.shape, dtype=np.int64).tobytes())
+        key.update(np.asarray(camera.position, dtype=np.float64).tobytes())  # where rays start
         digest = key.digest()
         result = self._traces.get(digest)
         if result is None:
