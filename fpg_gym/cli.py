@@ -24,7 +24,7 @@ from types import FrameType
 from typing import Any, NoReturn
 
 from fpg_gym import __version__
-from fpg_gym.core.errors import FpgGymError
+from fpg_gym.core.errors import FpgGymError, interrupt_in
 from fpg_gym.io.plausibility import accepting_unusual
 from optimizers import OptimizerError
 
@@ -173,7 +173,9 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         with _sigterm_interrupts(), accepting_unusual(getattr(args, "accept_unusual", False)):
             return int(args.run(args) or 0)
-    except KeyboardInterrupt:
+    except (KeyboardInterrupt, SystemError) as error:
+        if interrupt_in(error) is None:
+            raise
         print("fpg-gym: interrupted; results written so far are kept", file=sys.stderr)
         return 130
     except (FpgGymError, OptimizerError, OSError, ValueError) as error:

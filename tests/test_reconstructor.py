@@ -11,6 +11,7 @@ from typing import ClassVar
 import numpy as np
 import pytest
 
+import optimizers
 from fpg_gym.cli import main
 from fpg_gym.core import metrics, poses, skeleton
 from fpg_gym.io import Recording, load_default_clips, write_recording
@@ -455,3 +456,51 @@ def test_left_right_costs_are_their_definition_in_each_twin(numpy_twin: bool) ->
                 total += w * float(np.linalg.norm(sensor - target))
                 count += w
             assert costs[labelling] == pytest.approx(total / max(count, 1e-9), rel=1e-12)
+
+
+def test_an_interrupt_a_compiled_call_swallowed_still_keeps_the_frames_done(
+    monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """A signal handler's KeyboardInterrupt raised while a numba call runs Python code on its
+    way out reaches the caller as ``SystemError`` with the interrupt as its cause; the run path
+    treats it as the interrupt (the frames done are kept), and the command line exits 130."""
+    from fpg_gym.core.errors import interrupt_in
+    from fpg_gym.reconstruct.streams import Stream, reconstruct_stream, search_streams
+
+    rec = recording()
+
+    def swallowing(problems, streams):  # the way numba's dispatcher reports it
+        if streams[0].next == 5:
+            try:
+                raise KeyboardInterrupt("signal 15")
+            except KeyboardInterrupt as interrupt:
+                raise SystemError(
+                    "CPUDispatcher(...) returned a result with an exception set"
+                ) from interrupt
+        return search_streams(problems, streams)
+
+    reconstructor = Reconstructor(graph())
+    stream = Stream(reconstructor, rec, optimizers.make("local-search"), np.random.default_rng(0))
+    result = reconstruct_stream(stream, swallowing, stop_on_interrupt=True)
+    assert result.interrupted and result.num_frames == 5
+    with pytest.raises(KeyboardInterrupt):
+        reconstruct_stream(
+            Stream(reconstructor, rec, optimizers.make("local-search"), np.random.default_rng(0)),
+            swallowing,
+        )
+    # Only an interrupt counts: another SystemError, or one caused by something else, does not.
+    assert interrupt_in(SystemError("x")) is None
+    other = SystemError("x")
+    other.__cause__ = ValueError("y")
+    assert interrupt_in(other) is None
+    assert interrupt_in(ValueError("y")) is None
+
+    def interrupted_command(args: object) -> int:
+        swallowing([], [SimpleNamespace(next=5)])
+        return 0
+
+    import fpg_gym.commands.reconstruct as command
+
+    monkeypatch.setattr(command, "run", interrupted_command)
+    assert main(["reconstruct", "--input", "x.npz", "--out", "y.npz"]) == 130
+    assert "interrupted" in capsys.readouterr().err

@@ -91,3 +91,19 @@ def import_optional(module: str, missing: ImportError) -> ModuleType:
         return importlib.import_module(module)
     except ImportError as error:
         raise missing from error
+
+
+def interrupt_in(error: BaseException) -> KeyboardInterrupt | None:
+    """The ``KeyboardInterrupt`` (Ctrl-C, or SIGTERM through the command line) that ``error``
+    is: itself, or the cause of a ``SystemError``.
+
+    A signal handler runs at the next Python instruction, which can be inside a compiled
+    (numba) call that runs Python code on its way out (boxing the arrays it returns): the call
+    then fails with ``SystemError: ... returned a result with an exception set``, its cause the
+    interrupt. Code that keeps the work done on an interrupt asks this, so that such an
+    interrupt is one too.
+    """
+    current: BaseException | None = error
+    while isinstance(current, SystemError):
+        current = current.__cause__
+    return current if isinstance(current, KeyboardInterrupt) else None

@@ -41,6 +41,7 @@ from tqdm import tqdm
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
+from fpg_gym.core.errors import interrupt_in
 from fpg_gym.reconstruct.output_correction import OutputCorrection, output_correction_of
 from fpg_gym.reconstruct.problem import SearchProblem
 from fpg_gym.reconstruct.records import FrameOutput, FrameRecord, ReconstructionResult
@@ -270,7 +271,9 @@ def step_streams(
     ------
     Exception
         What ``prepare``, the chooser or ``finish`` raised; the streams' prepared frames are
-        dropped first (each reconstructor stays usable, at the frame before).
+        dropped first (each reconstructor stays usable, at the frame before). An interrupt
+        that a compiled call turned into a ``SystemError`` is raised as the
+        ``KeyboardInterrupt`` it was (:func:`fpg_gym.core.errors.interrupt_in`).
     """
     active = [s for s in streams if not s.done]
     if frames is not None and len(frames) != len(active):
@@ -287,9 +290,12 @@ def step_streams(
             stream.finish(c.z, correction=c.correction, search_s=c.search_s)
             for stream, c in zip(active, chosen, strict=True)
         ]
-    except BaseException:
+    except BaseException as error:
         for stream in active:
             stream.drop()
+        interrupt = interrupt_in(error)
+        if interrupt is not None and interrupt is not error:  # swallowed by a compiled call
+            raise interrupt from None
         raise
 
 
