@@ -23,6 +23,7 @@ __all__ = [
     "centre_poses",
     "continuity_poses",
     "energy_setup",
+    "finish_pose",
     "labelling_costs",
     "latent_terms",
     "merge_sorted",
@@ -329,6 +330,16 @@ def continuity_poses(last, before, root, yaw, ratio, damping):
                 target = previous[j, c] + damping * (target - previous[j, c])
             prediction[j, c] = target
     return previous, prediction
+
+
+@numba.njit(cache=True, nogil=True)
+def finish_pose(local, lengths, root, yaw, bones, rest_directions):
+    """:func:`fpg_gym.reconstruct.pending.output_pose`: the normalised pose ``local`` ``(20, 3)``
+    retargeted to ``lengths`` (``retarget_pose``, float32), then put back at ``root`` and
+    ``yaw`` in float64 (``place_pose``) and returned as float32 (the numpy code's operations)."""
+    retargeted = retarget_pose(local, lengths, bones, rest_directions)
+    placed = place_pose(retargeted.astype(np.float64), root, yaw, True)
+    return placed.astype(np.float32)
 
 
 @numba.njit(cache=True, nogil=True)

@@ -134,7 +134,8 @@ class TemporalConfig:
 
 
 class PlacementSmoother:
-    """One-Euro filters on a stream of placements (root position, heading).
+    """One-Euro filters on a stream of placements: the root position, and the heading when the
+    config smooths it (``smooth_heading``).
 
     The heading is filtered as the unit vector ``(sin yaw, 0, cos yaw)`` (no wrap-around at
     ±pi) and turned back into an angle.
@@ -142,28 +143,32 @@ class PlacementSmoother:
 
     def __init__(self, config: TemporalConfig) -> None:
         self._root = OneEuroFilter(min_cutoff=config.root_min_cutoff, beta=config.root_beta)
-        self._heading = OneEuroFilter(
-            min_cutoff=config.heading_min_cutoff, beta=config.heading_beta
+        self._heading = (
+            OneEuroFilter(min_cutoff=config.heading_min_cutoff, beta=config.heading_beta)
+            if config.smooth_heading
+            else None
         )
 
     def reset(self) -> None:
         """Start a new stream."""
         self._root.reset()
-        self._heading.reset()
+        if self._heading is not None:
+            self._heading.reset()
 
     def update(self, placement: pose_utils.Placement, timestamp: float) -> pose_utils.Placement:
-        """The smoothed placement of the next frame (``timestamp`` in seconds)."""
-        yaw = float(np.asarray(placement.yaw))
+        """The smoothed placement of the next frame (``timestamp`` in seconds); its yaw is
+        ``placement``'s when the heading is not smoothed."""
         root = self._root.update_tracked(
             np.asarray(placement.root, dtype=np.float64)[None], timestamp
-        )
+        )[0].astype(np.float64)
+        if self._heading is None:
+            return pose_utils.Placement(root=root, yaw=placement.yaw)
+        yaw = float(np.asarray(placement.yaw))
         heading = np.array([[np.sin(yaw), 0.0, np.cos(yaw)]])
         smooth = self._heading.update_tracked(heading, timestamp)[0].astype(np.float64)
         if np.hypot(smooth[0], smooth[2]) < 1e-6:  # a half turn within one filter step
             smooth = heading[0]
-        return pose_utils.Placement(
-            root=root[0].astype(np.float64), yaw=np.asarray(np.arctan2(smooth[0], smooth[2]))
-        )
+        return pose_utils.Placement(root=root, yaw=np.asarray(np.arctan2(smooth[0], smooth[2])))
 
 
 class OutputSmoother:
