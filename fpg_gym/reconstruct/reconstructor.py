@@ -567,10 +567,10 @@ class Reconstructor(FrameDrivers):
         z = np.asarray(z, dtype=np.float64).reshape(-1)
         if z.shape != (problem.dim,) or not np.isfinite(z).all():
             raise ValueError(f"z: expected {problem.dim} finite values, got shape {z.shape}")
-        points = np.empty((2, problem.dim))
+        points = np.empty((2, problem.dim))  # z and x0 (an encoded pose: finite)
         points[0] = z
         points[1] = problem.x0
-        chosen = problem.evaluate_terms(points, count=False)
+        chosen = problem.energy.terms_and_total(points)  # evaluate_terms's, checked, uncounted
         local = problem.decode(points[:1])[0]
         if self.config.sensor_blend > 0.0 and not pending.no_body:
             pull = self.config.sensor_blend * pending.terms.reliability[:, None]
@@ -629,6 +629,8 @@ class Reconstructor(FrameDrivers):
         ``record.ms``)."""
         if self.config.output_map is not None:
             pose = self.config.output_map.apply(pose)
+        if self._calibration is None and self._output_bones is None and self._fusion is None:
+            return pose
         sensor = pending.sensor
         if sensor is not None and pending.permutation is not None:
             sensor = sensor[pending.permutation]  # the labels the frame was reconstructed with
