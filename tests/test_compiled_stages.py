@@ -343,8 +343,9 @@ def test_compiled_continuity_equals_numpy_to_the_bit(
 
 
 def test_compiled_output_smoother_equals_numpy_to_the_bit(rng: np.random.Generator) -> None:
-    """The output stage's pose after its filter (root-relative, retargeted, put back): numpy's
-    operations around the compiled retarget, to the bit, and the numpy retarget to rounding."""
+    """The output stage (the Kalman filter's step, root-relative, retargeted, put back) in one
+    compiled call: numpy's operations around the compiled filter and retarget, to the bit, and
+    the numpy filter and retarget to rounding."""
     from fpg_gym.reconstruct.temporal import OutputSmoother, TemporalConfig
 
     smoothers = [OutputSmoother(TemporalConfig()) for _ in range(3)]

@@ -18,6 +18,7 @@ import numba
 import numpy as np
 
 from fpg_gym.core.compiled_poses import place_pose, retarget_pose
+from fpg_gym.filters.compiled_filters import kalman_step
 
 __all__ = [
     "centre_poses",
@@ -29,6 +30,7 @@ __all__ = [
     "merge_sorted",
     "remove_sorted",
     "restore_output",
+    "smooth_output",
     "whitened_axes",
 ]
 
@@ -360,6 +362,68 @@ def restore_output(filtered, lengths, root, root_index, bones, rest_directions):
         for c in range(3):
             out[j, c] = np.float64(placed[j, c]) + root[c]
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def smooth_output(
+    pose,
+    lengths,
+    root_index,
+    bones,
+    rest_directions,
+    states,
+    by_state,
+    dt,
+    q3,
+    q2,
+    q1,
+    initial_p11,
+    max_coast,
+    pos,
+    vel,
+    p00,
+    p01,
+    p11,
+    started,
+    unseen,
+    upd,
+    s,
+    innov,
+):
+    """:class:`fpg_gym.reconstruct.temporal.OutputSmoother`'s update of one pose ``(20, 3)``
+    float64 with the Kalman filter in one call: the pose root-relative, the filter's step
+    (``kalman_step``, its arguments after the frame, the state updated in place) rounded to
+    float32 as ``update_tracked`` returns it, then :func:`restore_output` (the same operations)."""
+    joints = pose.shape[0]
+    root = pose[root_index].copy()
+    frame = np.empty((joints, 3))
+    for j in range(joints):
+        for c in range(3):
+            frame[j, c] = pose[j, c] - root[c]
+    filtered = kalman_step(
+        frame,
+        states,
+        by_state,
+        dt,
+        q3,
+        q2,
+        q1,
+        initial_p11,
+        max_coast,
+        pos,
+        vel,
+        p00,
+        p01,
+        p11,
+        started,
+        unseen,
+        upd,
+        s,
+        innov,
+    )
+    return restore_output(
+        filtered.astype(np.float32), lengths, root, root_index, bones, rest_directions
+    )
 
 
 @numba.njit(cache=True, nogil=True)

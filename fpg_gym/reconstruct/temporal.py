@@ -47,7 +47,7 @@ import numpy as np
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
 from fpg_gym.core.compiled import compiled_module
-from fpg_gym.filters import make_filter
+from fpg_gym.filters import KalmanFilter, make_filter
 from fpg_gym.filters.one_euro import OneEuroFilter
 from fpg_gym.reconstruct.energy import motion_target
 from fpg_gym.reconstruct.latent import LatentSpace
@@ -185,12 +185,28 @@ class OutputSmoother:
     def update(self, pose: np.ndarray, lengths: np.ndarray, timestamp: float) -> np.ndarray:
         """Filter one pose ``(20, 3)`` (camera space) and give it ``lengths`` ``(19,)``."""
         pose = np.asarray(pose, dtype=np.float64)
-        root = pose[skeleton.ROOT]
-        filtered = self._filter.update_tracked(pose - root, timestamp)
         lengths = np.asarray(lengths, dtype=np.float64)
         compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
-        one_pose = filtered.shape == (skeleton.NUM_JOINTS, 3)
-        if compiled is not None and one_pose and lengths.shape == (skeleton.NUM_BONES,):
+        one_pose = pose.shape == (skeleton.NUM_JOINTS, 3) and lengths.shape == (skeleton.NUM_BONES,)
+        if (
+            compiled is not None
+            and one_pose
+            and isinstance(self._filter, KalmanFilter)
+            and compiled_module("fpg_gym.filters.compiled_filters") is not None
+        ):  # the Kalman filter's step and the lines below in one call
+            states, dt = self._filter.advance_tracked(skeleton.NUM_JOINTS, timestamp)
+            smoothed: np.ndarray = compiled.smooth_output(
+                pose,
+                lengths,
+                skeleton.ROOT,
+                skeleton.BONES,
+                pose_utils.REST_DIRECTIONS,
+                *self._filter.kernel_arguments(states, dt),
+            )
+            return smoothed
+        root = pose[skeleton.ROOT]
+        filtered = self._filter.update_tracked(pose - root, timestamp)
+        if compiled is not None and one_pose:
             restored: np.ndarray = compiled.restore_output(  # the lines below in one call
                 filtered,
                 lengths,
