@@ -348,11 +348,12 @@ def test_compiled_output_smoother_equals_numpy_to_the_bit(rng: np.random.Generat
     the numpy filter and retarget to rounding."""
     from fpg_gym.reconstruct.temporal import OutputSmoother, TemporalConfig
 
-    smoothers = [OutputSmoother(TemporalConfig()) for _ in range(3)]
+    smoothers = [OutputSmoother(TemporalConfig()) for _ in range(4)]
     contexts = [
         contextlib.nullcontext,
         lambda: only_compiled(["fpg_gym.core.compiled_poses", "fpg_gym.filters.compiled_filters"]),
         numpy_only,
+        lambda: only_compiled(["fpg_gym.reconstruct.compiled_frame"]),  # the warm-up's share
     ]
     for t in range(30):
         pose = poses.rest_pose() + rng.normal(0.0, 0.05, (skeleton.NUM_JOINTS, 3)) + [0, 0, 2]
@@ -363,6 +364,7 @@ def test_compiled_output_smoother_equals_numpy_to_the_bit(rng: np.random.Generat
                 outputs.append(smoother.update(pose, lengths, t / 30.0))
         assert outputs[0].dtype == np.float32
         np.testing.assert_array_equal(outputs[0], outputs[1])
+        np.testing.assert_array_equal(outputs[0], outputs[3])
         np.testing.assert_allclose(outputs[0], outputs[2], rtol=0, atol=1e-6)
 
 

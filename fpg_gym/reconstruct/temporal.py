@@ -188,12 +188,8 @@ class OutputSmoother:
         lengths = np.asarray(lengths, dtype=np.float64)
         compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
         one_pose = pose.shape == (skeleton.NUM_JOINTS, 3) and lengths.shape == (skeleton.NUM_BONES,)
-        if (
-            compiled is not None
-            and one_pose
-            and isinstance(self._filter, KalmanFilter)
-            and compiled_module("fpg_gym.filters.compiled_filters") is not None
-        ):  # the Kalman filter's step and the lines below in one call
+        if compiled is not None and one_pose and isinstance(self._filter, KalmanFilter):
+            # The Kalman filter's step and the lines below in one call.
             states, dt = self._filter.advance_tracked(skeleton.NUM_JOINTS, timestamp)
             smoothed: np.ndarray = compiled.smooth_output(
                 pose,
