@@ -365,62 +365,20 @@ def restore_output(filtered, lengths, root, root_index, bones, rest_directions):
 
 
 @numba.njit(cache=True, nogil=True)
-def smooth_output(
-    pose,
-    lengths,
-    root_index,
-    bones,
-    rest_directions,
-    states,
-    by_state,
-    dt,
-    q3,
-    q2,
-    q1,
-    initial_p11,
-    max_coast,
-    pos,
-    vel,
-    p00,
-    p01,
-    p11,
-    started,
-    unseen,
-    upd,
-    s,
-    innov,
-):
+def smooth_output(pose, lengths, root_index, bones, rest_directions, kalman):
     """:class:`fpg_gym.reconstruct.temporal.OutputSmoother`'s update of one pose ``(20, 3)``
     float64 with the Kalman filter in one call: the pose root-relative, the filter's step
-    (``kalman_step``, its arguments after the frame, the state updated in place) rounded to
-    float32 as ``update_tracked`` returns it, then :func:`restore_output` (the same operations)."""
+    (``kalman_step``; ``kalman`` its arguments after the frame,
+    :meth:`~fpg_gym.filters.KalmanFilter.kernel_arguments`, the state updated in place) rounded
+    to float32 as ``update_tracked`` returns it, then :func:`restore_output` (the same
+    operations)."""
     joints = pose.shape[0]
     root = pose[root_index].copy()
     frame = np.empty((joints, 3))
     for j in range(joints):
         for c in range(3):
             frame[j, c] = pose[j, c] - root[c]
-    filtered = kalman_step(
-        frame,
-        states,
-        by_state,
-        dt,
-        q3,
-        q2,
-        q1,
-        initial_p11,
-        max_coast,
-        pos,
-        vel,
-        p00,
-        p01,
-        p11,
-        started,
-        unseen,
-        upd,
-        s,
-        innov,
-    )
+    filtered = kalman_step(frame, *kalman)
     return restore_output(
         filtered.astype(np.float32), lengths, root, root_index, bones, rest_directions
     )

@@ -197,7 +197,7 @@ class OutputSmoother:
                 skeleton.ROOT,
                 skeleton.BONES,
                 pose_utils.REST_DIRECTIONS,
-                *self._filter.kernel_arguments(states, dt),
+                self._filter.kernel_arguments(states, dt),
             )
             return smoothed
         root = pose[skeleton.ROOT]
