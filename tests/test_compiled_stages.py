@@ -343,15 +343,17 @@ def test_compiled_continuity_equals_numpy_to_the_bit(
 
 
 def test_compiled_output_smoother_equals_numpy_to_the_bit(rng: np.random.Generator) -> None:
-    """The output stage's pose after its filter (root-relative, retargeted, put back): numpy's
-    operations around the compiled retarget, to the bit, and the numpy retarget to rounding."""
+    """The output stage (the Kalman filter's step, root-relative, retargeted, put back) in one
+    compiled call: numpy's operations around the compiled filter and retarget, to the bit, and
+    the numpy filter and retarget to rounding."""
     from fpg_gym.reconstruct.temporal import OutputSmoother, TemporalConfig
 
-    smoothers = [OutputSmoother(TemporalConfig()) for _ in range(3)]
+    smoothers = [OutputSmoother(TemporalConfig()) for _ in range(4)]
     contexts = [
         contextlib.nullcontext,
         lambda: only_compiled(["fpg_gym.core.compiled_poses", "fpg_gym.filters.compiled_filters"]),
         numpy_only,
+        lambda: only_compiled(["fpg_gym.reconstruct.compiled_frame"]),  # the warm-up's share
     ]
     for t in range(30):
         pose = poses.rest_pose() + rng.normal(0.0, 0.05, (skeleton.NUM_JOINTS, 3)) + [0, 0, 2]
@@ -362,4 +364,27 @@ def test_compiled_output_smoother_equals_numpy_to_the_bit(rng: np.random.Generat
                 outputs.append(smoother.update(pose, lengths, t / 30.0))
         assert outputs[0].dtype == np.float32
         np.testing.assert_array_equal(outputs[0], outputs[1])
+        np.testing.assert_array_equal(outputs[0], outputs[3])
         np.testing.assert_allclose(outputs[0], outputs[2], rtol=0, atol=1e-6)
+
+
+def test_compiled_output_pose_equals_the_pose_kernels_to_the_bit() -> None:
+    """A frame's output pose (retarget, then put back): one compiled call, the same as the
+    compiled retarget and placement it chains (to the bit) and the numpy path (to rounding)."""
+    from fpg_gym.reconstruct.pending import output_pose
+
+    rng = np.random.default_rng(12)
+    for i in range(50):
+        local = rng.normal(0.0, 0.4, (20, 3))
+        if i % 10 == 0:
+            local[5] = local[4]  # a zero-length bone: its rest direction
+        lengths = poses.DEFAULT_BONE_LENGTHS * rng.uniform(0.8, 1.2, skeleton.NUM_BONES)
+        placement = poses.Placement(root=rng.normal(size=3), yaw=np.asarray(rng.uniform(-3, 3)))
+        got = output_pose(local, lengths, placement)
+        with only_compiled(["fpg_gym.core.compiled_poses"]):
+            chained = output_pose(local, lengths, placement)
+        with numpy_only():
+            reference = output_pose(local, lengths, placement)
+        assert got.dtype == chained.dtype == reference.dtype == np.float32
+        np.testing.assert_array_equal(got, chained)
+        np.testing.assert_allclose(got, reference, rtol=0, atol=1e-6)

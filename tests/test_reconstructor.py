@@ -102,9 +102,18 @@ def test_problem_exposes_what_a_policy_needs() -> None:
     assert set(terms) == {*TERM_NAMES, "E"} and problem.evaluations == 3
     with pytest.raises(RuntimeError, match="not finished"):
         r.prepare(rec.positions[1], rec.states[1], 1 / 30)
+    for bad in (np.full(d, np.nan), np.zeros(d + 1)):
+        with pytest.raises(ValueError, match="z: expected 20 finite values"):
+            r.finish(bad)
     pose, record = r.finish(problem.x0)
     assert pose.shape == (20, 3) and pose.dtype == np.float32
     assert record.evaluations == 3 and set(record.ms) == {*STAGES, "total"}
+    # The record's terms, uncounted (numpy's products round by batch: equal to rounding).
+    x0_terms = problem.evaluate_terms(problem.x0, count=False)
+    assert record.energy == pytest.approx(float(x0_terms["E"][0]), rel=1e-12, abs=1e-15)
+    assert record.energy_x0 == pytest.approx(record.energy, rel=1e-12, abs=1e-15)
+    for name in TERM_NAMES:
+        assert record.terms[name] == pytest.approx(float(x0_terms[name][0]), rel=1e-12, abs=1e-15)
     with pytest.raises(RuntimeError, match="no prepared frame"):
         r.finish(problem.x0)
     second = r.prepare(rec.positions[1], rec.states[1], 1 / 30)

@@ -142,13 +142,18 @@ class JointFilter(ABC):
         """:meth:`update` of a frame its caller has checked: ``(J, 3)`` float64 positions of
         tracked joints (a reconstructor's own outputs, every frame: the checks of :meth:`update`
         cost more than the filter's step)."""
+        states, dt = self.advance_tracked(frame.shape[0], timestamp)
+        return self._step(frame, states, dt).astype(np.float32)
+
+    def advance_tracked(self, count: int, timestamp: float) -> tuple[npt.NDArray[np.int8], float]:
+        """:meth:`update_tracked`'s bookkeeping for a frame of ``count`` tracked joints at
+        ``timestamp``: the states (all tracked) and the interval its step takes (the state
+        allocated on a stream's first frame)."""
         if not math.isfinite(timestamp):
             raise ValueError(f"timestamp: expected finite seconds, got {timestamp!r}")
-        count = frame.shape[0]
         if self._tracked is None or len(self._tracked) != count:
             self._tracked = np.full(count, TRACKED, dtype=np.int8)
-        dt = self._advance(count, timestamp)
-        return self._step(frame, self._tracked, dt).astype(np.float32)
+        return self._tracked, self._advance(count, timestamp)
 
     def filter_sequence(
         self,

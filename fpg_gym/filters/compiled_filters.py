@@ -4,8 +4,9 @@
 Each kernel is its filter's ``_step`` (:mod:`fpg_gym.filters.kalman`,
 :mod:`fpg_gym.filters.one_euro`) joint by joint, with the same operations in the same order, so
 that its outputs and state equal the numpy step's; the tests compare them. The constants that
-involve powers (``q dt^3 / 3`` ...) and the speed's smoothing factor are computed by the caller,
-as the numpy step computes them. The filter's state arrays are updated in place. Module-level
+involve powers (``q dt^3 / 3`` ...) are computed by the caller, as the numpy step computes them;
+the One-Euro smoothing factors by :func:`_alpha`, :func:`fpg_gym.filters.one_euro.alpha`'s
+operations. The filter's state arrays are updated in place. Module-level
 functions so that numba's disk cache (``cache=True``) finds them in a new process.
 """
 
@@ -93,14 +94,22 @@ def kalman_step(
 
 
 @numba.njit(cache=True, nogil=True)
-def one_euro_step(frame, states, step, speed_alpha, min_cutoff, beta, value, speed, started):
-    """One One-Euro step (``OneEuroFilter._step``) at interval ``step`` > 0 with the speed's
-    smoothing factor ``speed_alpha``; a joint of state 0 (not tracked) or with a non-finite
-    position has no measurement. Returns the filtered frame ``(J, 3)`` float64."""
+def _alpha(cutoff, step):
+    """:func:`fpg_gym.filters.one_euro.alpha` of one cutoff (the same operations)."""
+    tau = 1.0 / (2.0 * np.pi * cutoff)
+    return 1.0 / (1.0 + tau / step)
+
+
+@numba.njit(cache=True, nogil=True)
+def one_euro_step(frame, states, step, d_cutoff, min_cutoff, beta, value, speed, started):
+    """One One-Euro step (``OneEuroFilter._step``) at interval ``step`` > 0, the speed smoothed
+    with cutoff ``d_cutoff``; a joint of state 0 (not tracked) or with a non-finite position has
+    no measurement. Returns the filtered frame ``(J, 3)`` float64."""
     joints = frame.shape[0]
     out = np.empty((joints, 3))
     raw = np.empty(3)
     new_speed = np.empty(3)
+    speed_alpha = _alpha(d_cutoff, step)
     for j in range(joints):
         valid = states[j] != 0 and (
             np.isfinite(frame[j, 0]) and np.isfinite(frame[j, 1]) and np.isfinite(frame[j, 2])
@@ -112,9 +121,7 @@ def one_euro_step(frame, states, step, speed_alpha, min_cutoff, beta, value, spe
             v = speed_alpha * (raw[c] - value[j, c]) / step
             new_speed[c] = v + (1.0 - speed_alpha) * speed[j, c]
             norm += new_speed[c] * new_speed[c]
-        cutoff = min_cutoff + beta * np.sqrt(norm)
-        tau = 1.0 / (2.0 * np.pi * cutoff)
-        a = 1.0 / (1.0 + tau / step)
+        a = _alpha(min_cutoff + beta * np.sqrt(norm), step)
         for c in range(3):
             value[j, c] = a * raw[c] + (1.0 - a) * value[j, c] if on else raw[c]
             speed[j, c] = new_speed[c] if on else 0.0

@@ -179,6 +179,35 @@ class KalmanFilter(PresetFilter):
         )
         return by_state
 
+    def kernel_arguments(self, states: npt.NDArray[np.int8], dt: float) -> tuple[Any, ...]:
+        """The arguments after the frame of the compiled step
+        (:func:`fpg_gym.filters.compiled_filters.kalman_step`) of a frame with ``states`` ``dt``
+        seconds after the last (:meth:`_advance`'s): the constants, then the state arrays it
+        updates in place."""
+        p = self.settings
+        q = p.accel_psd
+        upd, s, innov = self._innovation
+        return (
+            states,
+            self._by_state,
+            dt,
+            q * dt**3 / 3.0,
+            q * dt**2 / 2.0,
+            q * dt,
+            p.initial_velocity_std**2,
+            -1.0 if p.max_coast is None else p.max_coast,
+            self._pos,
+            self._vel,
+            self._p00,
+            self._p01,
+            self._p11,
+            self._started,
+            self._unseen,
+            upd,
+            s,
+            innov,
+        )
+
     def _measurement_var(self, frame: FloatArray, states: npt.NDArray[np.int8]) -> FloatArray:
         """R per joint (:meth:`_by_state`); inf (skip the update) when unmeasured."""
         return np.where(np.isfinite(frame).all(axis=1), self._by_state[states], np.inf)
@@ -187,28 +216,8 @@ class KalmanFilter(PresetFilter):
         p = self.settings
         compiled = compiled_module("fpg_gym.filters.compiled_filters")
         if compiled is not None:  # the same step as below, joint by joint in one call
-            q = p.accel_psd
-            upd, s, innov = self._innovation
             out: FloatArray = compiled.kalman_step(
-                np.ascontiguousarray(frame, dtype=np.float64),
-                states,
-                self._by_state,
-                dt,
-                q * dt**3 / 3.0,
-                q * dt**2 / 2.0,
-                q * dt,
-                p.initial_velocity_std**2,
-                -1.0 if p.max_coast is None else p.max_coast,
-                self._pos,
-                self._vel,
-                self._p00,
-                self._p01,
-                self._p11,
-                self._started,
-                self._unseen,
-                upd,
-                s,
-                innov,
+                np.ascontiguousarray(frame, dtype=np.float64), *self.kernel_arguments(states, dt)
             )
             return out
         var = self._measurement_var(frame, states)

@@ -108,14 +108,13 @@ class OneEuroFilter(PresetFilter):
             if started.any():  # a repeated timestamp: nothing new to filter
                 return np.where(started[:, None], self._value, frame)
         step = dt if dt > 0.0 else DEFAULT_DT
-        speed_alpha = alpha(p.d_cutoff, step)
         compiled = compiled_module("fpg_gym.filters.compiled_filters")
         if compiled is not None:  # the same step as below, joint by joint in one call
             out: FloatArray = compiled.one_euro_step(
                 np.ascontiguousarray(frame, dtype=np.float64),
                 states,
                 step,
-                float(speed_alpha),
+                float(p.d_cutoff),
                 float(p.min_cutoff),
                 float(p.beta),
                 self._value,
@@ -123,6 +122,7 @@ class OneEuroFilter(PresetFilter):
                 self._started,
             )
             return out
+        speed_alpha = alpha(p.d_cutoff, step)
         valid = valid_joints(frame, states)
         raw = np.where(valid[:, None], frame, 0.0)
         started = self._started & valid

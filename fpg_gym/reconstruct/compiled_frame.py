@@ -18,16 +18,19 @@ import numba
 import numpy as np
 
 from fpg_gym.core.compiled_poses import place_pose, retarget_pose
+from fpg_gym.filters.compiled_filters import kalman_step
 
 __all__ = [
     "centre_poses",
     "continuity_poses",
     "energy_setup",
+    "finish_pose",
     "labelling_costs",
     "latent_terms",
     "merge_sorted",
     "remove_sorted",
     "restore_output",
+    "smooth_output",
     "whitened_axes",
 ]
 
@@ -332,6 +335,16 @@ def continuity_poses(last, before, root, yaw, ratio, damping):
 
 
 @numba.njit(cache=True, nogil=True)
+def finish_pose(local, lengths, root, yaw, bones, rest_directions):
+    """:func:`fpg_gym.reconstruct.pending.output_pose`: the normalised pose ``local`` ``(20, 3)``
+    retargeted to ``lengths`` (``retarget_pose``, float32), then put back at ``root`` and
+    ``yaw`` in float64 (``place_pose``) and returned as float32 (the numpy code's operations)."""
+    retargeted = retarget_pose(local, lengths, bones, rest_directions)
+    placed = place_pose(retargeted.astype(np.float64), root, yaw, True)
+    return placed.astype(np.float32)
+
+
+@numba.njit(cache=True, nogil=True)
 def restore_output(filtered, lengths, root, root_index, bones, rest_directions):
     """:class:`fpg_gym.reconstruct.temporal.OutputSmoother`'s output from its filter's
     root-relative float32 pose ``(20, 3)``: root-relative again, retargeted to ``lengths``
@@ -349,6 +362,26 @@ def restore_output(filtered, lengths, root, root_index, bones, rest_directions):
         for c in range(3):
             out[j, c] = np.float64(placed[j, c]) + root[c]
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def smooth_output(pose, lengths, root_index, bones, rest_directions, kalman):
+    """:class:`fpg_gym.reconstruct.temporal.OutputSmoother`'s update of one pose ``(20, 3)``
+    float64 with the Kalman filter in one call: the pose root-relative, the filter's step
+    (``kalman_step``; ``kalman`` its arguments after the frame,
+    :meth:`~fpg_gym.filters.KalmanFilter.kernel_arguments`, the state updated in place) rounded
+    to float32 as ``update_tracked`` returns it, then :func:`restore_output` (the same
+    operations)."""
+    joints = pose.shape[0]
+    root = pose[root_index].copy()
+    frame = np.empty((joints, 3))
+    for j in range(joints):
+        for c in range(3):
+            frame[j, c] = pose[j, c] - root[c]
+    filtered = kalman_step(frame, *kalman)
+    return restore_output(
+        filtered.astype(np.float32), lengths, root, root_index, bones, rest_directions
+    )
 
 
 @numba.njit(cache=True, nogil=True)

@@ -10,6 +10,8 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.core import poses as pose_utils
+from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.reconstruct.energy import TERM_NAMES
 from fpg_gym.reconstruct.output_correction import OutputCorrection
 from fpg_gym.reconstruct.problem import SearchProblem
@@ -17,7 +19,7 @@ from fpg_gym.reconstruct.records import FrameRecord
 from fpg_gym.reconstruct.reliability import ReliabilityTerms
 from fpg_gym.reconstruct.selection import Selection
 
-__all__ = ["Pending", "frame_record"]
+__all__ = ["Pending", "frame_record", "output_pose"]
 
 
 @dataclass
@@ -42,6 +44,27 @@ class Pending:
     correction: OutputCorrection | None = None  # the searching optimiser's, if it has one
     trust: np.ndarray | None = None  # the fusion's trust in each (relabelled) sensor joint
     permutation: np.ndarray | None = None  # the labelling's joint permutation
+
+
+def output_pose(
+    local: np.ndarray, lengths: np.ndarray, placement: pose_utils.Placement
+) -> np.ndarray:
+    """A frame's output ``(20, 3)`` float32 in camera space from its normalised pose ``local``
+    ``(20, 3)`` float64: given the bone ``lengths`` ``(19,)`` (:func:`~fpg_gym.core.poses.retarget`)
+    and put back at ``placement`` (:func:`~fpg_gym.core.poses.denormalise`); one compiled call
+    with numba (the same operations)."""
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    if compiled is not None and np.shape(placement.root) == (3,) and not np.ndim(placement.yaw):
+        pose: np.ndarray = compiled.finish_pose(
+            np.ascontiguousarray(local, dtype=np.float64),
+            np.asarray(lengths, dtype=np.float64),
+            np.asarray(placement.root, dtype=np.float64),
+            float(placement.yaw),
+            skeleton.BONES,
+            pose_utils.REST_DIRECTIONS,
+        )
+        return pose
+    return pose_utils.denormalise(pose_utils.retarget(local, lengths), placement)
 
 
 def frame_record(

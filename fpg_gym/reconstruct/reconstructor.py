@@ -93,7 +93,7 @@ from fpg_gym.reconstruct.output_correction import (
     OutputCorrection,
     output_correction_of,
 )
-from fpg_gym.reconstruct.pending import Pending, frame_record
+from fpg_gym.reconstruct.pending import Pending, frame_record, output_pose
 from fpg_gym.reconstruct.problem import FrameContext, SearchProblem
 from fpg_gym.reconstruct.ragdoll_stage import RagdollStage
 from fpg_gym.reconstruct.records import STAGES, FrameRecord
@@ -565,15 +565,17 @@ class Reconstructor(FrameDrivers):
         if z is None:
             z = problem.x0 if pending.found is None else pending.found
         z = np.asarray(z, dtype=np.float64).reshape(-1)
-        if z.shape != (problem.dim,) or not np.all(np.isfinite(z)):
+        if z.shape != (problem.dim,) or not np.isfinite(z).all():
             raise ValueError(f"z: expected {problem.dim} finite values, got shape {z.shape}")
-        chosen = problem.evaluate_terms(np.stack([z, problem.x0]), count=False)
-        local = problem.decode(z[None])[0]
+        points = np.empty((2, problem.dim))  # z and x0 (an encoded pose: finite)
+        points[0] = z
+        points[1] = problem.x0
+        chosen = problem.energy.terms_and_total(points)  # evaluate_terms's, checked, uncounted
+        local = problem.decode(points[:1])[0]
         if self.config.sensor_blend > 0.0 and not pending.no_body:
             pull = self.config.sensor_blend * pending.terms.reliability[:, None]
             local = local + pull * (np.asarray(problem.kinect_pose, dtype=np.float64) - local)
-        local = pose_utils.retarget(local, problem.lengths)
-        pose = pose_utils.denormalise(local, pending.placement)
+        pose = output_pose(local, problem.lengths, pending.placement)
         t1 = time.perf_counter()
         ragdoll_info = None
         if self._ragdoll.factory is not None:
@@ -627,6 +629,8 @@ class Reconstructor(FrameDrivers):
         ``record.ms``)."""
         if self.config.output_map is not None:
             pose = self.config.output_map.apply(pose)
+        if self._calibration is None and self._output_bones is None and self._fusion is None:
+            return pose
         sensor = pending.sensor
         if sensor is not None and pending.permutation is not None:
             sensor = sensor[pending.permutation]  # the labels the frame was reconstructed with

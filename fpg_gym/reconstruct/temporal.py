@@ -47,7 +47,7 @@ import numpy as np
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
 from fpg_gym.core.compiled import compiled_module
-from fpg_gym.filters import make_filter
+from fpg_gym.filters import KalmanFilter, make_filter
 from fpg_gym.filters.one_euro import OneEuroFilter
 from fpg_gym.reconstruct.energy import motion_target
 from fpg_gym.reconstruct.latent import LatentSpace
@@ -134,7 +134,8 @@ class TemporalConfig:
 
 
 class PlacementSmoother:
-    """One-Euro filters on a stream of placements (root position, heading).
+    """One-Euro filters on a stream of placements: the root position, and the heading when the
+    config smooths it (``smooth_heading``).
 
     The heading is filtered as the unit vector ``(sin yaw, 0, cos yaw)`` (no wrap-around at
     ±pi) and turned back into an angle.
@@ -142,28 +143,32 @@ class PlacementSmoother:
 
     def __init__(self, config: TemporalConfig) -> None:
         self._root = OneEuroFilter(min_cutoff=config.root_min_cutoff, beta=config.root_beta)
-        self._heading = OneEuroFilter(
-            min_cutoff=config.heading_min_cutoff, beta=config.heading_beta
+        self._heading = (
+            OneEuroFilter(min_cutoff=config.heading_min_cutoff, beta=config.heading_beta)
+            if config.smooth_heading
+            else None
         )
 
     def reset(self) -> None:
         """Start a new stream."""
         self._root.reset()
-        self._heading.reset()
+        if self._heading is not None:
+            self._heading.reset()
 
     def update(self, placement: pose_utils.Placement, timestamp: float) -> pose_utils.Placement:
-        """The smoothed placement of the next frame (``timestamp`` in seconds)."""
-        yaw = float(np.asarray(placement.yaw))
+        """The smoothed placement of the next frame (``timestamp`` in seconds); its yaw is
+        ``placement``'s when the heading is not smoothed."""
         root = self._root.update_tracked(
             np.asarray(placement.root, dtype=np.float64)[None], timestamp
-        )
+        )[0].astype(np.float64)
+        if self._heading is None:
+            return pose_utils.Placement(root=root, yaw=placement.yaw)
+        yaw = float(np.asarray(placement.yaw))
         heading = np.array([[np.sin(yaw), 0.0, np.cos(yaw)]])
         smooth = self._heading.update_tracked(heading, timestamp)[0].astype(np.float64)
         if np.hypot(smooth[0], smooth[2]) < 1e-6:  # a half turn within one filter step
             smooth = heading[0]
-        return pose_utils.Placement(
-            root=root[0].astype(np.float64), yaw=np.asarray(np.arctan2(smooth[0], smooth[2]))
-        )
+        return pose_utils.Placement(root=root, yaw=np.asarray(np.arctan2(smooth[0], smooth[2])))
 
 
 class OutputSmoother:
@@ -180,12 +185,24 @@ class OutputSmoother:
     def update(self, pose: np.ndarray, lengths: np.ndarray, timestamp: float) -> np.ndarray:
         """Filter one pose ``(20, 3)`` (camera space) and give it ``lengths`` ``(19,)``."""
         pose = np.asarray(pose, dtype=np.float64)
-        root = pose[skeleton.ROOT]
-        filtered = self._filter.update_tracked(pose - root, timestamp)
         lengths = np.asarray(lengths, dtype=np.float64)
         compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
-        one_pose = filtered.shape == (skeleton.NUM_JOINTS, 3)
-        if compiled is not None and one_pose and lengths.shape == (skeleton.NUM_BONES,):
+        one_pose = pose.shape == (skeleton.NUM_JOINTS, 3) and lengths.shape == (skeleton.NUM_BONES,)
+        if compiled is not None and one_pose and isinstance(self._filter, KalmanFilter):
+            # The Kalman filter's step and the lines below in one call.
+            states, dt = self._filter.advance_tracked(skeleton.NUM_JOINTS, timestamp)
+            smoothed: np.ndarray = compiled.smooth_output(
+                pose,
+                lengths,
+                skeleton.ROOT,
+                skeleton.BONES,
+                pose_utils.REST_DIRECTIONS,
+                self._filter.kernel_arguments(states, dt),
+            )
+            return smoothed
+        root = pose[skeleton.ROOT]
+        filtered = self._filter.update_tracked(pose - root, timestamp)
+        if compiled is not None and one_pose:
             restored: np.ndarray = compiled.restore_output(  # the lines below in one call
                 filtered,
                 lengths,
