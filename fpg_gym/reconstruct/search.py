@@ -109,7 +109,7 @@ def complete_compiled(problem: Any, run: OptimizerRun) -> bool:
     if optimizer.proposals == "table" and budget != 0 and max_asks != 0:
         table = optimizer.proposal_table()  # the process's shared table
     x, energy, evaluations, asks, status = compiled.local_search(
-        run.rng,
+        compiled.generator_address(run.rng),
         table,
         np.ascontiguousarray(problem.x0, dtype=np.float64),
         *compiled_arguments(problem.energy.tables),
