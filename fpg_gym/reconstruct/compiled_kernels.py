@@ -18,10 +18,13 @@ __all__ = ["energy_rows", "fused_kernel", "stacked_fused_kernel"]
 @numba.njit(cache=True, nogil=True)
 def energy_rows(p, z, c0, ycst, b0, lengths, wk, out):
     """``out[i] = z_i . P[i, :d] + P[i, d] + c0 + min_k (P[i, d+1+k] + ycst[k]) + wk * sum_b
-    (|P[i, bone b] + b0_b| - lengths_b)^2`` (Shum Eq. 10 as in the tables)."""
+    (|P[i, bone b] + b0_b| - lengths_b)^2`` (Shum Eq. 10 as in the tables; ``p``, ``b0`` and
+    ``lengths`` in one dtype, as the tables hold them)."""
     n, d = z.shape
     k = ycst.shape[0]
     bones = lengths.shape[0]
+    base = d + 1 + k
+    diff = np.empty(bones, dtype=p.dtype)
     for i in range(n):
         e = c0 + p[i, d]
         for j in range(d):
@@ -31,15 +34,16 @@ def energy_rows(p, z, c0, ycst, b0, lengths, wk, out):
             v = p[i, d + 1 + m] + ycst[m]
             if v < best:
                 best = v
-        s = 0.0
-        base = d + 1 + k
-        for b in range(bones):  # Ek, Eq. 13
+        row = p[i]
+        for b in range(bones):  # Ek, Eq. 13: every bone's length first (a vectorised loop),
             c = base + 3 * b
-            x = p[i, c] + b0[3 * b]
-            y = p[i, c + 1] + b0[3 * b + 1]
-            w = p[i, c + 2] + b0[3 * b + 2]
-            diff = np.sqrt(x * x + y * y + w * w) - lengths[b]
-            s += diff * diff
+            x = row[c] + b0[3 * b]
+            y = row[c + 1] + b0[3 * b + 1]
+            w = row[c + 2] + b0[3 * b + 2]
+            diff[b] = np.sqrt(x * x + y * y + w * w) - lengths[b]
+        s = 0.0
+        for b in range(bones):  # then the sum, in order (the same result to the bit)
+            s += diff[b] * diff[b]
         out[i] = e + best + wk * s
 
 
