@@ -157,6 +157,7 @@ def local_search(
     iteration = 0
     done = False  # the optimiser's own stop (it answers None to the next ask)
     energies = np.empty(samples, dtype=matrix.dtype)
+    product = np.empty((samples, matrix.shape[1]), dtype=matrix.dtype)  # z @ matrix
     values = np.empty(samples)
     while True:
         left = max_evaluations - evaluations if max_evaluations >= 0 else -1
@@ -172,7 +173,11 @@ def local_search(
         iteration += 1
         admitted = samples if left < 0 else min(samples, left)
         points = z[:admitted].astype(matrix.dtype)
-        energy_rows(points @ matrix, points, c0, ycst, b0, lengths, wk, energies[:admitted])
+        if admitted == samples:  # numba's ``points @ matrix`` is this gemm into a new array
+            np.dot(points, matrix, product)
+            energy_rows(product, points, c0, ycst, b0, lengths, wk, energies)
+        else:
+            energy_rows(points @ matrix, points, c0, ycst, b0, lengths, wk, energies[:admitted])
         finite = True
         for i in range(admitted):
             values[i] = energies[i]
