@@ -86,11 +86,15 @@ def _proposals(generator, table, center, step, samples):
     else:
         uniform = generator.random(d + 1)  # the offset and a sign per axis
         start = int(uniform[0] * (table.shape[0] - samples + 1))
-        z = np.empty((samples, d))
+        signed = np.empty(d)
         for j in range(d):
-            signed = np.copysign(step, uniform[1 + j] - 0.5)
-            for i in range(samples):
-                z[i, j] = table[start + i, j] * signed
+            signed[j] = np.copysign(step, uniform[1 + j] - 0.5)
+        z = np.empty((samples, d))
+        for i in range(samples):
+            row = table[start + i]
+            for j in range(d):
+                z[i, j] = row[j] * signed[j] + center[j]
+        return z
     # Element loops here and below: array-wide assignments compile numba's shape-error
     # messages (seconds of compilation on a fresh install).
     for i in range(samples):
