@@ -16,11 +16,13 @@ Module-level functions so that numba's disk cache (``cache=True``) finds them in
 
 from __future__ import annotations
 
+from typing import Any
+
 import numba
 import numpy as np
 from llvmlite import ir
 from numba.core import cgutils, types
-from numba.extending import intrinsic
+from numba.extending import intrinsic, overload
 
 from fpg_gym.reconstruct.compiled_kernels import energy_rows
 
@@ -44,13 +46,12 @@ _GENERATOR = types.NumPyRandomGeneratorType("generator")
 _BIT_GENERATOR = types.NumPyRandomBitGeneratorType("bit_generator")
 
 
-@intrinsic
-def _generator_at(typingctx, address):  # type: ignore[no-untyped-def]
+def _generator_at_typing(typingctx, address):
     """numba's ``Generator`` on the ``bitgen_t`` at ``address`` (:func:`generator_address`):
     the fields numba's own unboxing of a ``Generator`` fills, read from the same struct, so
     the draws are the same and advance the Python generator's state."""
 
-    def codegen(context, builder, signature, arguments):  # type: ignore[no-untyped-def]
+    def codegen(context, builder, signature, arguments):
         word = context.get_value_type(types.uintp)
         slots = builder.inttoptr(arguments[0], word.as_pointer())
 
@@ -71,6 +72,21 @@ def _generator_at(typingctx, address):  # type: ignore[no-untyped-def]
         return generator._getvalue()
 
     return _GENERATOR(types.intp), codegen
+
+
+_generator_at: Any = intrinsic(_generator_at_typing)
+
+
+def _as_dtype_of(points, matrix):
+    """``points`` in ``matrix``'s dtype: themselves when they are in it already, else a copy."""
+    return points.astype(matrix.dtype)
+
+
+@overload(_as_dtype_of)
+def _as_dtype_of_overload(points, matrix):
+    if points.dtype == matrix.dtype:
+        return lambda points, matrix: points
+    return lambda points, matrix: points.astype(matrix.dtype)
 
 
 @numba.njit(cache=True, nogil=True)
@@ -176,7 +192,7 @@ def local_search(
                 z[0, j] = center[j]
         iteration += 1
         admitted = samples if left < 0 else min(samples, left)
-        points = z[:admitted].astype(matrix.dtype)
+        points = _as_dtype_of(z[:admitted], matrix)
         if admitted == samples:  # numba's ``points @ matrix`` is this gemm into a new array
             np.dot(points, matrix, product)
             energy_rows(product, points, c0, ycst, b0, lengths, wk, energies)
