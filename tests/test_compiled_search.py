@@ -46,6 +46,7 @@ def _same(a: SearchResult, b: SearchResult) -> None:
     [
         ({}, 2000),
         ({"proposals": "table"}, 2000),
+        ({"proposals": "normal"}, 2000),  # drawn from the generator numba builds at its address
         ({}, 250),  # a clipped batch: its other rows count as +inf
         ({"proposals": "table", "samples": 64}, 1000),
         ({"shrink": None}, 2000),  # Shum's literal stop
