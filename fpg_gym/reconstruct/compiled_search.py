@@ -193,11 +193,9 @@ def local_search(
         iteration += 1
         admitted = samples if left < 0 else min(samples, left)
         points = _as_dtype_of(z[:admitted], matrix)
-        if admitted == samples:  # numba's ``points @ matrix`` is this gemm into a new array
-            np.dot(points, matrix, product)
-            energy_rows(product, points, c0, ycst, b0, lengths, wk, energies)
-        else:
-            energy_rows(points @ matrix, points, c0, ycst, b0, lengths, wk, energies[:admitted])
+        # numba's ``points @ matrix`` is this gemm into a new array
+        np.dot(points, matrix, product[:admitted])
+        energy_rows(product[:admitted], points, c0, ycst, b0, lengths, wk, energies[:admitted])
         finite = True
         for i in range(admitted):
             values[i] = energies[i]
