@@ -3,6 +3,10 @@ and generator state as the ask/tell loop of run_optimizer, to the last bit, on r
 
 from __future__ import annotations
 
+import json
+import os
+import subprocess
+import sys
 from typing import Any
 
 import numpy as np
@@ -46,6 +50,7 @@ def _same(a: SearchResult, b: SearchResult) -> None:
     [
         ({}, 2000),
         ({"proposals": "table"}, 2000),
+        ({"proposals": "normal"}, 2000),  # drawn from the generator numba builds at its address
         ({}, 250),  # a clipped batch: its other rows count as +inf
         ({"proposals": "table", "samples": 64}, 1000),
         ({"shrink": None}, 2000),  # Shum's literal stop
@@ -119,3 +124,44 @@ def test_streams_equal_with_and_without_the_compiled_search(
         np.testing.assert_array_equal(b.poses, c.poses)
         assert [r.evaluations for r in a.records] == [r.evaluations for r in c.records]
         assert [r.energy for r in b.records] == [r.energy for r in c.records]
+
+
+_INTERPRETED_SEARCH = """
+import json, sys
+import numpy as np
+from fpg_gym.reconstruct import compiled_search as cs
+from optimizers.local_search import shared_proposal_table
+rng = np.random.default_rng(0)
+d, k = 4, 3
+tables = (rng.standard_normal((d, d + 1 + k + 57)) * 0.3, 0.2, rng.random(k),
+          rng.standard_normal(57), rng.random(19), 0.05)
+out = []
+for proposals in ("table", "normal"):
+    generator = np.random.default_rng(1)
+    table = shared_proposal_table(400, d) if proposals == "table" else np.zeros((0, d))
+    x, energy, evaluations, asks, status = cs.local_search(
+        cs.generator_address(generator), table, np.zeros(d), *tables, 10, 3, 1.0, 0.5, 1e-3,
+        25, 100000)
+    out.append([[float(v) for v in x], float(energy), int(evaluations), int(asks), int(status),
+                generator.random()])
+json.dump(out, sys.stdout)
+"""
+
+
+def test_the_compiled_search_equals_its_source_interpreted() -> None:
+    """The kernel compiled (its generator built at the bit generator's address) and run by the
+    interpreter (``NUMBA_DISABLE_JIT=1``, the generator itself): the same points, energies,
+    counts and generator state."""
+    runs = []
+    for disable in ("0", "1"):
+        environment = {**os.environ, "NUMBA_DISABLE_JIT": disable}
+        done = subprocess.run(
+            [sys.executable, "-c", _INTERPRETED_SEARCH],
+            env=environment,
+            capture_output=True,
+            text=True,
+            check=True,
+        )
+        runs.append(json.loads(done.stdout))
+    assert runs[0] == runs[1]
+    assert all(run[2] == 25 for run in runs[0])  # the budget clips the third batch

@@ -140,3 +140,22 @@ def test_compiled_module_names_its_modules_and_refuses_others() -> None:
         assert [m.__name__ for m in loaded if m is not None] == list(COMPILED_MODULES)
     else:
         assert loaded == [None] * len(COMPILED_MODULES)
+
+
+@pytest.mark.skipif(not numba_available(), reason="the compiled rows need numba (fpg-gym[fast])")
+@pytest.mark.parametrize("bones", [skeleton.NUM_BONES, 5])
+def test_compiled_energy_rows_equal_their_source_to_the_bit(bones: int) -> None:
+    """The compiled row loop (the skeleton's bone count vectorised, any other count not) gives
+    what its source gives run by the interpreter, NaN and infinities included."""
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_kernels")
+    assert compiled is not None
+    rng = np.random.default_rng(7)
+    d, k = 6, 4
+    p = rng.normal(0.0, 1.0, (12, d + 1 + k + 3 * bones))
+    p[3, -2], p[5, d + 2], p[7, -1] = np.nan, np.inf, -np.inf
+    z, ycst = rng.normal(0.0, 1.0, (12, d)), rng.uniform(0.0, 1.0, k)
+    b0, lengths = rng.normal(0.0, 0.3, 3 * bones), rng.uniform(0.1, 0.5, bones)
+    out, expected = np.empty(12), np.empty(12)
+    compiled.energy_rows(p, z, 0.25, ycst, b0, lengths, 0.1, out)
+    compiled.energy_rows.py_func(p, z, 0.25, ycst, b0, lengths, 0.1, expected)
+    np.testing.assert_array_equal(out, expected)

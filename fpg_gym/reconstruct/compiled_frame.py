@@ -109,42 +109,45 @@ def whitened_axes(centred, values, vectors, dim, min_std, max_condition):
 
 
 @numba.njit(cache=True, nogil=True)
+def _row_squares(rows):
+    """Each row's sum of squares, summed in column order; the rows side by side (independent
+    sums, so that they overlap instead of each waiting for its last addition)."""
+    sums = np.zeros(rows.shape[0])
+    for c in range(rows.shape[1]):
+        for n in range(rows.shape[0]):
+            sums[n] += rows[n, c] * rows[n, c]
+    return sums
+
+
+@numba.njit(cache=True, nogil=True)
 def _neighbour_coordinates(mean, basis, neighbours):
     """Es (Eq. 12): the neighbours' squared distances to the mean ``(K,)``, their coordinates
     ``y (K, d)`` in the space, ``|y_n|^2`` and the squared residuals outside the space ``(K,)``."""
     d, size = basis.shape
     k = neighbours.shape[0]
     centred = np.empty((k, size))
-    centred_sq = np.zeros(k)
     for n in range(k):
         for c in range(size):
-            v = neighbours[n, c] - mean[c]
-            centred[n, c] = v
-            centred_sq[n] += v * v
+            centred[n, c] = neighbours[n, c] - mean[c]
     # Coordinates in the space (loops: no BLAS to compile). Each y[n, a] sums its products in
-    # the order of c, the innermost loop running over a so that it vectorises.
+    # the order of c, the innermost loop running over a so that it vectorises, the
+    # neighbours side by side.
     transposed = np.empty((size, d))
     for a in range(d):
         for c in range(size):
             transposed[c, a] = basis[a, c]
     y = np.zeros((k, d))
-    residual = centred.copy()
-    for n in range(k):
-        for c in range(size):
+    for c in range(size):
+        for n in range(k):
             v = centred[n, c]
             for a in range(d):
                 y[n, a] += v * transposed[c, a]
+    residual = centred.copy()
+    for n in range(k):
         for a in range(d):
             for c in range(size):
                 residual[n, c] -= y[n, a] * basis[a, c]
-    y_sq = np.zeros(k)
-    r_sq = np.zeros(k)
-    for n in range(k):
-        for a in range(d):
-            y_sq[n] += y[n, a] * y[n, a]
-        for c in range(size):
-            r_sq[n] += residual[n, c] * residual[n, c]
-    return centred_sq, y, y_sq, r_sq
+    return _row_squares(centred), y, _row_squares(y), _row_squares(residual)
 
 
 @numba.njit(cache=True, nogil=True)

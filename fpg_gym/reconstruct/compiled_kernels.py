@@ -12,16 +12,36 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fpg_gym.core import skeleton
+
 __all__ = ["energy_rows", "fused_kernel", "stacked_fused_kernel"]
+
+
+#: The skeleton's bones, a compile-time constant: the bone loop of :func:`energy_rows`
+#: vectorises with a constant trip count.
+_NUM_BONES = skeleton.NUM_BONES
+
+
+@numba.njit(cache=True, nogil=True, inline="always")
+def _bone_errors(bones, row, b0, lengths, diff):
+    """Ek's (Eq. 13) ``|P[bone b] + b0_b| - lengths_b`` of one row's bone columns ``row``."""
+    for b in range(bones):
+        x = row[3 * b] + b0[3 * b]
+        y = row[3 * b + 1] + b0[3 * b + 1]
+        w = row[3 * b + 2] + b0[3 * b + 2]
+        diff[b] = np.sqrt(x * x + y * y + w * w) - lengths[b]
 
 
 @numba.njit(cache=True, nogil=True)
 def energy_rows(p, z, c0, ycst, b0, lengths, wk, out):
     """``out[i] = z_i . P[i, :d] + P[i, d] + c0 + min_k (P[i, d+1+k] + ycst[k]) + wk * sum_b
-    (|P[i, bone b] + b0_b| - lengths_b)^2`` (Shum Eq. 10 as in the tables)."""
+    (|P[i, bone b] + b0_b| - lengths_b)^2`` (Shum Eq. 10 as in the tables; ``p``, ``b0`` and
+    ``lengths`` in one dtype, as the tables hold them)."""
     n, d = z.shape
     k = ycst.shape[0]
     bones = lengths.shape[0]
+    base = d + 1 + k
+    diff = np.empty(bones, dtype=p.dtype)
     for i in range(n):
         e = c0 + p[i, d]
         for j in range(d):
@@ -31,15 +51,16 @@ def energy_rows(p, z, c0, ycst, b0, lengths, wk, out):
             v = p[i, d + 1 + m] + ycst[m]
             if v < best:
                 best = v
+        # Ek, Eq. 13: the row's bone errors first (one vectorised loop for the skeleton's
+        # bones), then their squares summed in order (the same result to the bit)
+        row = p[i, base : base + 3 * bones]
+        if bones == _NUM_BONES:
+            _bone_errors(_NUM_BONES, row, b0, lengths, diff)
+        else:
+            _bone_errors(bones, row, b0, lengths, diff)
         s = 0.0
-        base = d + 1 + k
-        for b in range(bones):  # Ek, Eq. 13
-            c = base + 3 * b
-            x = p[i, c] + b0[3 * b]
-            y = p[i, c + 1] + b0[3 * b + 1]
-            w = p[i, c + 2] + b0[3 * b + 2]
-            diff = np.sqrt(x * x + y * y + w * w) - lengths[b]
-            s += diff * diff
+        for b in range(bones):
+            s += diff[b] * diff[b]
         out[i] = e + best + wk * s
 
 

@@ -199,10 +199,12 @@ def _retarget_block(directions, roots, lengths, bones, nodes, start, m, xs, ys, 
         xs[0, t] = roots[node, 0]
         ys[0, t] = roots[node, 1]
         zs[0, t] = roots[node, 2]
-        for b in range(bones.shape[0]):
-            parent = bones[b, 0]
-            child = bones[b, 1]
-            length = np.float64(lengths[b])
+    for b in range(bones.shape[0]):  # bone by bone, the nodes side by side
+        parent = bones[b, 0]
+        child = bones[b, 1]
+        length = np.float64(lengths[b])
+        for t in range(m):
+            node = nodes[start + t]
             xs[child, t] = xs[parent, t] + np.float64(directions[node, b, 0]) * length
             ys[child, t] = ys[parent, t] + np.float64(directions[node, b, 1]) * length
             zs[child, t] = zs[parent, t] + np.float64(directions[node, b, 2]) * length

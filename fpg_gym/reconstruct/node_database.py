@@ -57,6 +57,13 @@ def augmented_queries(
     return np.ascontiguousarray(vectors), np.einsum("mi,mi->m", wq, q)
 
 
+def _read_only(array: np.ndarray) -> np.ndarray:
+    """A read-only view of ``array``."""
+    view = array.view()
+    view.flags.writeable = False
+    return view
+
+
 class NodeDatabase:
     """The graph's node poses, retargetable to the user's bone lengths.
 
@@ -79,6 +86,8 @@ class NodeDatabase:
             raise ValueError("poses: the database is empty (0 nodes)")
         self._directions = bone_directions(self.poses).astype(np.float32)
         self._roots = self.poses[:, skeleton.ROOT].copy()
+        self._directions_view = _read_only(self._directions)
+        self._roots_view = _read_only(self._roots)
         self._path = skeleton.PATH_MATRIX.astype(np.float32)
         self.refresh_tolerance_m = refresh_tolerance_m
         self._cache_lengths: np.ndarray | None = None
@@ -118,16 +127,12 @@ class NodeDatabase:
     @property
     def directions(self) -> np.ndarray:
         """Unit bone directions ``(N, 19, 3)`` float32 (read-only view)."""
-        view = self._directions.view()
-        view.flags.writeable = False
-        return view
+        return self._directions_view
 
     @property
     def roots(self) -> np.ndarray:
         """Root positions ``(N, 3)`` float32 (read-only view)."""
-        view = self._roots.view()
-        view.flags.writeable = False
-        return view
+        return self._roots_view
 
     def clear_cache(self) -> None:
         """Forget the cached retargeted database (a new stream starts from scratch)."""

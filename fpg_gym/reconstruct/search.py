@@ -62,10 +62,11 @@ def compiled_search_available() -> bool:
     return _compiled() is not None
 
 
-def _applies(problem: Any, run: OptimizerRun) -> bool:
-    """Whether ``run`` on ``problem`` is a compiled local search's (see the module docstring)."""
+def _compiled_for(problem: Any, run: OptimizerRun) -> ModuleType | None:
+    """The compiled search's module when ``run`` on ``problem`` is a compiled local search's
+    (see the module docstring), else None."""
     energy = getattr(problem, "energy", None)
-    return (
+    applies = (
         type(run.optimizer) is LocalSearch
         and isinstance(problem, SearchProblem)
         and isinstance(energy, EnergyModel)
@@ -73,8 +74,8 @@ def _applies(problem: Any, run: OptimizerRun) -> bool:
         and run.time_budget_s is None
         and problem.dim > 0
         and run.asks == 0
-        and _compiled() is not None
     )
+    return _compiled() if applies else None
 
 
 def complete_compiled(problem: Any, run: OptimizerRun) -> bool:
@@ -97,19 +98,19 @@ def complete_compiled(problem: Any, run: OptimizerRun) -> bool:
     ValueError
         If a proposed point is not finite (as ``problem.evaluate`` would raise).
     """
-    if not _applies(problem, run):
+    compiled = _compiled_for(problem, run)
+    if compiled is None:
         return False
-    compiled = _compiled()
-    assert compiled is not None
     optimizer = run.optimizer
     assert isinstance(optimizer, LocalSearch)
     budget = -1 if run.max_evaluations is None else run.max_evaluations
     max_asks = -1 if run.max_asks is None else run.max_asks
-    table = np.zeros((0, problem.dim))
     if optimizer.proposals == "table" and budget != 0 and max_asks != 0:
         table = optimizer.proposal_table()  # the process's shared table
+    else:
+        table = np.zeros((0, problem.dim))
     x, energy, evaluations, asks, status = compiled.local_search(
-        run.rng,
+        compiled.generator_address(run.rng),
         table,
         np.ascontiguousarray(problem.x0, dtype=np.float64),
         *compiled_arguments(problem.energy.tables),

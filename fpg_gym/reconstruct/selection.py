@@ -430,6 +430,7 @@ class GraphSelector:
         self.recovery_min_score = recovery_min_score
         self.recovery_smoothing = recovery_smoothing
         self._marks: np.ndarray | None = None
+        self._graph_csr: tuple[object, tuple[np.ndarray, np.ndarray] | None] = (None, None)
         self.reset()
 
     def reset(self) -> None:
@@ -443,12 +444,18 @@ class GraphSelector:
         return np.sort(self._pool(nodes))
 
     def _csr(self) -> tuple[np.ndarray, np.ndarray] | None:
-        """The graph's CSR arrays ``(indptr, indices)`` when it has them."""
-        indptr = getattr(self.graph, "indptr", None)
-        indices = getattr(self.graph, "indices", None)
-        if indptr is None or indices is None:
-            return None
-        return np.asarray(indptr), np.asarray(indices)
+        """The graph's CSR arrays ``(indptr, indices)`` when it has them (looked up once per
+        graph object)."""
+        graph, (seen, csr) = self.graph, self._graph_csr
+        if graph is seen:
+            return csr
+        indptr = getattr(graph, "indptr", None)
+        indices = getattr(graph, "indices", None)
+        csr = (
+            None if indptr is None or indices is None else (np.asarray(indptr), np.asarray(indices))
+        )
+        self._graph_csr = (graph, csr)
+        return csr
 
     def _pool(self, nodes: np.ndarray) -> np.ndarray:
         """``nodes`` and all their graph neighbours, unique (sorted unless compiled)."""
