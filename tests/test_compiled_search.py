@@ -50,7 +50,7 @@ def _same(a: SearchResult, b: SearchResult) -> None:
     [
         ({}, 2000),
         ({"proposals": "table"}, 2000),
-        ({"proposals": "normal"}, 2000),  # drawn from the generator numba builds at its address
+        ({"proposals": "normal"}, 2000),  # drawn in numba from the optimiser's generator
         ({}, 250),  # a clipped batch: its other rows count as +inf
         ({"proposals": "table", "samples": 64}, 1000),
         ({"shrink": None}, 2000),  # Shum's literal stop
@@ -140,7 +140,7 @@ for proposals in ("table", "normal"):
     generator = np.random.default_rng(1)
     table = shared_proposal_table(400, d) if proposals == "table" else np.zeros((0, d))
     x, energy, evaluations, asks, status = cs.local_search(
-        cs.generator_address(generator), table, np.zeros(d), *tables, 10, 3, 1.0, 0.5, 1e-3,
+        generator, table, np.zeros(d), *tables, 10, 3, 1.0, 0.5, 1e-3,
         25, 100000)
     out.append([[float(v) for v in x], float(energy), int(evaluations), int(asks), int(status),
                 generator.random()])
@@ -149,9 +149,8 @@ json.dump(out, sys.stdout)
 
 
 def test_the_compiled_search_equals_its_source_interpreted() -> None:
-    """The kernel compiled (its generator built at the bit generator's address) and run by the
-    interpreter (``NUMBA_DISABLE_JIT=1``, the generator itself): the same points, energies,
-    counts and generator state."""
+    """The kernel compiled and run by the interpreter (``NUMBA_DISABLE_JIT=1``): the same
+    points, energies, counts and generator state."""
     runs = []
     for disable in ("0", "1"):
         environment = {**os.environ, "NUMBA_DISABLE_JIT": disable}

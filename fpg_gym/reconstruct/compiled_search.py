@@ -16,72 +16,18 @@ Module-level functions so that numba's disk cache (``cache=True``) finds them in
 
 from __future__ import annotations
 
-from typing import Any
-
 import numba
 import numpy as np
-from llvmlite import ir
-from numba.core import cgutils, types
-from numba.extending import intrinsic, overload
+from numba.extending import overload
 
 from fpg_gym.reconstruct.compiled_kernels import energy_rows
 
-__all__ = ["generator_address", "local_search"]
+__all__ = ["local_search"]
 
-#: Whether numba's JIT is disabled (``NUMBA_DISABLE_JIT=1``): the kernels run as Python.
-_INTERPRETED = bool(getattr(numba.config, "DISABLE_JIT", False))
 #: :func:`local_search`'s status: the search ended normally.
 STATUS_OK = 0
 #: :func:`local_search`'s status: a proposed point was not finite (the search stopped there).
 STATUS_NON_FINITE = 1
-
-
-def generator_address(generator: np.random.Generator) -> Any:
-    """The address of ``generator``'s bit generator (numpy's ``bitgen_t``: its state and its
-    ``next_uint64``, ``next_uint32`` and ``next_double`` functions), what :func:`local_search`
-    draws from: an int is dispatched in well under a microsecond, a ``Generator`` argument
-    costs numba's ``typeof`` and three ``ctypes.cast`` calls (7 us per call). With numba's
-    JIT disabled (``NUMBA_DISABLE_JIT=1``) the interpreted kernel takes the generator itself."""
-    if _INTERPRETED:
-        return generator
-    return int(generator.bit_generator.ctypes.bit_generator.value)
-
-
-_GENERATOR = types.NumPyRandomGeneratorType("generator")
-_BIT_GENERATOR = types.NumPyRandomBitGeneratorType("bit_generator")
-
-
-def _generator_at_typing(typingctx, address):
-    """numba's ``Generator`` on the ``bitgen_t`` at ``address`` (:func:`generator_address`):
-    the fields numba's own unboxing of a ``Generator`` fills, read from the same struct, so
-    the draws are the same and advance the Python generator's state."""
-
-    def codegen(context, builder, signature, arguments):
-        word = context.get_value_type(types.uintp)
-        slots = builder.inttoptr(arguments[0], word.as_pointer())
-
-        def slot(index: int) -> ir.Value:
-            return builder.load(builder.gep(slots, [ir.Constant(ir.IntType(32), index)]))
-
-        bit_generator = cgutils.create_struct_proxy(_BIT_GENERATOR)(context, builder)
-        bit_generator.parent = cgutils.get_null_value(bit_generator.parent.type)
-        bit_generator.state_address = bit_generator.state = slot(0)
-        bit_generator.fnptr_next_uint64 = slot(1)
-        bit_generator.fnptr_next_uint32 = slot(2)
-        bit_generator.fnptr_next_double = slot(3)
-        bit_generator.bit_generator = arguments[0]
-        generator = cgutils.create_struct_proxy(_GENERATOR)(context, builder)
-        generator.bit_generator = bit_generator._getvalue()
-        generator.meminfo = cgutils.get_null_value(generator.meminfo.type)
-        generator.parent = cgutils.get_null_value(generator.parent.type)
-        return generator._getvalue()
-
-    return _GENERATOR(types.intp), codegen
-
-
-_generator_at: Any = (
-    (lambda generator: generator) if _INTERPRETED else intrinsic(_generator_at_typing)
-)
 
 
 def _as_dtype_of(points, matrix):
@@ -128,7 +74,7 @@ def _proposals(generator, table, center, step, samples):
 
 @numba.njit(cache=True, nogil=True)
 def local_search(
-    address,
+    generator,
     table,
     x0,
     matrix,
@@ -149,9 +95,8 @@ def local_search(
 
     Parameters
     ----------
-    address : int
-        :func:`generator_address` of the optimiser's generator (advanced as the ask/tell loop
-        advances it; the caller keeps the generator alive during the call).
+    generator : numpy.random.Generator
+        The optimiser's generator (advanced as the ask/tell loop advances it).
     table : ndarray, shape (rows, d) or (0, d)
         The proposal table, or no rows for fresh normal draws.
     x0 : ndarray, shape (d,), float64
@@ -173,7 +118,6 @@ def local_search(
     status : int
         :data:`STATUS_OK` or :data:`STATUS_NON_FINITE`.
     """
-    generator = _generator_at(address)
     center = x0.copy()
     best_x = x0.copy()
     best = np.inf

@@ -110,7 +110,7 @@ def complete_compiled(problem: Any, run: OptimizerRun) -> bool:
     else:
         table = np.zeros((0, problem.dim))
     x, energy, evaluations, asks, status = compiled.local_search(
-        compiled.generator_address(run.rng),
+        run.rng,
         table,
         np.ascontiguousarray(problem.x0, dtype=np.float64),
         *compiled_arguments(problem.energy.tables),
