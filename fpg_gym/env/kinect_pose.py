@@ -17,7 +17,13 @@ from gymnasium.utils import EzPickle
 
 from fpg_gym.core import skeleton
 from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
-from fpg_gym.core.metrics import acceleration, frame_error
+from fpg_gym.core.metrics import (
+    acceleration,
+    bone_vector_errors,
+    frame_error,
+    second_difference_norms,
+)
+from fpg_gym.core.poses import bone_vectors
 from fpg_gym.env.ragdoll import CountingRagdollFactory, ragdoll_keywords
 from fpg_gym.env.settings import RENDER_MODES, EnvSettings, energy_weights_of
 from fpg_gym.env.step_types import ExactAction, StageTimes
@@ -276,6 +282,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         # The last three outputs and their timestamps (the drawing shows the newest; the
         # "smooth" reward's acceleration needs three).
         self._outputs: list[tuple[np.ndarray, float]] = []
+        self._truth64: np.ndarray | None = None  # the episode's ground truth in float64
         self._render_centre: np.ndarray | None = None
         self._window: HumanWindow | None = None
         self._prepare_ms = self._observation_ms = 0.0
@@ -464,6 +471,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._t = 0
         self._elapsed = 0
         self._outputs = []
+        truth = recording.ground_truth
+        self._truth64 = None if truth is None else truth.astype(np.float64)
         root = recording.positions[:, skeleton.ROOT]
         self._render_centre = np.array([np.median(root[:, 0]), np.median(root[:, 1])])
         # Reconstructor.reset() starts a stream that does not depend on earlier episodes (same
@@ -571,7 +580,14 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         t = self._t
         truth = recording.ground_truth
         if truth is not None:
-            errors = frame_error(truth[[t, t]], np.stack([pose, recording.positions[t]]))
+            assert self._truth64 is not None
+            # frame_error of the output and of the sensor pose; the recording's are checked.
+            estimates = np.stack([pose, recording.positions[t]]).astype(np.float64)
+            errors = bone_vector_errors(
+                bone_vectors(self._truth64[[t, t]]), bone_vectors(estimates)
+            ).mean(axis=1)
+            if not np.isfinite(errors[0]):
+                frame_error(truth[t], pose)  # raises, naming the bad value
             info["frame_error"] = float(errors[0])
             info["raw_frame_error"] = float(errors[1])
         self._outputs = [*self._outputs[-2:], (pose, float(record.timestamp))]
@@ -579,7 +595,13 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         if len(self._outputs) == 3:
             poses, times = zip(*self._outputs, strict=True)
             outputs = np.stack(poses).astype(np.float64)
-            info["acceleration"] = float(acceleration(outputs, timestamps=times).mean())
+            stamps = np.array(times)
+            jerk = float("nan")
+            if stamps[0] < stamps[1] < stamps[2]:
+                jerk = float(second_difference_norms(outputs, stamps).mean())
+            if not np.isfinite(jerk):
+                acceleration(outputs, timestamps=times)  # raises, naming the bad value
+            info["acceleration"] = jerk
         if self.reward_mode == "energy":
             reward = -float(record.energy)
         elif self.reward_mode == "error":
