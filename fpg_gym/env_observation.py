@@ -46,7 +46,6 @@ from __future__ import annotations
 
 import functools
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -171,6 +170,7 @@ class ObservationLayout:
             self.slices[f.name] = slice(start, start + f.size)
             start += f.size
         self.size = start
+        self._starts = {name: sl.start for name, sl in self.slices.items()}
         self.shapes: dict[str, tuple[int, ...]] = {f.name: f.shape for f in self.fields}
         self.low = np.concatenate([np.full(f.size, f.low, np.float32) for f in self.fields])
         self.high = np.concatenate([np.full(f.size, f.high, np.float32) for f in self.fields])
@@ -262,38 +262,42 @@ class ObservationLayout:
         """
         p = problem
         out = np.zeros(self.size, dtype=np.float32)
-        parts = self._views(out)
-        parts["kinect"][:] = p.kinect_pose
-        parts["reliability"][:] = p.reliability
-        terms = parts["reliability_terms"]
-        terms[0] = p.behaviour
-        terms[1] = p.kinematic
-        terms[2] = p.tracking
+        at = self._starts
+        # Flat slices written in place; the 2-D parts through one view each.
+        out[self.slices["kinect"]] = p.kinect_pose.reshape(-1)
+        out[self.slices["reliability"]] = p.reliability
+        terms = at["reliability_terms"]
+        out[terms : terms + _J] = p.behaviour
+        out[terms + _J : terms + 2 * _J] = p.kinematic
+        out[terms + 2 * _J : terms + 3 * _J] = p.tracking
         if p.prediction is not None:
-            parts["prediction"][:] = p.prediction
+            out[self.slices["prediction"]] = p.prediction.reshape(-1)
         if p.previous is not None:
-            parts["previous"][:] = p.previous
-        parts["bone_lengths"][:] = p.lengths
+            out[self.slices["previous"]] = p.previous.reshape(-1)
+        out[self.slices["bone_lengths"]] = p.lengths
         latent = p.latent
         d = min(latent.dim, self.latent_dim)
-        parts["latent_mean"][:] = latent.mean.reshape(_J, 3)
-        parts["latent_basis"][:d] = latent.basis[:d]
-        parts["latent_std"][:d] = latent.std[:d]
-        parts["latent_mask"][:d] = 1.0
+        out[self.slices["latent_mean"]] = latent.mean.reshape(-1)
+        basis = at["latent_basis"]
+        out[basis : basis + 3 * _J * d] = latent.basis[:d].reshape(-1)
+        out[at["latent_std"] : at["latent_std"] + d] = latent.std[:d]
+        out[at["latent_mask"] : at["latent_mask"] + d] = 1.0
         x0 = np.asarray(p.x0, dtype=np.float64)[:d]
         origin: np.ndarray | float = x0 if delta else 0.0
         scale = 1.0 / float(action_scale)
-        parts["x0"][:d] = x0 * scale
-        parts["z_kinect"][:d] = (p.z_kinect[:d] - origin) * scale
+        out[at["x0"] : at["x0"] + d] = x0 * scale
+        out[at["z_kinect"] : at["z_kinect"] + d] = (p.z_kinect[:d] - origin) * scale
         if p.z_prediction is not None:
-            parts["z_prediction"][:d] = (p.z_prediction[:d] - origin) * scale
+            z_prediction = at["z_prediction"]
+            out[z_prediction : z_prediction + d] = (p.z_prediction[:d] - origin) * scale
         k = min(len(p.node_poses), self.candidates)
         if k and d:
             z_nodes = latent.encode(p.node_poses[:k])[:, :d]
-            parts["z_candidates"][:k, :d] = (z_nodes - origin) * scale
-        parts["candidate_scores"][:k] = p.node_scores[:k]
-        parts["candidate_mask"][:k] = 1.0
-        parts["context"][:] = (
+            candidates = out[self.slices["z_candidates"]].reshape(self.candidates, self.latent_dim)
+            candidates[:k, :d] = (z_nodes - origin) * scale
+        out[at["candidate_scores"] : at["candidate_scores"] + k] = p.node_scores[:k]
+        out[at["candidate_mask"] : at["candidate_mask"] + k] = 1.0
+        out[self.slices["context"]] = (
             float(p.context.first),
             float(no_body),
             float(p.prediction is not None),
@@ -302,8 +306,6 @@ class ObservationLayout:
         )
         if not np.isfinite(out).all():  # NaN -> 0, +-inf -> +-max, then clipped to the bounds
             np.nan_to_num(out, copy=False)
-        np.clip(out, self.low, self.high, out=out)
+        np.maximum(out, self.low, out=out)  # clipped to the bounds, as np.clip does
+        np.minimum(out, self.high, out=out)
         return out
-
-    def _views(self, out: np.ndarray) -> Mapping[str, np.ndarray]:
-        return {name: out[sl].reshape(self.shapes[name]) for name, sl in self.slices.items()}

@@ -16,7 +16,7 @@ import pytest
 from gymnasium.utils.env_checker import data_equivalence
 
 import fpg_gym  # registers the env
-from fpg_gym.core.metrics import frame_error
+from fpg_gym.core.metrics import acceleration, frame_error
 from fpg_gym.env import ENV_ID, ExactAction, KinectPoseEnv, StageTimes
 from fpg_gym.env_observation import LATENT_LIMIT, ObservationLayout
 from fpg_gym.io import Recording, load_default_clips, write_recording
@@ -259,6 +259,30 @@ def test_reward_modes_and_info_terms(cache_dir: Path, mode: str) -> None:
     assert reward == pytest.approx(expected, rel=1e-12)
     assert info["pose"].shape == (20, 3) and info["nodes"].shape == (8,)
     assert isinstance(info["timings"], StageTimes) and info["timings"]["env_step"] > 0
+    env.close()
+
+
+def test_step_errors_are_frame_error_to_the_bit(cache_dir: Path) -> None:
+    # The env keeps the truth's bone vectors per episode: its errors and the "smooth" reward's
+    # acceleration are those of frame_error and acceleration on the step's poses, to the bit.
+    env = make(cache_dir, reward_mode="smooth")
+    env.reset(seed=3)
+    recording = env.recording
+    assert recording is not None and recording.ground_truth is not None
+    truth, rng, outputs = recording.ground_truth, np.random.default_rng(2), []
+    for _ in range(12):
+        t = env.frame
+        _, reward, _, _, info = env.step(rng.uniform(-0.5, 0.5, 20).astype(np.float32))
+        errors = frame_error(truth[[t, t]], np.stack([info["pose"], recording.positions[t]]))
+        assert info["frame_error"] == float(errors[0])
+        assert info["raw_frame_error"] == float(errors[1])
+        outputs.append(info["pose"].astype(np.float64))
+        expected = 0.0
+        if len(outputs) >= 3:
+            stamps = recording.timestamps[t - 2 : t + 1]
+            expected = float(acceleration(np.stack(outputs[-3:]), timestamps=stamps).mean())
+        assert info["acceleration"] == expected
+        assert reward == -(info["frame_error"] + 0.002 * expected)
     env.close()
 
 

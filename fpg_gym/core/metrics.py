@@ -59,6 +59,7 @@ __all__ = [
     "band_shares",
     "bone_length_error",
     "bone_length_variation",
+    "bone_vector_errors",
     "bones_tracked",
     "bootstrap_mean_ci",
     "err_ratio",
@@ -73,6 +74,7 @@ __all__ = [
     "per_joint_error",
     "robust_z_scores",
     "root_relative_error",
+    "second_difference_norms",
     "settled_bone_spread",
     "time_summary",
 ]
@@ -139,7 +141,17 @@ def _bone_errors(reference: npt.ArrayLike, estimate: npt.ArrayLike) -> np.ndarra
     est = _clip_array(estimate, "estimate")
     if ref.shape != est.shape:
         raise ValueError(f"reference {ref.shape} and estimate {est.shape} differ in shape")
-    diff = poses.bone_vectors(ref) - poses.bone_vectors(est)
+    return bone_vector_errors(poses.bone_vectors(ref), poses.bone_vectors(est))
+
+
+def bone_vector_errors(reference_bones: np.ndarray, estimate_bones: np.ndarray) -> np.ndarray:
+    """Eq. 13 terms of bone vectors ``(T, 19, 3)`` (float64, unchecked), ``(T, 19)``.
+
+    :func:`frame_error` checks its poses and takes the mean over the bones of these; a caller
+    that scores many estimates against one reference computes the reference's bone vectors
+    (:func:`fpg_gym.core.poses.bone_vectors`) once.
+    """
+    diff = reference_bones - estimate_bones
     return np.sqrt(np.einsum("tbc,tbc->tb", diff, diff))
 
 
@@ -236,6 +248,13 @@ def acceleration(
         raise ValueError("timestamps: must be strictly increasing")
     if count < 3:
         return np.zeros((0, skeleton.NUM_JOINTS))
+    return second_difference_norms(pos, times)
+
+
+def second_difference_norms(positions: np.ndarray, times: np.ndarray) -> np.ndarray:
+    """:func:`acceleration` of float64 positions ``(T, 20, 3)`` (T >= 3) at strictly
+    increasing ``times`` ``(T,)`` (unchecked), m/s², ``(T - 2, 20)``."""
+    pos = positions
     h0 = (times[1:-1] - times[:-2])[:, None, None]
     h1 = (times[2:] - times[1:-1])[:, None, None]
     acc = 2.0 * ((pos[2:] - pos[1:-1]) / h1 - (pos[1:-1] - pos[:-2]) / h0) / (h0 + h1)

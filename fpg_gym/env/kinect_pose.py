@@ -17,7 +17,13 @@ from gymnasium.utils import EzPickle
 
 from fpg_gym.core import skeleton
 from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
-from fpg_gym.core.metrics import acceleration, frame_error
+from fpg_gym.core.metrics import (
+    acceleration,
+    bone_vector_errors,
+    frame_error,
+    second_difference_norms,
+)
+from fpg_gym.core.poses import bone_vectors
 from fpg_gym.env.ragdoll import CountingRagdollFactory, ragdoll_keywords
 from fpg_gym.env.settings import RENDER_MODES, EnvSettings, energy_weights_of
 from fpg_gym.env.step_types import ExactAction, StageTimes
@@ -40,6 +46,13 @@ __all__ = ["ENV_ID", "KinectPoseEnv"]
 
 #: The registered id.
 ENV_ID = "fpg_gym/KinectPose-v0"
+
+
+def _bone_mean(terms: np.ndarray) -> np.ndarray:
+    """FPG Eq. 13 per frame from its bone terms ``(T, 19)``: their mean, the bones added one
+    after the other, as numpy's mean in :func:`~fpg_gym.core.metrics.frame_error` of two stacked
+    frames adds them (the rewards and errors are those it gives, to the bit)."""
+    return np.add.accumulate(terms, axis=-1)[..., -1] / terms.shape[-1]
 
 
 class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
@@ -276,6 +289,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         # The last three outputs and their timestamps (the drawing shows the newest; the
         # "smooth" reward's acceleration needs three).
         self._outputs: list[tuple[np.ndarray, float]] = []
+        self._truth_bones: np.ndarray | None = None  # (T, 19, 3) of the episode's ground truth
+        self._raw_errors: np.ndarray | None = None  # (T,) FPG Eq. 13 of the sensor stream
         self._render_centre: np.ndarray | None = None
         self._window: HumanWindow | None = None
         self._prepare_ms = self._observation_ms = 0.0
@@ -464,6 +479,13 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._t = 0
         self._elapsed = 0
         self._outputs = []
+        # The reward's fixed parts: the truth's bone vectors, the sensor stream's errors.
+        truth = recording.ground_truth
+        self._truth_bones = self._raw_errors = None
+        if truth is not None:
+            self._truth_bones = bone_vectors(truth.astype(np.float64))
+            sensor = bone_vectors(recording.positions.astype(np.float64))
+            self._raw_errors = _bone_mean(bone_vector_errors(self._truth_bones, sensor))
         root = recording.positions[:, skeleton.ROOT]
         self._render_centre = np.array([np.median(root[:, 0]), np.median(root[:, 1])])
         # Reconstructor.reset() starts a stream that does not depend on earlier episodes (same
@@ -571,15 +593,25 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         t = self._t
         truth = recording.ground_truth
         if truth is not None:
-            errors = frame_error(truth[[t, t]], np.stack([pose, recording.positions[t]]))
-            info["frame_error"] = float(errors[0])
-            info["raw_frame_error"] = float(errors[1])
+            assert self._truth_bones is not None and self._raw_errors is not None
+            output = bone_vectors(pose.astype(np.float64)[None])
+            error = float(_bone_mean(bone_vector_errors(self._truth_bones[t : t + 1], output))[0])
+            if not np.isfinite(error):
+                frame_error(truth[t], pose)  # raises, naming the bad value
+            info["frame_error"] = error
+            info["raw_frame_error"] = float(self._raw_errors[t])
         self._outputs = [*self._outputs[-2:], (pose, float(record.timestamp))]
         info["acceleration"] = 0.0
         if len(self._outputs) == 3:
             poses, times = zip(*self._outputs, strict=True)
             outputs = np.stack(poses).astype(np.float64)
-            info["acceleration"] = float(acceleration(outputs, timestamps=times).mean())
+            stamps = np.array(times)
+            jerk = float("nan")
+            if stamps[0] < stamps[1] < stamps[2]:
+                jerk = float(second_difference_norms(outputs, stamps).mean())
+            if not np.isfinite(jerk):
+                acceleration(outputs, timestamps=times)  # raises, naming the bad value
+            info["acceleration"] = jerk
         if self.reward_mode == "energy":
             reward = -float(record.energy)
         elif self.reward_mode == "error":

@@ -81,10 +81,16 @@ def build_body(
     joints: list[int] = []
     rest = poses.rest_pose(model.bone_lengths).astype(np.float64)
     centres = rest[STARTS] + 0.5 * rest_vectors
-
-    def in_body(bone: int, vector: np.ndarray) -> np.ndarray:
-        """A rest-pose world vector in the bone's body frame."""
-        return quat_rotate(quat_conj(capsule_frames[bone]), vector)
+    # Each ball joint (a bone's start) in its parent's and in its own body frame, at rest.
+    children = np.arange(1, NUM_BONES)
+    parents = PARENT_BONE[children]
+    joint_points = rest[STARTS[children]]
+    in_parent = quat_rotate(
+        quat_conj(capsule_frames[parents]), joint_points - centres[parents]
+    ).tolist()
+    in_child = quat_rotate(
+        quat_conj(capsule_frames[children]), joint_points - centres[children]
+    ).tolist()
 
     for bone in range(NUM_BONES):  # one-off construction, not a hot path
         radius, length = float(model.radii[bone]), float(model.bone_lengths[bone])
@@ -127,18 +133,16 @@ def build_body(
         trackings.append(tracking)
     # Ball joints: each bone's start to its parent at the shared Kinect joint.
     joint_force = _JOINT_FORCE_BODY_WEIGHTS * model.total_mass * GRAVITY
-    for bone in range(1, NUM_BONES):
-        parent = int(PARENT_BONE[bone])
-        joint = rest[STARTS[bone]]
+    for i, bone in enumerate(range(1, NUM_BONES)):
         constraint = pb.createConstraint(
-            bodies[parent],
+            bodies[int(PARENT_BONE[bone])],
             -1,
             bodies[bone],
             -1,
             pb.JOINT_POINT2POINT,
             [0.0, 0.0, 0.0],
-            parentFramePosition=in_body(parent, joint - centres[parent]).tolist(),
-            childFramePosition=in_body(bone, joint - centres[bone]).tolist(),
+            parentFramePosition=in_parent[i],
+            childFramePosition=in_child[i],
             physicsClientId=cid,
         )
         pb.changeConstraint(constraint, maxForce=joint_force, physicsClientId=cid)

@@ -119,18 +119,24 @@ def _glitch(bone_rep: np.ndarray, draws: _OcclusionDraws, t: int, jumps: np.ndar
 
 
 def _propagate(
-    model: OcclusionModel, excess: np.ndarray, own: np.ndarray, h: np.ndarray, kick: np.ndarray
+    model: OcclusionModel,
+    excess: np.ndarray,
+    own: np.ndarray,
+    h: np.ndarray,
+    kick: np.ndarray,
+    levels: np.ndarray,
 ) -> None:
     """Update, in place, each joint's occlusion error: a hidden joint's is its parent's plus
-    its own bone error (``own``), a seen joint's decays; a hidden root drifts on its own."""
+    its own bone error (``own``), a seen joint's decays; a hidden root drifts on its own.
+    ``levels`` ``(L,)`` says which levels of the skeleton have a hidden joint."""
     decayed = model.recovery * excess
     root = (1.0 - model.approach_rate) * excess[0] + kick  # pulled back like a bone
     excess[:] = decayed
     if h[0]:
         excess[0] = root
-    for level, parents in zip(_LEVELS, _LEVEL_PARENTS, strict=True):
-        seen = h[level]
-        if seen.any():
+    for level, parents, hidden_here in zip(_LEVELS, _LEVEL_PARENTS, levels, strict=True):
+        if hidden_here:
+            seen = h[level]
             excess[level] = np.where(seen[:, None], excess[parents] + own[level], decayed[level])
 
 
@@ -297,7 +303,11 @@ def _follow_hidden(
     excess = np.zeros((joints, 3))  # occlusion error on top of the sensor noise
     bone_rep = np.zeros((joints, 3))  # reported bones of hidden joints
     frozen = np.zeros((joints, 3))
-    begins, glitching, calming = (np.asarray(m.any(axis=1)) for m in (begin, glitches, calm))
+    begins, glitching, calming, snapping = (
+        np.asarray(m.any(axis=1)) for m in (begin, glitches, calm, snap_here)
+    )
+    # Which levels of the skeleton have a hidden joint, every frame at once: (T, levels).
+    levels = np.stack([hidden[:, level].any(axis=1) for level in _LEVELS], axis=1).tolist()
     for t in range(count):
         h = hidden[t]
         bone_t = bones[t]
@@ -313,8 +323,9 @@ def _follow_hidden(
         )
         if glitching[t]:
             _glitch(bone_rep, draws, t, glitches[t])
-        _propagate(model, excess, bone_rep - bone_t, h, draws.kicks[t, 0])
-        excess = np.where(snap_here[t, :, None], hits[t] - truth[t], excess)
+        _propagate(model, excess, bone_rep - bone_t, h, draws.kicks[t, 0], levels[t])
+        if snapping[t]:
+            excess = np.where(snap_here[t, :, None], hits[t] - truth[t], excess)
         row = reported[t] + excess + shake[t]
         if calming[t]:
             row = np.where(

@@ -125,25 +125,6 @@ def rays_to_cast(
     ray = np.moveaxis(targets - camera, -1, 0)  # (3, T, R)
     squared = ray[0] * ray[0] + ray[1] * ray[1] + ray[2] * ray[2]  # (T, R)
     length = np.sqrt(squared)
-    # Capsules: a lower bound of where each ray meets the capsule's bounding sphere, and the
-    # exact distance where the ray passes that sphere.
-    centre = np.moveaxis(shape_pos[:, :capsules] - camera, -1, 0)[..., None]  # (3, T, C, 1)
-    centre = np.moveaxis(centre, 2, 0)  # (C, 3, T, 1)
-    along = centre[:, 0] * ray[0] + centre[:, 1] * ray[1] + centre[:, 2] * ray[2]  # (C, T, R)
-    reach = np.clip(along, 0.0, squared)
-    distance2 = centre[:, 0] ** 2 + centre[:, 1] ** 2 + centre[:, 2] ** 2
-    closest = distance2 - (2.0 * along - reach) * reach / np.maximum(squared, 1e-300)
-    bound = (radius + half_height + margin)[:, None, None]  # (C, 1, 1)
-    capsule_low = (along / length - bound) / length  # a fraction of the ray
-    near = np.zeros(along.shape, dtype=bool)
-    c, t, r = np.nonzero(closest < bound * bound)
-    if len(t):
-        # The capsules' axes: their rotations' Z columns, (T, C, 3).
-        z_axes = quaternion_to_matrix(shape_quat[:, :capsules][..., [3, 0, 1, 2]])[..., 2]
-        axis = z_axes[t, c] * half_height[c, None]
-        middle = shape_pos[t, c]
-        distance = segment_distances(camera, targets[t, r], middle - axis, middle + axis)
-        near[c, t, r] = distance < radius[c] + margin
     # Boxes: where each ray enters the box grown by the margin, and the box shrunk by it (a ray
     # entering that one hits the box).
     axes = quaternion_to_matrix(shape_quat[:, capsules:][..., [3, 0, 1, 2]])  # (T, B, 3, 3)
@@ -158,13 +139,38 @@ def rays_to_cast(
     ]  # (B, T, R) each
     grown = _slab_entry(local_start, local_ray, box_half + margin)
     shrunk = _slab_entry(local_start, local_ray, np.maximum(box_half - margin, 0.0))
-    meets = np.concatenate([near, np.isfinite(grown)])  # (S, T, R)
-    cast = np.any(meets & ~own.T[:, None, :], axis=0)
-    # The first box a ray surely enters, and whether it does so before any other shape.
-    low = np.where(meets, np.concatenate([capsule_low, grown]), np.inf)
+    # The first box a ray surely enters: only such a ray, not a central one, can be settled.
     box = np.argmin(shrunk, axis=0)  # (T, R)
     enters = np.take_along_axis(shrunk, box[None], axis=0)[0]
+    settleable = np.isfinite(enters) & ~central
+    by_box = np.any(np.isfinite(grown) & ~own.T[capsules:, None, :], axis=0)  # cast anyway
+    # Capsules: a lower bound of where each ray meets the capsule's bounding sphere, and the
+    # exact distance where the ray passes that sphere.
+    centre = np.moveaxis(shape_pos[:, :capsules] - camera, -1, 0)[..., None]  # (3, T, C, 1)
+    centre = np.moveaxis(centre, 2, 0)  # (C, 3, T, 1)
+    along = centre[:, 0] * ray[0] + centre[:, 1] * ray[1] + centre[:, 2] * ray[2]  # (C, T, R)
+    reach = np.clip(along, 0.0, squared)
+    distance2 = centre[:, 0] ** 2 + centre[:, 1] ** 2 + centre[:, 2] ** 2
+    closest = distance2 - (2.0 * along - reach) * reach / np.maximum(squared, 1e-300)
+    bound = (radius + half_height + margin)[:, None, None]  # (C, 1, 1)
+    capsule_low = (along / length - bound) / length  # a fraction of the ray
+    near = np.zeros(along.shape, dtype=bool)
+    # Whether a capsule is near a ray matters when it may block the ray (not the ray's own, and
+    # no box makes the ray cast anyway) or when the ray may be settled.
+    matters = (~own.T[:capsules, None, :] & ~by_box) | settleable
+    c, t, r = np.nonzero((closest < bound * bound) & matters)
+    if len(t):
+        # The capsules' axes: their rotations' Z columns, (T, C, 3).
+        z_axes = quaternion_to_matrix(shape_quat[:, :capsules][..., [3, 0, 1, 2]])[..., 2]
+        axis = z_axes[t, c] * half_height[c, None]
+        middle = shape_pos[t, c]
+        distance = segment_distances(camera, targets[t, r], middle - axis, middle + axis)
+        near[c, t, r] = distance < radius[c] + margin
+    meets = np.concatenate([near, np.isfinite(grown)])  # (S, T, R)
+    cast = np.any(meets & ~own.T[:, None, :], axis=0)
+    # Whether the first box a ray surely enters comes before any other shape.
+    low = np.where(meets, np.concatenate([capsule_low, grown]), np.inf)
     np.put_along_axis(low, (capsules + box)[None], np.inf, axis=0)
-    settled = cast & np.isfinite(enters) & (enters < low.min(axis=0)) & ~central
+    settled = cast & settleable & (enters < low.min(axis=0))
     first = np.where(settled, capsules + box, -1)
     return cast & ~settled, first
