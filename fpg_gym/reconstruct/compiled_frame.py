@@ -17,7 +17,13 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from fpg_gym.core.compiled_poses import place_pose, retarget_pose
+from fpg_gym.core.compiled_poses import (
+    bone_lengths_pose,
+    facing_yaw_pose,
+    place_pose,
+    retarget_pose,
+    vector_angles,
+)
 from fpg_gym.filters.compiled_filters import kalman_step
 
 __all__ = [
@@ -28,6 +34,8 @@ __all__ = [
     "labelling_costs",
     "latent_terms",
     "merge_sorted",
+    "neutral_pose",
+    "reliability_frame",
     "remove_sorted",
     "restore_output",
     "smooth_output",
@@ -420,6 +428,278 @@ def remove_sorted(values, old):
     if j != old.shape[0]:
         raise ValueError("remove_sorted: a value to remove is not in the window")
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _median_of(values):
+    """The median of sorted finite values (NaN when there are none): the middle value, or the
+    mean of the two middle ones (``np.median``'s and :meth:`SortedWindow.median
+    <fpg_gym.reconstruct.reliability.SortedWindow.median>`'s arithmetic)."""
+    n = values.shape[0]
+    if n == 0:
+        return np.nan
+    middle = n // 2
+    if n % 2:
+        return values[middle]
+    return (values[middle - 1] + values[middle]) / 2.0
+
+
+@numba.njit(cache=True, nogil=True)
+def _column_medians(rows, finite_only, out):
+    """Per column of ``rows`` ``(n, 19)``: ``np.median(rows, axis=0)`` into ``out`` (NaN where a
+    column holds one), or with ``finite_only`` ``np.nanmedian`` of the columns that hold a finite
+    value (the others left as they are); returns which columns were written."""
+    count, width = rows.shape
+    written = np.zeros(width, dtype=np.bool_)
+    column = np.empty(count)
+    for b in range(width):
+        n = 0
+        missing = False
+        for i in range(count):
+            if np.isfinite(rows[i, b]):
+                column[n] = rows[i, b]
+                n += 1
+            else:
+                missing = True
+        if finite_only and n == 0:
+            continue
+        written[b] = True
+        out[b] = np.nan if missing and not finite_only else _median_of(np.sort(column[:n]))
+    return written
+
+
+@numba.njit(cache=True, nogil=True)
+def neutral_pose(
+    pose, cos_tolerance, root, facing, degenerate, bones, rest, body_bones, arm_bones, sideways
+):
+    """:func:`fpg_gym.reconstruct.reliability.is_neutral_pose` of one pose ``(20, 3)`` float64
+    (the cosine of the tolerance given): normalised as :func:`fpg_gym.core.poses.normalise`
+    does it (float32; ``facing`` the hips' and shoulders' joints), then each checked bone's
+    direction against its rest direction (the dot products summed in ``np.einsum``'s order) or,
+    for the arms, sideways (``sideways`` ``(2, 3)``, the left arm's and the right's, along X)."""
+    yaw = facing_yaw_pose(pose, facing[0], facing[1], facing[2], facing[3], degenerate)
+    placed = place_pose(pose, pose[root], yaw, False)
+    count = bones.shape[0]
+    directions = np.empty((count, 3))
+    for b in range(count):
+        s = 0.0
+        for c in range(3):
+            v = np.float64(np.float32(placed[bones[b, 1], c])) - np.float64(
+                np.float32(placed[bones[b, 0], c])
+            )
+            directions[b, c] = v
+            s += v * v
+        norm = np.sqrt(s)
+        if norm < 1e-6:
+            return False
+        for c in range(3):
+            directions[b, c] /= norm
+    for i in range(body_bones.shape[0]):
+        b = body_bones[i]
+        dot = (directions[b, 0] * rest[b, 0] + directions[b, 2] * rest[b, 2]) + (
+            directions[b, 1] * rest[b, 1]
+        )
+        if dot < cos_tolerance:
+            return False
+    for side in range(arm_bones.shape[0]):
+        down = True
+        out = True
+        for i in range(arm_bones.shape[1]):
+            b = arm_bones[side, i]
+            dot = (directions[b, 0] * rest[b, 0] + directions[b, 2] * rest[b, 2]) + (
+                directions[b, 1] * rest[b, 1]
+            )
+            down = down and dot >= cos_tolerance
+            along = directions[b, 0] * sideways[side, 0]  # the sideways axes are +-X
+            out = out and along >= cos_tolerance
+        if not (down or out):
+            return False
+    return True
+
+
+@numba.njit(cache=True, nogil=True)
+def _maximum(a, b):
+    """``np.maximum`` of two floats (NaN when either is)."""
+    return a if (a >= b or a != a) else b
+
+
+@numba.njit(cache=True, nogil=True)
+def _minimum(a, b):
+    """``np.minimum`` of two floats (NaN when either is)."""
+    return a if (a <= b or a != a) else b
+
+
+@numba.njit(cache=True, nogil=True)
+def _sorted_ratios(row, prior):
+    """The finite values of ``row / prior``, sorted (what :class:`SortedWindow
+    <fpg_gym.reconstruct.reliability.SortedWindow>` adds or removes for a row)."""
+    out = np.empty(row.shape[0])
+    n = 0
+    for b in range(row.shape[0]):
+        ratio = row[b] / prior[b]
+        if np.isfinite(ratio):
+            out[n] = ratio
+            n += 1
+    return np.sort(out[:n])
+
+
+@numba.njit(cache=True, nogil=True)
+def reliability_frame(
+    positions,
+    states,
+    recent,
+    angles,
+    counts,
+    neutral,
+    tracked_rows,
+    window,
+    reference,
+    prior,
+    fixed,
+    tracked_median,
+    min_displacement,
+    theta_floor,
+    theta_span,
+    cos_tolerance,
+    prior_height,
+    tracked_state,
+    root,
+    calibration_joints,
+    facing,
+    degenerate,
+    bones,
+    rest,
+    body_bones,
+    arm_bones,
+    sideways,
+):
+    """One frame of :meth:`ReliabilityEstimator.update
+    <fpg_gym.reconstruct.reliability.ReliabilityEstimator.update>` up to its two matrix
+    products (the joints' mean of the bones' deviations and the Gaussian filter, BLAS's): the
+    reference bone lengths (``_update_reference``), the behaviour term ``Rb`` with its motion
+    history, the bones' relative length deviations and ``Rt`` (Shum §IV, FPG §5), the numpy
+    code's operations in its order.
+
+    The stream's state is updated in place: ``recent`` ``(2, 20, 3)`` (the last root-relative
+    frames, oldest first), ``angles`` ``(f_b, 20)`` (oldest first), ``counts`` (frames in
+    ``recent`` and ``angles``, calibration frames, tracked frames, the reference's source:
+    1 neutral, 2 scaled prior, 3 tracked median, 4 prior height), the rings ``neutral`` and
+    ``tracked_rows`` ``(cap, 19)`` and ``reference`` ``(19,)`` (left as it is when ``fixed``).
+
+    Returns ``Rb`` ``(20,)``, the deviations ``(19,)``, ``Rt`` ``(20,)``, the sorted window of
+    tracked length ratios (``window``'s successor), whether the frame was a calibration frame
+    and whether a body was in view.
+    """
+    joints = positions.shape[0]
+    count = bones.shape[0]
+    lengths = bone_lengths_pose(positions, bones)
+    calibration = False
+    if not fixed:  # _update_reference
+        cap = neutral.shape[0]
+        calibration = True
+        for i in range(calibration_joints.shape[0]):
+            if states[calibration_joints[i]] < tracked_state:
+                calibration = False
+        if calibration:
+            calibration = neutral_pose(
+                positions,
+                cos_tolerance,
+                root,
+                facing,
+                degenerate,
+                bones,
+                rest,
+                body_bones,
+                arm_bones,
+                sideways,
+            )
+        if calibration:
+            neutral[counts[2] % cap] = lengths
+            counts[2] += 1
+        both = np.empty(count, dtype=np.bool_)
+        seen = False
+        for b in range(count):
+            both[b] = (
+                states[bones[b, 0]] >= tracked_state
+                and states[bones[b, 1]] >= tracked_state
+                and lengths[b] > 1e-6
+            )
+            seen = seen or both[b]
+        if seen:
+            slot = counts[3] % cap
+            if counts[3] >= cap:  # the ring's oldest row leaves the window
+                window = remove_sorted(window, _sorted_ratios(tracked_rows[slot], prior))
+            for b in range(count):
+                tracked_rows[slot, b] = lengths[b] if both[b] else np.nan
+            window = merge_sorted(window, _sorted_ratios(tracked_rows[slot], prior))
+            counts[3] += 1
+        if counts[2]:
+            if calibration or counts[4] != 1:  # else the same rows, the same median
+                _column_medians(neutral[: min(counts[2], cap)], False, reference)
+            counts[4] = 1
+        elif counts[3]:
+            scale = _median_of(window)
+            for b in range(count):
+                reference[b] = prior[b] * scale
+            counts[4] = 2
+            if tracked_median:
+                _column_medians(tracked_rows[: min(counts[3], cap)], True, reference)
+                counts[4] = 3
+        else:
+            low = high = positions[0, 1]
+            for j in range(1, joints):
+                low = _minimum(low, positions[j, 1])
+                high = _maximum(high, positions[j, 1])
+            scale = (high - low) / prior_height
+            scale = _minimum(_maximum(scale, 0.5), 1.5) if scale > 1e-3 else 1.0
+            for b in range(count):
+                reference[b] = prior[b] * scale
+            counts[4] = 4
+
+    # Behaviour (Shum §IV-A): root-relative displacements, the root's own in camera space.
+    local = np.empty((joints, 3))
+    for j in range(joints):
+        for c in range(3):
+            local[j, c] = positions[j, c] - positions[root, c]
+    for c in range(3):
+        local[root, c] = positions[root, c]
+    frames = angles.shape[0]
+    if counts[0] == 2:
+        angle = vector_angles(local - recent[1], recent[1] - recent[0], min_displacement)
+        if counts[1] == frames:
+            for i in range(frames - 1):
+                angles[i] = angles[i + 1]
+            angles[frames - 1] = angle
+        else:
+            angles[counts[1]] = angle
+            counts[1] += 1
+        recent[0] = recent[1]
+        recent[1] = local
+    else:
+        recent[counts[0]] = local
+        counts[0] += 1
+    behaviour = np.empty(joints)
+    kept = counts[1]
+    for j in range(joints):
+        mean = 0.0
+        if kept:
+            total = angles[0, j]
+            for i in range(1, kept):
+                total += angles[i, j]
+            mean = total / kept
+        behaviour[j] = 1.0 - _minimum(_maximum(mean - theta_floor, 0.0), theta_span) / theta_span
+    deviation = np.empty(count)
+    for b in range(count):
+        deviation[b] = _minimum(abs(lengths[b] - reference[b]) / _maximum(reference[b], 1e-6), 1.0)
+    tracking = np.empty(joints)
+    body = False
+    for j in range(joints):
+        tracking[j] = 1.0 if states[j] >= tracked_state else 0.0
+        body = body or states[j] > 0
+    if not body:  # nothing enters the motion history
+        counts[0] = 0
+        counts[1] = 0
+    return behaviour, deviation, tracking, window, calibration, body
 
 
 @numba.njit(cache=True, nogil=True)
