@@ -433,8 +433,8 @@ def remove_sorted(values, old):
 @numba.njit(cache=True, nogil=True)
 def _median_of(values):
     """The median of sorted finite values (NaN when there are none): the middle value, or the
-    mean of the two middle ones (``np.median``'s and :meth:`SortedWindow.median
-    <fpg_gym.reconstruct.reliability.SortedWindow.median>`'s arithmetic)."""
+    mean of the two middle ones (:meth:`SortedWindow.median
+    <fpg_gym.reconstruct.reliability.SortedWindow.median>`)."""
     n = values.shape[0]
     if n == 0:
         return np.nan
@@ -464,7 +464,21 @@ def _column_medians(rows, finite_only, out):
         if finite_only and n == 0:
             continue
         written[b] = True
-        out[b] = np.nan if missing and not finite_only else _median_of(np.sort(column[:n]))
+        if missing and not finite_only:
+            out[b] = np.nan
+        elif n == 0:
+            out[b] = np.nan
+        else:  # the middle values (np.median's partition; any selection finds the same ones)
+            middle = n // 2
+            part = np.partition(column[:n], middle)
+            upper = part[middle]
+            if n % 2:
+                out[b] = upper
+            else:
+                lower = part[0]
+                for i in range(1, middle):
+                    lower = max(lower, part[i])
+                out[b] = (lower + upper) / 2.0
     return written
 
 
@@ -618,7 +632,7 @@ def reliability_frame(
             counts[2] += 1
         both = np.empty(count, dtype=np.bool_)
         seen = False
-        for b in range(count):
+        for b in range(count * (counts[2] == 0)):
             both[b] = (
                 states[bones[b, 0]] >= tracked_state
                 and states[bones[b, 1]] >= tracked_state

@@ -459,7 +459,9 @@ class ReliabilityEstimator:
             self._neutral[counts[2] % cap] = lengths
             counts[2] += 1
         both = tracked[skeleton.BONES[:, 0]] & tracked[skeleton.BONES[:, 1]] & (lengths > 1e-6)
-        if both.any():
+        # The tracked samples serve until the first calibration frame (then the reference is
+        # the calibration frames' median for good, until a reset forgets it).
+        if both.any() and not counts[2]:
             slot = counts[3] % cap
             if counts[3] >= cap:  # the ring's oldest row leaves the window
                 self._ratios.remove(self._tracked[slot] / self._prior)
