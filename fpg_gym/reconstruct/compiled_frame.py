@@ -27,6 +27,7 @@ from fpg_gym.core.compiled_poses import (
 from fpg_gym.filters.compiled_filters import kalman_step
 
 __all__ = [
+    "best_labelling",
     "centre_poses",
     "continuity_poses",
     "energy_setup",
@@ -739,3 +740,31 @@ def labelling_costs(positions, states, prediction, permutations, tracked, inferr
             weight_sum += w
         out[h] = total / max(weight_sum, 1e-9)
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def best_labelling(compared, states, last, before, ratio, margin, permutations, tracked, inferred):
+    """:func:`fpg_gym.reconstruct.left_right.best_labelling` in one call: the constant-velocity
+    guess of the root-relative previous outputs ``last`` and ``before`` ``(20, 3)`` float64
+    (``before`` with no rows: ``last`` itself; ``ratio`` is ``dt / dt_prev``, as
+    :func:`~fpg_gym.reconstruct.energy.motion_target`), :func:`labelling_costs` of the sensor
+    pose ``compared`` (float64) against it, and the labelling chosen (another than 0 only when
+    its cost is under ``margin`` times the reported one's and 3 cm lower)."""
+    guess = last
+    if before.shape[0] > 0:
+        joints = last.shape[0]
+        guess = np.empty((joints, 3))
+        for j in range(joints):
+            for c in range(3):
+                previous = last[j, c] - last[0, c]
+                guess[j, c] = previous + (previous - (before[j, c] - before[0, c])) * ratio
+    costs = labelling_costs(compared, states, guess, permutations, tracked, inferred)
+    best = 0
+    for h in range(costs.shape[0]):
+        if np.isnan(costs[h]):
+            return 0  # np.argmin's NaN: never under the margin
+        if costs[h] < costs[best]:
+            best = h
+    if best != 0 and costs[best] < margin * costs[0] and costs[0] - costs[best] > 0.03:
+        return best
+    return 0
