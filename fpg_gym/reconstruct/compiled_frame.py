@@ -39,6 +39,7 @@ __all__ = [
     "reliability_frame",
     "remove_sorted",
     "restore_output",
+    "settle_lengths",
     "smooth_output",
     "whitened_axes",
 ]
@@ -768,3 +769,26 @@ def best_labelling(compared, states, last, before, ratio, margin, permutations, 
     if best != 0 and costs[best] < margin * costs[0] and costs[0] - costs[best] > 0.03:
         return best
     return 0
+
+
+@numba.njit(cache=True, nogil=True)
+def settle_lengths(estimate, lengths, low, high, rate, spread):
+    """:meth:`BoneSettler.update <fpg_gym.reconstruct.bones.BoneSettler.update>` after settling:
+    each bone of ``lengths`` ``(19,)`` moves toward ``estimate`` by at most ``rate`` and keeps
+    its range since settling (``low``, ``high``, updated in place) within ``spread`` (the numpy
+    code's operations). Returns the new lengths, the largest change (``np.max`` of its
+    magnitudes) and whether a bone moved more than 1e-9 m."""
+    count = estimate.shape[0]
+    moved = np.empty(count)
+    largest = 0.0
+    changed = False
+    for b in range(count):
+        step = _minimum(_maximum(estimate[b] - lengths[b], -rate), rate)
+        value = _minimum(_maximum(lengths[b] + step, high[b] - spread), low[b] + spread)
+        moved[b] = value
+        low[b] = _minimum(low[b], value)
+        high[b] = _maximum(high[b], value)
+        change = abs(value - lengths[b])
+        largest = _maximum(largest, change)
+        changed = changed or change > 1e-9
+    return moved, largest, changed
