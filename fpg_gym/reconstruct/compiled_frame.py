@@ -36,6 +36,7 @@ __all__ = [
     "latent_terms",
     "merge_sorted",
     "neutral_pose",
+    "newest_minimum",
     "reliability_frame",
     "remove_sorted",
     "restore_output",
@@ -716,6 +717,25 @@ def reliability_frame(
         counts[0] = 0
         counts[1] = 0
     return behaviour, deviation, tracking, window, calibration, body
+
+
+@numba.njit(cache=True, nogil=True)
+def newest_minimum(behaviour, mean_deviation, tracking, minima, kept):
+    """``Rk = 1 - mean_deviation`` (the joints' mean of their bones' deviations, BLAS's
+    product) and ``min(Rb, Rk, Rt)`` ``(20,)``, which enters ``minima`` ``(S, 20)`` (newest
+    first, ``kept`` rows after it) as its first row: :meth:`ReliabilityEstimator.update
+    <fpg_gym.reconstruct.reliability.ReliabilityEstimator.update>` before its filter."""
+    joints = behaviour.shape[0]
+    for i in range(kept - 1, 0, -1):
+        for j in range(joints):
+            minima[i, j] = minima[i - 1, j]
+    kinematic = np.empty(joints)
+    minimum = np.empty(joints)
+    for j in range(joints):
+        kinematic[j] = 1.0 - mean_deviation[j]
+        minimum[j] = _minimum(_minimum(behaviour[j], kinematic[j]), tracking[j])
+        minima[0, j] = minimum[j]
+    return kinematic, minimum
 
 
 @numba.njit(cache=True, nogil=True)

@@ -249,7 +249,14 @@ def length_deviation(lengths: np.ndarray, reference: np.ndarray) -> np.ndarray:
 def kinematic_reliability(lengths: np.ndarray, reference: np.ndarray) -> np.ndarray:
     """``Rk`` per joint: 1 minus the mean relative length error of the bones at the joint
     (:func:`length_deviation`; shapes as there, ``(..., 20)`` out)."""
-    return 1.0 - length_deviation(lengths, reference) @ _INCIDENCE.T
+    return 1.0 - joint_means(length_deviation(lengths, reference))
+
+
+def joint_means(values: np.ndarray) -> np.ndarray:
+    """The mean over the bones at each joint of per-bone ``values`` ``(..., 19) -> (..., 20)``
+    (a product with the skeleton's normalised incidence matrix)."""
+    mean: np.ndarray = values @ _INCIDENCE.T
+    return mean
 
 
 def tracking_reliability(states: np.ndarray) -> np.ndarray:
@@ -554,20 +561,24 @@ class ReliabilityEstimator:
             calibration = self._update_reference(positions, states, lengths)
             assert self._reference is not None
             behaviour = self._behaviour(positions)
-            deviation = length_deviation(lengths, self._reference)
             tracking = tracking_reliability(states)
             body = bool((states > 0).any())
         assert self._reference is not None
 
-        # Kinematic (Shum §IV-B) and tracking state (FPG §5).
-        kinematic = 1.0 - deviation @ _INCIDENCE.T
-        minimum = np.minimum(np.minimum(behaviour, kinematic), tracking)
-
-        # Gaussian temporal filter over the last 6 frames, newest heaviest.
+        # Kinematic (Shum §IV-B) and tracking state (FPG §5), the minimum entering the filter.
         kept = self._minima_count = min(self._minima_count + 1, cfg.smoothing_frames)
         minima = self._minima
-        minima[1:kept] = minima[: kept - 1]
-        minima[0] = minimum
+        if compiled is not None:
+            kinematic, minimum = compiled.newest_minimum(
+                behaviour, joint_means(deviation), tracking, minima, kept
+            )
+        else:
+            kinematic = kinematic_reliability(lengths, self._reference)
+            minimum = np.minimum(np.minimum(behaviour, kinematic), tracking)
+            minima[1:kept] = minima[: kept - 1]
+            minima[0] = minimum
+
+        # Gaussian temporal filter over the last 6 frames, newest heaviest.
         reliability = self._filters[kept - 1] @ minima[:kept]
         if not body:
             # No body in view: nothing the sensor says is reliable, whatever the filter holds,
