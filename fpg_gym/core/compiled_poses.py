@@ -22,8 +22,10 @@ import numpy as np
 
 __all__ = [
     "assemble_nodes",
+    "bone_frame_turns",
     "bone_lengths_pose",
     "facing_yaw_pose",
+    "offset_pose",
     "place_pose",
     "retarget_pose",
     "vector_angles",
@@ -138,4 +140,97 @@ def place_pose(pose, root, yaw, inverse):
             out[j, 0] = x * c - z * s
             out[j, 1] = y
             out[j, 2] = x * s + z * c
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _unit_vector(vx, vy, vz):
+    """``v / max(|v|, 1e-9)`` (:func:`fpg_gym.definitions._unit`, the norm's squares summed in
+    order)."""
+    norm = max(np.sqrt((vx * vx + vy * vy) + vz * vz), 1e-9)
+    return vx / norm, vy / norm, vz / norm
+
+
+@numba.njit(cache=True, nogil=True)
+def _trunk_frame(left, up, out):
+    """:func:`fpg_gym.definitions._trunk_frame` of two vectors ``(3,)`` into ``out``
+    ``(3, 3)`` (columns: left, up, forward)."""
+    x0, x1, x2 = _unit_vector(left[0], left[1], left[2])
+    along = (up[0] * x0 + up[1] * x1) + up[2] * x2
+    y0, y1, y2 = _unit_vector(up[0] - along * x0, up[1] - along * x1, up[2] - along * x2)
+    out[0, 0], out[1, 0], out[2, 0] = x0, x1, x2
+    out[0, 1], out[1, 1], out[2, 1] = y0, y1, y2
+    out[0, 2] = x1 * y2 - x2 * y1  # np.cross's products
+    out[1, 2] = x2 * y0 - x0 * y2
+    out[2, 2] = x0 * y1 - x1 * y0
+
+
+@numba.njit(cache=True, nogil=True)
+def bone_frame_turns(pose, trunk_joints, ends, parents, on_thorax, rest):
+    """The first half of :func:`fpg_gym.definitions.joint_frames` for one pose ``(20, 3)``
+    float64 (the numpy code's operations in its order): the pelvis and thorax frames ``(2, 3,
+    3)`` (``trunk_joints``: HipLeft, HipRight, ShoulderCenter, HipCenter, ShoulderLeft,
+    ShoulderRight, Spine), each bone's base frame ``(B, 3, 3)`` and the rotation ``(B, 3, 3)``
+    that takes its rest direction onto its direction in that base (the shortest arc); the
+    caller multiplies the two (numpy's product). ``ok`` is False when a bone points opposite
+    its rest direction (the numpy code then picks a half turn: the caller takes its path)."""
+    hl, hr, sc, hc, sl, sr, sp = trunk_joints
+    trunks = np.empty((2, 3, 3))
+    _trunk_frame(pose[hl] - pose[hr], pose[sc] - pose[hc], trunks[0])
+    _trunk_frame(pose[sl] - pose[sr], pose[sc] - pose[sp], trunks[1])
+    count = ends.shape[0]
+    base = np.empty((count, 3, 3))
+    turn = np.empty((count, 3, 3))
+    local = np.empty(3)
+    for b in range(count):
+        frame = trunks[1] if on_thorax[b] else trunks[0]
+        base[b] = frame
+        end, parent = ends[b], parents[b]
+        d0, d1, d2 = _unit_vector(
+            pose[end, 0] - pose[parent, 0],
+            pose[end, 1] - pose[parent, 1],
+            pose[end, 2] - pose[parent, 2],
+        )
+        for i in range(3):  # the direction in the base frame's coordinates
+            local[i] = (frame[0, i] * d0 + frame[1, i] * d1) + frame[2, i] * d2
+        a0, a1, a2 = rest[b, 0], rest[b, 1], rest[b, 2]
+        qx = a1 * local[2] - a2 * local[1]  # shortest_arc: (a x b, 1 + a.b), normalised
+        qy = a2 * local[0] - a0 * local[2]
+        qz = a0 * local[1] - a1 * local[0]
+        qw = 1.0 + ((a0 * local[0] + a1 * local[1]) + a2 * local[2])
+        norm = np.sqrt(((qx * qx + qy * qy) + qz * qz) + qw * qw)
+        if norm < 1e-6:
+            return trunks, base, turn, False
+        w, x, y, z = qw / norm, qx / norm, qy / norm, qz / norm
+        norm = np.sqrt(((w * w + x * x) + y * y) + z * z)  # quaternion_to_matrix normalises
+        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+        turn[b, 0, 0] = 1 - 2 * (y * y + z * z)
+        turn[b, 0, 1] = 2 * (x * y - w * z)
+        turn[b, 0, 2] = 2 * (x * z + w * y)
+        turn[b, 1, 0] = 2 * (x * y + w * z)
+        turn[b, 1, 1] = 1 - 2 * (x * x + z * z)
+        turn[b, 1, 2] = 2 * (y * z - w * x)
+        turn[b, 2, 0] = 2 * (x * z - w * y)
+        turn[b, 2, 1] = 2 * (y * z + w * x)
+        turn[b, 2, 2] = 1 - 2 * (x * x + y * y)
+    return trunks, base, turn, True
+
+
+@numba.njit(cache=True, nogil=True)
+def offset_pose(pose, trunks, turned, pelvis_joints, thorax_joints, bone_joints, offsets):
+    """``p(j) + F_j · o_j`` of one pose ``(20, 3)`` float64 (:meth:`DefinitionMap.apply
+    <fpg_gym.definitions.DefinitionMap.apply>`, its product summed in ``np.einsum``'s
+    order), the frames ``F_j`` being the pelvis's, the thorax's (``trunks``) or the bones'
+    ``turned`` ``(B, 3, 3)`` (:func:`bone_frame_turns`'s base times turn)."""
+    out = pose.copy()
+    for group in range(3):
+        joints = pelvis_joints if group == 0 else (thorax_joints if group == 1 else bone_joints)
+        for k in range(joints.shape[0]):
+            j = joints[k]
+            frame = trunks[group] if group < 2 else turned[k]
+            for a in range(3):
+                out[j, a] = pose[j, a] + (
+                    (frame[a, 0] * offsets[j, 0] + frame[a, 2] * offsets[j, 2])
+                    + frame[a, 1] * offsets[j, 1]
+                )
     return out
