@@ -40,8 +40,10 @@ __all__ = [
     "reliability_frame",
     "remove_sorted",
     "restore_output",
+    "sensor_trust",
     "settle_lengths",
     "smooth_output",
+    "trust_exponents",
     "whitened_axes",
 ]
 
@@ -812,3 +814,71 @@ def settle_lengths(estimate, lengths, low, high, rate, spread):
         largest = _maximum(largest, change)
         changed = changed or change > 1e-9
     return moved, largest, changed
+
+
+@numba.njit(cache=True, nogil=True)
+def trust_exponents(states, run_start, timestamp, flicker, half_life, inferred_state):
+    """:class:`SensorTrust <fpg_gym.reconstruct.fusion.SensorTrust>`'s inferred runs: each
+    inferred joint's run start (``run_start`` ``(20,)`` updated in place, NaN out of a run) and
+    the exponent of its decay, ``max(lost - flicker, 0) / half_life`` (the caller raises 0.5 to
+    it: numpy's power)."""
+    joints = states.shape[0]
+    exponents = np.empty(joints)
+    for j in range(joints):
+        lost = 0.0
+        if states[j] == inferred_state:
+            if np.isnan(run_start[j]):
+                run_start[j] = timestamp
+            lost = timestamp - run_start[j]
+        else:
+            run_start[j] = np.nan
+        exponents[j] = _maximum(lost - flicker, 0.0) / half_life
+    return exponents
+
+
+@numba.njit(cache=True, nogil=True)
+def sensor_trust(
+    positions,
+    states,
+    decay,
+    ever_tracked,
+    length_sum,
+    length_count,
+    tolerance,
+    span,
+    tracked_state,
+    inferred_state,
+    bones,
+    order,
+    parents,
+):
+    """:meth:`SensorTrust.update <fpg_gym.reconstruct.fusion.SensorTrust.update>` after the
+    decay of the inferred joints (``decay`` ``(20,)``): the trust ``(20,)`` of one pose
+    ``(20, 3)`` float64, the state (``ever_tracked``, the trusted lengths' sums and counts)
+    updated in place; ``order`` the joints by depth, root first (the numpy code's operations)."""
+    joints = states.shape[0]
+    trust = np.empty(joints)
+    for j in range(joints):
+        ever_tracked[j] = ever_tracked[j] or states[j] == tracked_state
+        if states[j] == tracked_state:
+            trust[j] = 1.0
+        elif states[j] == inferred_state:
+            trust[j] = decay[j] if ever_tracked[j] else 1.0
+        else:
+            trust[j] = 0.0
+    lengths = bone_lengths_pose(positions, bones)
+    for b in range(bones.shape[0]):
+        reference = length_sum[b] / length_count[b] if length_count[b] > 0 else lengths[b]
+        deviation = abs(lengths[b] - reference) / _maximum(reference, 1e-3)
+        bone_trust = 1.0 - _minimum(_maximum((deviation - tolerance) / span, 0.0), 1.0)
+        child = bones[b, 1]
+        trust[child] = _minimum(trust[child], bone_trust)
+    for k in range(order.shape[0]):  # an inferred joint hangs off its parent
+        j = order[k]
+        if parents[j] >= 0 and states[j] == inferred_state:
+            trust[j] = _minimum(trust[j], trust[parents[j]])
+    for b in range(bones.shape[0]):
+        good = trust[bones[b, 0]] > 0.9 and trust[bones[b, 1]] > 0.9
+        length_sum[b] += lengths[b] if good else 0.0
+        length_count[b] += 1.0 if good else 0.0
+    return trust
