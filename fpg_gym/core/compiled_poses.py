@@ -25,6 +25,7 @@ __all__ = [
     "bone_frame_turns",
     "bone_lengths_pose",
     "facing_yaw_pose",
+    "normalise_pose",
     "offset_pose",
     "place_pose",
     "retarget_pose",
@@ -120,6 +121,20 @@ def facing_yaw_pose(pose, hip_left, hip_right, shoulder_left, shoulder_right, de
     if np.hypot(forward_x, forward_z) > degenerate:
         return np.arctan2(forward_x, forward_z)
     return 0.0
+
+
+@numba.njit(cache=True, nogil=True)
+def normalise_pose(pose, root, hip_left, hip_right, shoulder_left, shoulder_right, degenerate):
+    """:func:`fpg_gym.core.poses.normalise` of one pose ``(20, 3)`` float64: its heading
+    (:func:`facing_yaw_pose`) and the pose turned into it about its ``root`` joint
+    (:func:`place_pose`) as float32."""
+    yaw = facing_yaw_pose(pose, hip_left, hip_right, shoulder_left, shoulder_right, degenerate)
+    placed = place_pose(pose, pose[root], yaw, False)
+    out = np.empty(placed.shape, dtype=np.float32)
+    for j in range(placed.shape[0]):
+        for c in range(3):
+            out[j, c] = np.float32(placed[j, c])
+    return out, yaw
 
 
 @numba.njit(cache=True, nogil=True)
