@@ -450,12 +450,39 @@ def _median_of(values):
 
 
 @numba.njit(cache=True, nogil=True)
+def _select(values, k):
+    """The ``k``-th smallest of ``values`` (float64, no NaN), which are reordered in place so
+    that the ``k`` before it are not larger (Hoare's selection: the value ``np.partition``
+    finds, in a few lines that compile fast)."""
+    low, high = 0, values.shape[0] - 1
+    while low < high:
+        pivot = values[(low + high) // 2]
+        i, j = low, high
+        while i <= j:
+            while values[i] < pivot:
+                i += 1
+            while values[j] > pivot:
+                j -= 1
+            if i <= j:
+                values[i], values[j] = values[j], values[i]
+                i += 1
+                j -= 1
+        if k <= j:
+            high = j
+        elif k >= i:
+            low = i
+        else:
+            break
+    return values[k]
+
+
+@numba.njit(cache=True, nogil=True)
 def _column_medians(rows, finite_only, out):
     """Per column of ``rows`` ``(n, 19)``: ``np.median(rows, axis=0)`` into ``out`` (NaN where a
     column holds one), or with ``finite_only`` ``np.nanmedian`` of the columns that hold a finite
-    value (the others left as they are); returns which columns were written."""
+    value (the others left as they are): the middle value, or the mean of the two middle
+    ones."""
     count, width = rows.shape
-    written = np.zeros(width, dtype=np.bool_)
     column = np.empty(count)
     for b in range(width):
         n = 0
@@ -468,23 +495,18 @@ def _column_medians(rows, finite_only, out):
                 missing = True
         if finite_only and n == 0:
             continue
-        written[b] = True
-        if missing and not finite_only:
+        if n == 0 or (missing and not finite_only):
             out[b] = np.nan
-        elif n == 0:
-            out[b] = np.nan
-        else:  # the middle values (np.median's partition; any selection finds the same ones)
-            middle = n // 2
-            part = np.partition(column[:n], middle)
-            upper = part[middle]
-            if n % 2:
-                out[b] = upper
-            else:
-                lower = part[0]
-                for i in range(1, middle):
-                    lower = max(lower, part[i])
-                out[b] = (lower + upper) / 2.0
-    return written
+            continue
+        middle = n // 2
+        upper = _select(column[:n], middle)
+        if n % 2:
+            out[b] = upper
+        else:
+            lower = column[0]
+            for i in range(1, middle):
+                lower = max(lower, column[i])
+            out[b] = (lower + upper) / 2.0
 
 
 @numba.njit(cache=True, nogil=True)
@@ -557,9 +579,13 @@ def _sorted_ratios(row, prior):
     for b in range(row.shape[0]):
         ratio = row[b] / prior[b]
         if np.isfinite(ratio):
-            out[n] = ratio
+            i = n  # insertion sort: a row is short (and np.sort is slow to compile)
+            while i > 0 and out[i - 1] > ratio:
+                out[i] = out[i - 1]
+                i -= 1
+            out[i] = ratio
             n += 1
-    return np.sort(out[:n])
+    return out[:n]
 
 
 @numba.njit(cache=True, nogil=True)
@@ -633,7 +659,8 @@ def reliability_frame(
                 sideways,
             )
         if calibration:
-            neutral[counts[2] % cap] = lengths
+            for b in range(count):
+                neutral[counts[2] % cap, b] = lengths[b]
             counts[2] += 1
         both = np.empty(count, dtype=np.bool_)
         seen = False
@@ -684,18 +711,31 @@ def reliability_frame(
         local[root, c] = positions[root, c]
     frames = angles.shape[0]
     if counts[0] == 2:
-        angle = vector_angles(local - recent[1], recent[1] - recent[0], min_displacement)
-        if counts[1] == frames:
-            for i in range(frames - 1):
-                angles[i] = angles[i + 1]
-            angles[frames - 1] = angle
+        moved = np.empty((joints, 3))
+        before = np.empty((joints, 3))
+        for j in range(joints):
+            for c in range(3):
+                moved[j, c] = local[j, c] - recent[1, j, c]
+                before[j, c] = recent[1, j, c] - recent[0, j, c]
+        angle = vector_angles(moved, before, min_displacement)
+        row = counts[1]
+        if row == frames:  # the oldest leaves
+            row = frames - 1
+            for i in range(row):
+                for j in range(joints):
+                    angles[i, j] = angles[i + 1, j]
         else:
-            angles[counts[1]] = angle
             counts[1] += 1
-        recent[0] = recent[1]
-        recent[1] = local
+        for j in range(joints):
+            angles[row, j] = angle[j]
+        for j in range(joints):
+            for c in range(3):
+                recent[0, j, c] = recent[1, j, c]
+                recent[1, j, c] = local[j, c]
     else:
-        recent[counts[0]] = local
+        for j in range(joints):
+            for c in range(3):
+                recent[counts[0], j, c] = local[j, c]
         counts[0] += 1
     behaviour = np.empty(joints)
     kept = counts[1]
