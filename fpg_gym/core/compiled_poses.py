@@ -167,12 +167,19 @@ def _unit_vector(vx, vy, vz):
 
 
 @numba.njit(cache=True, nogil=True)
-def _trunk_frame(left, up, out):
-    """:func:`fpg_gym.definitions._trunk_frame` of two vectors ``(3,)`` into ``out``
-    ``(3, 3)`` (columns: left, up, forward)."""
-    x0, x1, x2 = _unit_vector(left[0], left[1], left[2])
-    along = (up[0] * x0 + up[1] * x1) + up[2] * x2
-    y0, y1, y2 = _unit_vector(up[0] - along * x0, up[1] - along * x1, up[2] - along * x2)
+def _trunk_frame(pose, left_end, right_end, top, bottom, out):
+    """:func:`fpg_gym.definitions._trunk_frame` of ``left = p[left_end] - p[right_end]`` and
+    ``up = p[top] - p[bottom]`` into ``out`` ``(3, 3)`` (columns: left, up, forward)."""
+    x0, x1, x2 = _unit_vector(
+        pose[left_end, 0] - pose[right_end, 0],
+        pose[left_end, 1] - pose[right_end, 1],
+        pose[left_end, 2] - pose[right_end, 2],
+    )
+    u0 = pose[top, 0] - pose[bottom, 0]
+    u1 = pose[top, 1] - pose[bottom, 1]
+    u2 = pose[top, 2] - pose[bottom, 2]
+    along = (u0 * x0 + u1 * x1) + u2 * x2
+    y0, y1, y2 = _unit_vector(u0 - along * x0, u1 - along * x1, u2 - along * x2)
     out[0, 0], out[1, 0], out[2, 0] = x0, x1, x2
     out[0, 1], out[1, 1], out[2, 1] = y0, y1, y2
     out[0, 2] = x1 * y2 - x2 * y1  # np.cross's products
@@ -189,17 +196,22 @@ def bone_frame_turns(pose, trunk_joints, ends, parents, on_thorax, rest):
     that takes its rest direction onto its direction in that base (the shortest arc); the
     caller multiplies the two (numpy's product). ``ok`` is False when a bone points opposite
     its rest direction (the numpy code then picks a half turn: the caller takes its path)."""
-    hl, hr, sc, hc, sl, sr, sp = trunk_joints
     trunks = np.empty((2, 3, 3))
-    _trunk_frame(pose[hl] - pose[hr], pose[sc] - pose[hc], trunks[0])
-    _trunk_frame(pose[sl] - pose[sr], pose[sc] - pose[sp], trunks[1])
+    _trunk_frame(
+        pose, trunk_joints[0], trunk_joints[1], trunk_joints[2], trunk_joints[3], trunks[0]
+    )
+    _trunk_frame(
+        pose, trunk_joints[4], trunk_joints[5], trunk_joints[2], trunk_joints[6], trunks[1]
+    )
     count = ends.shape[0]
     base = np.empty((count, 3, 3))
     turn = np.empty((count, 3, 3))
     local = np.empty(3)
     for b in range(count):
-        frame = trunks[1] if on_thorax[b] else trunks[0]
-        base[b] = frame
+        t = 1 if on_thorax[b] else 0
+        for r in range(3):
+            for c in range(3):
+                base[b, r, c] = trunks[t, r, c]
         end, parent = ends[b], parents[b]
         d0, d1, d2 = _unit_vector(
             pose[end, 0] - pose[parent, 0],
@@ -207,7 +219,7 @@ def bone_frame_turns(pose, trunk_joints, ends, parents, on_thorax, rest):
             pose[end, 2] - pose[parent, 2],
         )
         for i in range(3):  # the direction in the base frame's coordinates
-            local[i] = (frame[0, i] * d0 + frame[1, i] * d1) + frame[2, i] * d2
+            local[i] = (trunks[t, 0, i] * d0 + trunks[t, 1, i] * d1) + trunks[t, 2, i] * d2
         a0, a1, a2 = rest[b, 0], rest[b, 1], rest[b, 2]
         qx = a1 * local[2] - a2 * local[1]  # shortest_arc: (a x b, 1 + a.b), normalised
         qy = a2 * local[0] - a0 * local[2]
@@ -237,15 +249,21 @@ def offset_pose(pose, trunks, turned, pelvis_joints, thorax_joints, bone_joints,
     <fpg_gym.definitions.DefinitionMap.apply>`, its product summed in ``np.einsum``'s
     order), the frames ``F_j`` being the pelvis's, the thorax's (``trunks``) or the bones'
     ``turned`` ``(B, 3, 3)`` (:func:`bone_frame_turns`'s base times turn)."""
-    out = pose.copy()
-    for group in range(3):
-        joints = pelvis_joints if group == 0 else (thorax_joints if group == 1 else bone_joints)
-        for k in range(joints.shape[0]):
-            j = joints[k]
-            frame = trunks[group] if group < 2 else turned[k]
-            for a in range(3):
-                out[j, a] = pose[j, a] + (
-                    (frame[a, 0] * offsets[j, 0] + frame[a, 2] * offsets[j, 2])
-                    + frame[a, 1] * offsets[j, 1]
-                )
+    out = np.empty_like(pose)
+    for j in range(pose.shape[0]):
+        for a in range(3):
+            out[j, a] = pose[j, a]
+    for k in range(pelvis_joints.shape[0] + thorax_joints.shape[0] + bone_joints.shape[0]):
+        if k < pelvis_joints.shape[0]:
+            j, source, row = pelvis_joints[k], trunks, 0
+        elif k < pelvis_joints.shape[0] + thorax_joints.shape[0]:
+            j, source, row = thorax_joints[k - pelvis_joints.shape[0]], trunks, 1
+        else:
+            row = k - pelvis_joints.shape[0] - thorax_joints.shape[0]
+            j, source = bone_joints[row], turned
+        for a in range(3):
+            out[j, a] = pose[j, a] + (
+                (source[row, a, 0] * offsets[j, 0] + source[row, a, 2] * offsets[j, 2])
+                + source[row, a, 1] * offsets[j, 1]
+            )
     return out
