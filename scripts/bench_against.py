@@ -21,6 +21,10 @@ use only APIs both checkouts have:
 ``env``
     :func:`fpg_gym.episodes.measure_env_throughput` (random actions, resets included) with and
     without the ragdoll: steps per CPU second.
+``real``
+    The demo's four real UI-PRMD s08 recordings (Kinect v2) with the pipeline the command line
+    picks for them (``--preset auto``: the sensor map and the fusion), local search, no ragdoll:
+    CPU ms per frame and per stage (not run unless named: older checkouts lack the preset).
 ``streams``
     16 simulated recordings reconstructed side by side in one process
     (:func:`fpg_gym.reconstruct.streams.run_streams`, ``batched`` in older checkouts; local
@@ -51,7 +55,8 @@ from typing import Any
 
 import numpy as np
 
-SECTIONS = ("frame", "ragdoll", "env", "streams")
+SECTIONS = ("frame", "ragdoll", "env", "streams", "real")
+DEFAULT_SECTIONS = ("frame", "ragdoll", "env", "streams")
 
 
 # --------------------------------------------------------------------------- the measurements
@@ -70,13 +75,15 @@ def _stage_cpu_clock() -> None:
     )
 
 
-def _reconstruct(graph: Any, recordings: list[Any], ragdoll: bool, repeats: int) -> dict[str, Any]:
+def _reconstruct(
+    graph: Any, recordings: list[Any], ragdoll: bool, repeats: int, **options: Any
+) -> dict[str, Any]:
     from fpg_gym.core import metrics
     from fpg_gym.physics.ragdoll import Ragdoll
     from fpg_gym.reconstruct import STAGES, Reconstructor
 
     frames = sum(r.num_frames for r in recordings)
-    with Reconstructor(graph, ragdoll=Ragdoll if ragdoll else None) as reconstructor:
+    with Reconstructor(graph, ragdoll=Ragdoll if ragdoll else None, **options) as reconstructor:
         reconstructor.warm_up()
         for i, recording in enumerate(recordings):  # first pass: loads, caches, not timed
             reconstructor.reconstruct(recording, "local-search", rng=i)
@@ -132,6 +139,23 @@ def _ragdoll_alone(targets: list[np.ndarray], recordings: list[Any]) -> dict[str
         "cpu_ms_per_frame": 1e3 * cpu / frames,
         "error_m": float(np.concatenate(errors).mean()),
     }
+
+
+def _real(repeats: int) -> dict[str, Any]:
+    """The ``real`` section (module docstring)."""
+    from fpg_gym.commands.reconstruct import resolve_graph
+    from fpg_gym.experiments.demo import demo_recordings
+    from fpg_gym.io.recording import load_recording
+    from fpg_gym.reconstruct.presets import choose_pipeline, sensor_of
+
+    recordings = [load_recording(path) for path in demo_recordings()]
+    graph = resolve_graph("default", recordings[0], None)
+    chosen = choose_pipeline("auto", sensor_of(recordings[0]), graph)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        real = _reconstruct(graph, recordings, False, repeats, **dict(chosen.options))
+    real.pop("outputs")
+    return real
 
 
 def measure(sections: tuple[str, ...], repeats: int, env_steps: int) -> dict[str, Any]:
@@ -192,6 +216,8 @@ def measure(sections: tuple[str, ...], repeats: int, env_steps: int) -> dict[str
         for r in reconstructors:
             r.close()
         report["streams"] = {"frames": frames, "frames_per_cpu_second": frames / np.median(cpu)}
+    if "real" in sections:
+        report["real"] = _real(repeats)
     return report
 
 
@@ -220,6 +246,11 @@ def _figures(report: dict[str, Any]) -> dict[str, float]:
         out["many streams, one process: frames / CPU s"] = report["streams"][
             "frames_per_cpu_second"
         ]
+    if "real" in report:
+        out["real s08, auto preset: CPU ms / frame"] = report["real"]["cpu_ms_per_frame"]
+        for stage, ms in report["real"]["stage_cpu_ms"].items():
+            out[f"real s08, auto preset: {stage} CPU ms"] = ms
+        out["real s08, auto preset: Eq. 13 error (m)"] = report["real"]["error_m"]
     return out
 
 
@@ -249,7 +280,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeats", type=int, default=3, help="timed passes per measure (3)")
     parser.add_argument("--env-steps", type=int, default=300, help="env steps timed (300)")
     parser.add_argument(
-        "--sections", default=",".join(SECTIONS), help=f"some of {','.join(SECTIONS)}"
+        "--sections",
+        default=",".join(DEFAULT_SECTIONS),
+        help=f"some of {','.join(SECTIONS)} ({','.join(DEFAULT_SECTIONS)})",
     )
     parser.add_argument("--json", type=Path, help="write every round's figures here")
     parser.add_argument("--measure", action="store_true", help=argparse.SUPPRESS)

@@ -30,7 +30,7 @@ from fpg_gym.core.compiled import (
 from fpg_gym.filters import INFERRED, NOT_TRACKED, TRACKED, KalmanFilter, OneEuroFilter
 from fpg_gym.reconstruct.energy import TERM_NAMES, EnergyModel, EnergyWeights
 from fpg_gym.reconstruct.latent import LatentSpace
-from fpg_gym.reconstruct.left_right import left_right_costs
+from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, best_labelling, left_right_costs
 from fpg_gym.reconstruct.node_database import NodeDatabase
 from fpg_gym.reconstruct.reliability import SortedWindow, behaviour_angles
 
@@ -250,6 +250,31 @@ def test_compiled_left_right_costs_agree_with_numpy() -> None:
             reference = left_right_costs(positions, states, prediction)
         np.testing.assert_allclose(compiled, reference, rtol=1e-13, atol=1e-15)
         assert np.argmin(compiled) == np.argmin(reference)
+
+
+def test_compiled_best_labelling_chooses_as_numpy() -> None:
+    """``compiled_frame.best_labelling`` against :func:`best_labelling`'s numpy code: mirrored,
+    arms-swapped and legs-swapped sensor poses near the prediction of one or two previous
+    outputs (also at uneven and zero time steps), and poses near no labelling's margin."""
+    rng = np.random.default_rng(12)
+    chosen = []
+    for i in range(400):
+        before = rng.normal(0.0, 0.3, (20, 3)) + np.array([0.0, 1.0, 2.5])
+        last = before + rng.normal(0.0, 0.03, (20, 3))
+        history = [(before, 0.0), (last, float(rng.choice([0.0, 1 / 30, 1 / 15])))][i % 2 :]
+        labelling = i % len(LABEL_PERMUTATIONS)
+        noise = rng.choice([0.01, 0.05, 0.2])
+        sensor = (2 * last - before + rng.normal(0.0, noise, (20, 3)))[
+            LABEL_PERMUTATIONS[labelling]
+        ]
+        states = rng.choice([NOT_TRACKED, INFERRED, TRACKED], 20, p=[0.1, 0.2, 0.7]).astype(np.int8)
+        margin = float(rng.choice([0.5, 0.8]))
+        compiled = best_labelling(sensor.astype(np.float32), states, history, 1 / 30, margin)
+        with numpy_only():
+            reference = best_labelling(sensor.astype(np.float32), states, history, 1 / 30, margin)
+        assert compiled == reference, i
+        chosen.append(compiled)
+    assert set(chosen) == set(range(len(LABEL_PERMUTATIONS)))
 
 
 def candidate_sets(graph: Any, count: int = 12) -> list[np.ndarray]:

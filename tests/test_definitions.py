@@ -51,6 +51,26 @@ def test_frames_are_rotations_that_move_with_the_body(rng):
     np.testing.assert_allclose(joint_frames(moved), rotation @ frames, atol=1e-9)
 
 
+def test_one_pose_map_in_compiled_calls_is_the_numpy_map_to_the_bit(rng):
+    """``DefinitionMap.apply`` of one pose through ``compiled_poses.bone_frame_turns`` and
+    ``offset_pose`` (with numba) against its numpy code: equal to the bit on varied and
+    random poses, and a bone pointing opposite its rest direction takes the numpy path."""
+    from fpg_gym.core.compiled import numpy_only
+
+    mapping = packaged_map(KINECT_V2_TO_VICON)
+    sample = [*_poses(rng, 300), *rng.normal(0.0, 0.4, (300, 20, 3))]
+    opposite = poses.rest_pose().astype(np.float64)
+    opposite[J("Head")] = 2 * opposite[J("ShoulderCenter")] - opposite[J("Head")]  # head down
+    for pose in [*sample, opposite]:
+        mapped = mapping.apply(pose)
+        with numpy_only():
+            reference = mapping.apply(pose)
+        np.testing.assert_array_equal(mapped, reference)
+    np.testing.assert_array_equal(
+        mapping.apply(np.stack(sample[:5])), np.stack([mapping.apply(p) for p in sample[:5]])
+    )
+
+
 def test_fit_is_exact_on_synthetic_data_with_known_offsets(rng):
     offsets = 0.05 * rng.normal(size=(20, 3))
     truth = DefinitionMap(offsets, source="a", target="b")

@@ -109,6 +109,34 @@ def test_trust_keeps_a_joint_the_stream_always_infers() -> None:
     assert all(v[_J("HandLeft")] == 1.0 for v in values)
 
 
+def test_trust_in_compiled_calls_is_the_numpy_trust_to_the_bit() -> None:
+    """``compiled_frame.trust_exponents`` and ``sensor_trust`` (with numba) against
+    ``SensorTrust.update``'s numpy code on a noisy stream with flickering, lost and stretched
+    joints: the same trust, run starts and trusted lengths to the bit."""
+    import contextlib
+
+    from fpg_gym.core.compiled import numpy_only
+
+    rng = np.random.default_rng(4)
+    pose = poses.rest_pose().astype(np.float64)
+    frames = pose + rng.normal(0.0, 0.01, (120, 20, 3))
+    frames[60:, _J("HandRight")] += 0.15  # a stretched bone
+    states = rng.choice(
+        [skeleton.NOT_TRACKED, skeleton.INFERRED, skeleton.TRACKED], (120, 20), p=[0.05, 0.2, 0.75]
+    )
+    states[:10] = skeleton.TRACKED
+    runs = []
+    for hidden in (False, True):
+        with numpy_only() if hidden else contextlib.nullcontext():
+            trust = SensorTrust()
+            values = [trust.update(frames[t], states[t], t / 30.0) for t in range(120)]
+            runs.append((np.array(values), trust.lengths, trust._run_start.copy()))
+    for compiled, reference in zip(*runs, strict=True):
+        np.testing.assert_array_equal(compiled, reference)
+    values = runs[0][0]
+    assert np.any((values > 0.0) & (values < 0.5)) and values.mean() > 0.5  # decays, mostly 1
+
+
 # --------------------------------------------------------------------------- fusion
 
 

@@ -324,3 +324,130 @@ def test_sorted_window_median_equals_nanmedian_of_its_rows() -> None:
         assert window.median() == expected, step  # to the last bit
         assert len(window) == np.isfinite(np.stack(ring)).sum()
     assert np.isnan(SortedWindow().median())
+
+
+def _mixed_stream(rng: np.random.Generator, frames: int) -> tuple[np.ndarray, np.ndarray]:
+    """Calibration frames (rest and T-poses, slightly noisy), moving and vibrating frames with
+    joints inferred or lost, and frames without a body."""
+    clip = standing(frames, 0.01).astype(np.float64)
+    clip[frames // 3 : frames // 2] = t_pose() + np.array([0.0, 1.0, 2.5])
+    clip += rng.normal(0.0, 0.004, clip.shape)
+    clip[frames // 2 :, HAND] += rng.normal(0.0, 0.05, (frames - frames // 2, 3))  # vibrates
+    clip[2 * frames // 3 :, KNEE, 1] += 0.08  # a stretched shin
+    states = tracked(frames)
+    states[0] = 1  # no tracked bone yet: the prior scaled by the height
+    states[:6, KNEE] = 1  # no calibration frame yet: the scaled prior
+    lost = rng.random(states.shape) < 0.2
+    lost[: frames // 2] = False
+    states[lost] = rng.integers(0, 2, lost.sum())
+    states[frames // 4 : frames // 4 + 3] = 0  # no body
+    return clip.astype(np.float32), states
+
+
+@pytest.mark.parametrize(
+    "settings",
+    [
+        {},
+        {"fallback": "tracked-median", "max_reference_frames": 7},
+        {"max_reference_frames": 5, "behaviour_frames": 2, "smoothing_frames": 3},
+        {"given": True},
+    ],
+)
+def test_the_compiled_frame_gives_the_numpy_definitions_terms(settings: dict) -> None:
+    """``compiled_frame.reliability_frame`` (with numba) against the numpy code of
+    ``ReliabilityEstimator.update``: the same reference lengths, sources and calibration frames
+    to the bit, the terms to rounding (the behaviour angles' arccos), through calibration, the
+    windows' wrap-around, lost joints, frames without a body and a motion restart."""
+    settings = dict(settings)
+    given = settings.pop("given", False)
+    config = ReliabilityConfig(**settings)
+    clip, states = _mixed_stream(np.random.default_rng(3), 60)
+    runs = []
+    for numpy_twin in (False, True):
+        with numpy_only() if numpy_twin else contextlib.nullcontext():
+            estimator = ReliabilityEstimator(
+                config, poses.DEFAULT_BONE_LENGTHS * 1.1 if given else None
+            )
+            frames = []
+            for t in range(len(clip)):
+                if t == 40:
+                    estimator.forget_motion()
+                frames.append(estimator.update(clip[t], states[t]))
+            runs.append(frames)
+    calibrated = 0
+    for compiled, reference in zip(*runs, strict=True):
+        assert compiled.reference_source == reference.reference_source
+        assert compiled.calibration_frame == reference.calibration_frame
+        np.testing.assert_array_equal(compiled.reference_lengths, reference.reference_lengths)
+        np.testing.assert_array_equal(compiled.tracking, reference.tracking)
+        for name in ("reliability", "behaviour", "kinematic", "minimum"):
+            np.testing.assert_allclose(
+                getattr(compiled, name), getattr(reference, name), rtol=0, atol=1e-12
+            )
+        calibrated += compiled.calibration_frame
+    assert given or calibrated > 5  # the stream calibrates (rest and T-poses)
+    sources = {frame.reference_source for frame in runs[0]}
+    fallback = "tracked-median" if config.fallback == "tracked-median" else "scaled-prior"
+    assert sources == ({"given"} if given else {"prior-height", fallback, "neutral"})
+
+
+def test_the_compiled_neutral_pose_check_decides_as_the_numpy_one() -> None:
+    """``compiled_frame.neutral_pose`` against :func:`is_neutral_pose` on rest and T-poses
+    turned, bent and noisy, many of them near the tolerance."""
+    from fpg_gym.core.compiled import compiled_module
+    from fpg_gym.reconstruct import reliability
+
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    if compiled is None:
+        pytest.skip("needs numba (fpg-gym[fast])")
+    rng = np.random.default_rng(11)
+    decisions = []
+    for i in range(600):
+        pose = (rest_or_t := (poses.rest_pose() if i % 2 else t_pose())).astype(np.float64)
+        pose = pose + rng.normal(0.0, rng.choice([0.01, 0.05, 0.1]), rest_or_t.shape)
+        yaw = rng.uniform(-np.pi, np.pi)
+        pose = poses.denormalise(pose, poses.Placement(rng.normal(0, 1, 3), np.asarray(yaw)))
+        pose = pose.astype(np.float64)
+        tolerance = float(rng.choice([10.0, 20.0, 30.0]))
+        expected = is_neutral_pose(pose, tolerance)
+        got = compiled.neutral_pose(
+            pose,
+            float(np.cos(np.deg2rad(tolerance))),
+            skeleton.ROOT,
+            reliability._FACING,
+            poses._DEGENERATE_LINE_M,
+            skeleton.BONES,
+            poses.REST_DIRECTIONS,
+            reliability._BODY_BONES,
+            reliability._ARM_BONES,
+            reliability._SIDEWAYS,
+        )
+        assert got == expected, i
+        decisions.append(expected)
+    assert 0.1 < np.mean(decisions) < 0.9  # both answers, often
+
+
+def test_the_compiled_column_medians_are_numpys_to_the_bit() -> None:
+    """The calibration median of the compiled frame (a selection, not a sort) against
+    ``np.median`` and ``np.nanmedian`` on columns with repeated values, NaN and odd and even
+    lengths."""
+    from fpg_gym.core.compiled import compiled_module
+
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    if compiled is None:
+        pytest.skip("needs numba (fpg-gym[fast])")
+    rng = np.random.default_rng(8)
+    for _ in range(300):
+        rows = np.round(rng.normal(0.3, 0.02, (int(rng.integers(1, 320)), 19)), 2)
+        out = np.empty(19)
+        compiled._column_medians(rows, False, out)
+        np.testing.assert_array_equal(out, np.median(rows, axis=0))
+        rows[rng.random(rows.shape) < 0.3] = np.nan
+        compiled._column_medians(rows, False, out)
+        np.testing.assert_array_equal(out, np.median(rows, axis=0))
+        seen = np.isfinite(rows).any(axis=0)
+        out[:] = -1.0
+        compiled._column_medians(rows, True, out)
+        expected = np.full(19, -1.0)
+        expected[seen] = np.nanmedian(rows[:, seen], axis=0)
+        np.testing.assert_array_equal(out, expected)

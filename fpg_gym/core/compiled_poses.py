@@ -22,8 +22,11 @@ import numpy as np
 
 __all__ = [
     "assemble_nodes",
+    "bone_frame_turns",
     "bone_lengths_pose",
     "facing_yaw_pose",
+    "normalise_pose",
+    "offset_pose",
     "place_pose",
     "retarget_pose",
     "vector_angles",
@@ -121,6 +124,20 @@ def facing_yaw_pose(pose, hip_left, hip_right, shoulder_left, shoulder_right, de
 
 
 @numba.njit(cache=True, nogil=True)
+def normalise_pose(pose, root, hip_left, hip_right, shoulder_left, shoulder_right, degenerate):
+    """:func:`fpg_gym.core.poses.normalise` of one pose ``(20, 3)`` float64: its heading
+    (:func:`facing_yaw_pose`) and the pose turned into it about its ``root`` joint
+    (:func:`place_pose`) as float32."""
+    yaw = facing_yaw_pose(pose, hip_left, hip_right, shoulder_left, shoulder_right, degenerate)
+    placed = place_pose(pose, pose[root], yaw, False)
+    out = np.empty(placed.shape, dtype=np.float32)
+    for j in range(placed.shape[0]):
+        for c in range(3):
+            out[j, c] = np.float32(placed[j, c])
+    return out, yaw
+
+
+@numba.njit(cache=True, nogil=True)
 def place_pose(pose, root, yaw, inverse):
     """One pose ``(20, 3)`` float64 turned about +Y: ``(p - root) R_y(yaw)`` (row vectors: into
     the placement's frame), or with ``inverse`` ``p R_y(yaw)^T + root`` (back to camera space);
@@ -138,4 +155,115 @@ def place_pose(pose, root, yaw, inverse):
             out[j, 0] = x * c - z * s
             out[j, 1] = y
             out[j, 2] = x * s + z * c
+    return out
+
+
+@numba.njit(cache=True, nogil=True)
+def _unit_vector(vx, vy, vz):
+    """``v / max(|v|, 1e-9)`` (:func:`fpg_gym.definitions._unit`, the norm's squares summed in
+    order)."""
+    norm = max(np.sqrt((vx * vx + vy * vy) + vz * vz), 1e-9)
+    return vx / norm, vy / norm, vz / norm
+
+
+@numba.njit(cache=True, nogil=True)
+def _trunk_frame(pose, left_end, right_end, top, bottom, out):
+    """:func:`fpg_gym.definitions._trunk_frame` of ``left = p[left_end] - p[right_end]`` and
+    ``up = p[top] - p[bottom]`` into ``out`` ``(3, 3)`` (columns: left, up, forward)."""
+    x0, x1, x2 = _unit_vector(
+        pose[left_end, 0] - pose[right_end, 0],
+        pose[left_end, 1] - pose[right_end, 1],
+        pose[left_end, 2] - pose[right_end, 2],
+    )
+    u0 = pose[top, 0] - pose[bottom, 0]
+    u1 = pose[top, 1] - pose[bottom, 1]
+    u2 = pose[top, 2] - pose[bottom, 2]
+    along = (u0 * x0 + u1 * x1) + u2 * x2
+    y0, y1, y2 = _unit_vector(u0 - along * x0, u1 - along * x1, u2 - along * x2)
+    out[0, 0], out[1, 0], out[2, 0] = x0, x1, x2
+    out[0, 1], out[1, 1], out[2, 1] = y0, y1, y2
+    out[0, 2] = x1 * y2 - x2 * y1  # np.cross's products
+    out[1, 2] = x2 * y0 - x0 * y2
+    out[2, 2] = x0 * y1 - x1 * y0
+
+
+@numba.njit(cache=True, nogil=True)
+def bone_frame_turns(pose, trunk_joints, ends, parents, on_thorax, rest):
+    """The first half of :func:`fpg_gym.definitions.joint_frames` for one pose ``(20, 3)``
+    float64 (the numpy code's operations in its order): the pelvis and thorax frames ``(2, 3,
+    3)`` (``trunk_joints``: HipLeft, HipRight, ShoulderCenter, HipCenter, ShoulderLeft,
+    ShoulderRight, Spine), each bone's base frame ``(B, 3, 3)`` and the rotation ``(B, 3, 3)``
+    that takes its rest direction onto its direction in that base (the shortest arc); the
+    caller multiplies the two (numpy's product). ``ok`` is False when a bone points opposite
+    its rest direction (the numpy code then picks a half turn: the caller takes its path)."""
+    trunks = np.empty((2, 3, 3))
+    _trunk_frame(
+        pose, trunk_joints[0], trunk_joints[1], trunk_joints[2], trunk_joints[3], trunks[0]
+    )
+    _trunk_frame(
+        pose, trunk_joints[4], trunk_joints[5], trunk_joints[2], trunk_joints[6], trunks[1]
+    )
+    count = ends.shape[0]
+    base = np.empty((count, 3, 3))
+    turn = np.empty((count, 3, 3))
+    local = np.empty(3)
+    for b in range(count):
+        t = 1 if on_thorax[b] else 0
+        for r in range(3):
+            for c in range(3):
+                base[b, r, c] = trunks[t, r, c]
+        end, parent = ends[b], parents[b]
+        d0, d1, d2 = _unit_vector(
+            pose[end, 0] - pose[parent, 0],
+            pose[end, 1] - pose[parent, 1],
+            pose[end, 2] - pose[parent, 2],
+        )
+        for i in range(3):  # the direction in the base frame's coordinates
+            local[i] = (trunks[t, 0, i] * d0 + trunks[t, 1, i] * d1) + trunks[t, 2, i] * d2
+        a0, a1, a2 = rest[b, 0], rest[b, 1], rest[b, 2]
+        qx = a1 * local[2] - a2 * local[1]  # shortest_arc: (a x b, 1 + a.b), normalised
+        qy = a2 * local[0] - a0 * local[2]
+        qz = a0 * local[1] - a1 * local[0]
+        qw = 1.0 + ((a0 * local[0] + a1 * local[1]) + a2 * local[2])
+        norm = np.sqrt(((qx * qx + qy * qy) + qz * qz) + qw * qw)
+        if norm < 1e-6:
+            return trunks, base, turn, False
+        w, x, y, z = qw / norm, qx / norm, qy / norm, qz / norm
+        norm = np.sqrt(((w * w + x * x) + y * y) + z * z)  # quaternion_to_matrix normalises
+        w, x, y, z = w / norm, x / norm, y / norm, z / norm
+        turn[b, 0, 0] = 1 - 2 * (y * y + z * z)
+        turn[b, 0, 1] = 2 * (x * y - w * z)
+        turn[b, 0, 2] = 2 * (x * z + w * y)
+        turn[b, 1, 0] = 2 * (x * y + w * z)
+        turn[b, 1, 1] = 1 - 2 * (x * x + z * z)
+        turn[b, 1, 2] = 2 * (y * z - w * x)
+        turn[b, 2, 0] = 2 * (x * z - w * y)
+        turn[b, 2, 1] = 2 * (y * z + w * x)
+        turn[b, 2, 2] = 1 - 2 * (x * x + y * y)
+    return trunks, base, turn, True
+
+
+@numba.njit(cache=True, nogil=True)
+def offset_pose(pose, trunks, turned, pelvis_joints, thorax_joints, bone_joints, offsets):
+    """``p(j) + F_j · o_j`` of one pose ``(20, 3)`` float64 (:meth:`DefinitionMap.apply
+    <fpg_gym.definitions.DefinitionMap.apply>`, its product summed in ``np.einsum``'s
+    order), the frames ``F_j`` being the pelvis's, the thorax's (``trunks``) or the bones'
+    ``turned`` ``(B, 3, 3)`` (:func:`bone_frame_turns`'s base times turn)."""
+    out = np.empty_like(pose)
+    for j in range(pose.shape[0]):
+        for a in range(3):
+            out[j, a] = pose[j, a]
+    for k in range(pelvis_joints.shape[0] + thorax_joints.shape[0] + bone_joints.shape[0]):
+        if k < pelvis_joints.shape[0]:
+            j, source, row = pelvis_joints[k], trunks, 0
+        elif k < pelvis_joints.shape[0] + thorax_joints.shape[0]:
+            j, source, row = thorax_joints[k - pelvis_joints.shape[0]], trunks, 1
+        else:
+            row = k - pelvis_joints.shape[0] - thorax_joints.shape[0]
+            j, source = bone_joints[row], turned
+        for a in range(3):
+            out[j, a] = pose[j, a] + (
+                (source[row, a, 0] * offsets[j, 0] + source[row, a, 2] * offsets[j, 2])
+                + source[row, a, 1] * offsets[j, 1]
+            )
     return out

@@ -70,12 +70,12 @@ def as_poses(value: object, name: str = "poses", *, ndim: int | None = None) -> 
         If the shape is not ``(..., 20, 3)`` (or not ``ndim``-dimensional) or a value is NaN/inf.
     """
     array = np.asarray(value, dtype=np.float32)
-    expected = "(..., 20, 3)" if ndim is None else "(" + "N, " * (ndim - 2) + "20, 3)"
     if (
         array.ndim < 2
         or array.shape[-2:] != (skeleton.NUM_JOINTS, 3)
         or (ndim is not None and array.ndim != ndim)
     ):
+        expected = "(..., 20, 3)" if ndim is None else "(" + "N, " * (ndim - 2) + "20, 3)"
         raise ValueError(f"{name}: expected shape {expected}, got {array.shape}")
     if not np.isfinite(array).all():
         bad = np.argwhere(~np.isfinite(array))[0]
@@ -201,11 +201,11 @@ def normalise(poses: FloatArray) -> tuple[np.ndarray, Placement]:
     poses64 = np.asarray(poses, dtype=np.float64)
     root = poses64[..., skeleton.ROOT, :]
     compiled = _one_pose_kernels(poses64)
-    if compiled is not None:  # one pose: two compiled calls
-        pose = np.ascontiguousarray(poses64)
-        angle = compiled.facing_yaw_pose(pose, *_FACING_JOINTS, _DEGENERATE_LINE_M)
-        normalised = compiled.place_pose(pose, root, angle, False)
-        return normalised.astype(np.float32), Placement(root=root, yaw=np.asarray(angle))
+    if compiled is not None:  # one pose: one compiled call
+        normalised, angle = compiled.normalise_pose(
+            np.ascontiguousarray(poses64), skeleton.ROOT, *_FACING_JOINTS, _DEGENERATE_LINE_M
+        )
+        return normalised, Placement(root=root, yaw=np.asarray(angle))
     yaw = facing_yaw(poses64)
     # p_norm = R_y(-yaw) (p - root), i.e. for row vectors (p - root) @ R_y(yaw)
     normalised = np.einsum("...jc,...cd->...jd", poses64 - root[..., None, :], yaw_matrix(yaw))

@@ -36,6 +36,7 @@ import numpy as np
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.core.metrics import TIME_TOLERANCE_S
 
 __all__ = ["BoneSettler", "BoneSettlingConfig", "OutputLengths", "settled_output_lengths"]
@@ -87,7 +88,7 @@ class BoneSettler:
         self._last_time: float | None = None
         self._lengths: np.ndarray | None = None
         self._settled: np.ndarray | None = None
-        self._low = self._high = np.zeros(skeleton.NUM_BONES)
+        self._low, self._high = np.zeros(skeleton.NUM_BONES), np.zeros(skeleton.NUM_BONES)
         self.settled_at: float | None = None
         self.events: list[dict[str, Any]] = []
 
@@ -133,22 +134,30 @@ class BoneSettler:
             self.events.append(
                 {"time_s": timestamp, "kind": "settled", "lengths_m": self._settled.tolist()}
             )
-        # np.clip's rule, min(max(x, low), high), without its wrapper's cost (every frame).
         rate = cfg.max_rate_m_s * dt
-        step = np.minimum(np.maximum(estimate - self._lengths, -rate), rate)
-        moved = np.minimum(
-            np.maximum(self._lengths + step, self._high - cfg.max_spread_m),
-            self._low + cfg.max_spread_m,
-        )
-        self._low, self._high = np.minimum(self._low, moved), np.maximum(self._high, moved)
-        change = moved - self._lengths
-        if (np.abs(change) > 1e-9).any():
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        if compiled is not None:  # one call, the same arithmetic (low and high in place)
+            moved, largest, changed = compiled.settle_lengths(
+                estimate, self._lengths, self._low, self._high, rate, cfg.max_spread_m
+            )
+        else:
+            # np.clip's rule, min(max(x, low), high), without its wrapper's cost.
+            step = np.minimum(np.maximum(estimate - self._lengths, -rate), rate)
+            moved = np.minimum(
+                np.maximum(self._lengths + step, self._high - cfg.max_spread_m),
+                self._low + cfg.max_spread_m,
+            )
+            self._low, self._high = np.minimum(self._low, moved), np.maximum(self._high, moved)
+            largest = np.abs(moved - self._lengths).max()
+            changed = bool((np.abs(moved - self._lengths) > 1e-9).any())
+        if changed:
+            change = np.abs(moved - self._lengths)
             self.events.append(
                 {
                     "time_s": timestamp,
                     "kind": "changed",
-                    "max_change_mm": float(1000.0 * np.abs(change).max()),
-                    "bones": np.flatnonzero(np.abs(change) > 1e-9).tolist(),
+                    "max_change_mm": float(1000.0 * largest),
+                    "bones": np.flatnonzero(change > 1e-9).tolist(),
                 }
             )
         self._lengths = moved

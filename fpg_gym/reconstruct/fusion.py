@@ -54,6 +54,7 @@ import numpy as np
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.core.validation import check_choice, check_number
 from fpg_gym.definitions import joint_frames
 from fpg_gym.filters import make_filter
@@ -63,6 +64,7 @@ __all__ = ["BoneModel", "FusionConfig", "SensorFusion", "SensorTrust", "fuse_pos
 
 _PARENT_BONE = skeleton.BONES[:, 0]
 _CHILD_BONE = skeleton.BONES[:, 1]
+_DEPTH_ORDER = np.concatenate(skeleton.JOINT_LEVELS)  # the joints below the root, by depth
 #: Bone incidence ``(19, 20)``: +1 at a bone's child joint, -1 at its parent.
 _INCIDENCE = np.zeros((skeleton.NUM_BONES, skeleton.NUM_JOINTS))
 _INCIDENCE[np.arange(skeleton.NUM_BONES), _CHILD_BONE] = 1.0
@@ -173,6 +175,33 @@ class SensorTrust:
         """Trust ``(20,)`` of one frame's joints ``positions`` ``(20, 3)`` with ``states``."""
         cfg = self.config
         states = np.asarray(states)
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        if compiled is not None and states.shape == (skeleton.NUM_JOINTS,):
+            # Two calls around numpy's power, the same arithmetic.
+            exponents = compiled.trust_exponents(
+                states,
+                self._run_start,
+                float(timestamp),
+                cfg.flicker_s,
+                cfg.inferred_half_life_s,
+                skeleton.INFERRED,
+            )
+            trust: np.ndarray = compiled.sensor_trust(
+                np.ascontiguousarray(positions, dtype=np.float64),
+                states,
+                0.5**exponents,
+                self._ever_tracked,
+                self._length_sum,
+                self._length_count,
+                cfg.length_tolerance,
+                cfg.length_roof - cfg.length_tolerance,
+                skeleton.TRACKED,
+                skeleton.INFERRED,
+                skeleton.BONES,
+                _DEPTH_ORDER,
+                skeleton.PARENTS,
+            )
+            return trust
         tracked = states == skeleton.TRACKED
         inferred = states == skeleton.INFERRED
         self._ever_tracked |= tracked

@@ -47,6 +47,7 @@ LABEL_PERMUTATIONS = np.stack(
     ]
 )
 LABEL_PERMUTATIONS.flags.writeable = False
+_NO_POSE = np.zeros((0, 3))  # no second previous output
 
 
 def left_right_costs(
@@ -95,6 +96,27 @@ def best_labelling(
     last; at least one) best, ``dt`` s after the last: another than the reported one (0) only
     when its cost is under ``margin`` times the reported one's and 3 cm lower."""
     last = history[-1][0]
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    if compiled is not None:  # one call, the same arithmetic
+        before = _NO_POSE
+        ratio = 1.0
+        if len(history) >= 2:
+            before = history[-2][0]
+            dt_previous = history[-1][1] - history[-2][1]
+            ratio = 1.0 if not dt_previous or dt_previous <= 0 else dt / dt_previous  # as
+            # motion_target
+        choice: int = compiled.best_labelling(
+            np.asarray(compared, dtype=np.float64),
+            states,
+            np.ascontiguousarray(last, dtype=np.float64),
+            np.ascontiguousarray(before, dtype=np.float64),
+            ratio,
+            float(margin),
+            LABEL_PERMUTATIONS,
+            skeleton.TRACKED,
+            skeleton.INFERRED,
+        )
+        return choice
     guess = last
     if len(history) >= 2:
         before = history[-2][0]

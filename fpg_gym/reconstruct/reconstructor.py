@@ -336,9 +336,10 @@ class Reconstructor(FrameDrivers):
         if states.shape != (skeleton.NUM_JOINTS,):
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
         cfg = self.config
-        sensor, raw_states = positions, states
+        sensor, raw_states, mapped = positions, states, None
         if cfg.sensor_map is not None:  # the sensor's body points -> the database's
-            positions = cfg.sensor_map.apply(positions).astype(np.float32)
+            mapped = cfg.sensor_map.apply(positions)
+            positions = mapped.astype(np.float32)
         if timestamp is None:
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)
@@ -347,7 +348,7 @@ class Reconstructor(FrameDrivers):
         first = not self._history
         dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
         labelling, positions, states, compared = self._relabel(
-            positions, states, sensor, dt, no_body
+            positions, states, sensor, mapped, dt, no_body
         )
         kinect, placement, output_placement = self._normalise(positions, timestamp, no_body)
         t1 = time.perf_counter()
@@ -419,12 +420,14 @@ class Reconstructor(FrameDrivers):
         positions: np.ndarray,
         states: np.ndarray,
         sensor: np.ndarray,
+        mapped: np.ndarray | None,
         dt: float,
         no_body: bool,
     ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         """Left/right confusions (a Kinect assumes the user faces it): keep the labelling that
         continues the previous outputs best (with the fusion, the fused outputs, compared with
         the sensor in their definitions: the database's own pose may be another activity's).
+        ``mapped`` is the sensor map's pose of ``sensor`` (float64; None without a map).
 
         Returns the labelling's index in :data:`LABELLINGS`, the relabelled positions and
         states, and the relabelled pose the outputs were compared with.
@@ -434,8 +437,11 @@ class Reconstructor(FrameDrivers):
         history, compared = self._history, positions
         if self._fusion is not None:
             history = self._fused_history
-            if self._sensor_output_map is not None:
-                compared = self._sensor_output_map.apply(sensor)
+            output_map = self._sensor_output_map
+            if output_map is not None and output_map is cfg.sensor_map and mapped is not None:
+                compared = mapped  # the sensor's output definitions are the database's
+            elif output_map is not None:
+                compared = output_map.apply(sensor)
         if cfg.left_right_fix and history and not no_body:
             labelling = best_labelling(compared, states, history, dt, cfg.left_right_margin)
             if labelling:

@@ -48,7 +48,8 @@ calibrated). Fixed lengths can be given instead (``reference_lengths=``, ``"give
 from __future__ import annotations
 
 import functools
-from dataclasses import dataclass, field
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -231,8 +232,8 @@ def _theta_bounds(config: ReliabilityConfig) -> tuple[float, float]:
     return floor, float(np.deg2rad(config.theta_roof_deg)) - floor
 
 
-def kinematic_reliability(lengths: np.ndarray, reference: np.ndarray) -> np.ndarray:
-    """``Rk`` per joint: 1 minus the mean relative length error of the bones at the joint.
+def length_deviation(lengths: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """Each bone's relative length error ``min(|l - l_ref| / l_ref, 1)`` (Shum §IV-B).
 
     Parameters
     ----------
@@ -242,10 +243,20 @@ def kinematic_reliability(lengths: np.ndarray, reference: np.ndarray) -> np.ndar
         Reference bone lengths (positive).
     """
     reference = np.asarray(reference, dtype=np.float64)
-    deviation = np.minimum(
-        np.abs(np.asarray(lengths) - reference) / np.maximum(reference, 1e-6), 1.0
-    )
-    return 1.0 - deviation @ _INCIDENCE.T
+    return np.minimum(np.abs(np.asarray(lengths) - reference) / np.maximum(reference, 1e-6), 1.0)
+
+
+def kinematic_reliability(lengths: np.ndarray, reference: np.ndarray) -> np.ndarray:
+    """``Rk`` per joint: 1 minus the mean relative length error of the bones at the joint
+    (:func:`length_deviation`; shapes as there, ``(..., 20)`` out)."""
+    return 1.0 - joint_means(length_deviation(lengths, reference))
+
+
+def joint_means(values: np.ndarray) -> np.ndarray:
+    """The mean over the bones at each joint of per-bone ``values`` ``(..., 19) -> (..., 20)``
+    (a product with the skeleton's normalised incidence matrix)."""
+    mean: np.ndarray = values @ _INCIDENCE.T
+    return mean
 
 
 def tracking_reliability(states: np.ndarray) -> np.ndarray:
@@ -272,7 +283,7 @@ def is_neutral_pose(pose: np.ndarray, tolerance_deg: float = 30.0) -> bool:
     if np.any(norms < 1e-6):
         return False
     directions = vectors / norms[:, None]
-    cos_tol = np.cos(np.deg2rad(tolerance_deg))
+    cos_tol = np.cos(np.deg2rad(tolerance_deg))  # as ReliabilityEstimator's
     rest = pose_utils.REST_DIRECTIONS
     if np.any(np.einsum("bc,bc->b", directions[_BODY_BONES], rest[_BODY_BONES]) < cos_tol):
         return False
@@ -284,13 +295,11 @@ def is_neutral_pose(pose: np.ndarray, tolerance_deg: float = 30.0) -> bool:
     return True
 
 
-@dataclass
-class _History:
-    """Mutable per-stream state of :class:`ReliabilityEstimator`."""
-
-    positions: list[np.ndarray] = field(default_factory=list)  # last two frames, (20, 3) each
-    angles: list[np.ndarray] = field(default_factory=list)  # last f_b angle vectors
-    minima: list[np.ndarray] = field(default_factory=list)  # last smoothing_frames minima
+#: :attr:`ReliabilityEstimator.reference_source` by the code the compiled frame keeps.
+_SOURCES = ("given", "neutral", "scaled-prior", "tracked-median", "prior-height")
+_FACING = np.array(pose_utils._FACING_JOINTS)
+_ARM_BONES = np.stack([_LEFT_ARM_BONES, _RIGHT_ARM_BONES])
+_SIDEWAYS = np.stack([_T_LEFT, _T_RIGHT])
 
 
 class SortedWindow:
@@ -368,7 +377,6 @@ class ReliabilityEstimator:
         prior_lengths: np.ndarray | None = None,
     ) -> None:
         self.config = config or ReliabilityConfig()
-        self._weights = self.config.weights()
         prior = pose_utils.DEFAULT_BONE_LENGTHS if prior_lengths is None else prior_lengths
         self._prior = np.asarray(prior, dtype=np.float64).copy()
         if self._prior.shape != (skeleton.NUM_BONES,) or not np.all(self._prior > 0):
@@ -376,8 +384,12 @@ class ReliabilityEstimator:
                 f"prior_lengths: expected 19 positive lengths, got shape {self._prior.shape}"
             )
         self._prior_height = float(pose_utils.height(pose_utils.rest_pose(self._prior)))
+        self._cos_tolerance = float(np.cos(np.deg2rad(self.config.neutral_tolerance_deg)))
+        weights = self.config.weights()
+        # The filter's weights over the first n frames of a stream, normalised to sum to 1.
+        self._filters = [weights[:n] / weights[:n].sum() for n in range(1, len(weights) + 1)]
         if reference_lengths is not None:
-            fixed = np.asarray(reference_lengths, dtype=np.float64)
+            fixed = np.array(reference_lengths, dtype=np.float64)  # a writable copy
             if fixed.shape != (skeleton.NUM_BONES,) or not np.all(fixed > 0):
                 raise ValueError(
                     f"reference_lengths: expected 19 positive lengths, got shape {fixed.shape}"
@@ -391,16 +403,26 @@ class ReliabilityEstimator:
 
     def reset(self, *, keep_reference: bool = False) -> None:
         """Forget the stream; with ``keep_reference`` keep the calibrated bone lengths."""
-        self._history = _History()
-        if not keep_reference:
-            cap = self.config.max_reference_frames
+        cfg = self.config
+        # The motion history: the last two root-relative frames and the last f_b angle vectors
+        # (oldest first), the last smoothing_frames minima (newest first) and how many of each
+        # are kept (with the calibration and tracked frames and the reference's source code, the
+        # counts the compiled frame updates in place).
+        self._recent = np.zeros((2, skeleton.NUM_JOINTS, 3))
+        self._angles = np.zeros((cfg.behaviour_frames, skeleton.NUM_JOINTS))
+        self._minima = np.zeros((cfg.smoothing_frames, skeleton.NUM_JOINTS))
+        self._minima_count = 0
+        counts = np.zeros(5, dtype=np.int64)
+        if keep_reference:
+            counts[2:] = self._counts[2:]
+        else:
+            cap = cfg.max_reference_frames
             self._neutral = np.empty((cap, skeleton.NUM_BONES))
-            self._neutral_count = 0
             self._tracked = np.full((cap, skeleton.NUM_BONES), np.nan)
-            self._tracked_count = 0
             self._ratios = SortedWindow()  # the finite values of _tracked / _prior
             self._reference: np.ndarray | None = None
-            self._source = "given" if self._fixed is not None else "prior-height"
+            counts[4] = _SOURCES.index("given" if self._fixed is not None else "prior-height")
+        self._counts: np.ndarray = counts
 
     def forget_motion(self) -> None:
         """Drop the motion history (after a gap in the stream) but keep the bone lengths."""
@@ -416,21 +438,23 @@ class ReliabilityEstimator:
     @property
     def reference_source(self) -> str:
         """Where the reference lengths come from: see the module docstring."""
-        return self._source
+        return _SOURCES[self._counts[4]]
 
     @property
     def calibration_frames(self) -> int:
         """Calibration frames seen so far (capped at ``max_reference_frames``)."""
-        return min(self._neutral_count, self.config.max_reference_frames)
+        return min(int(self._counts[2]), self.config.max_reference_frames)
 
     # ------------------------------------------------------------------ update
 
     def _update_reference(
         self, positions: np.ndarray, states: np.ndarray, lengths: np.ndarray
     ) -> bool:
+        """The reference bone lengths after this frame (module docstring); whether the frame
+        was a calibration frame."""
+        counts = self._counts
         if self._fixed is not None:
             self._reference = self._fixed
-            self._source = "given"
             return False
         cap = self.config.max_reference_frames
         tracked = states >= TRACKED
@@ -439,42 +463,72 @@ class ReliabilityEstimator:
             positions, self.config.neutral_tolerance_deg
         )
         if calibration:
-            self._neutral[self._neutral_count % cap] = lengths
-            self._neutral_count += 1
+            self._neutral[counts[2] % cap] = lengths
+            counts[2] += 1
         both = tracked[skeleton.BONES[:, 0]] & tracked[skeleton.BONES[:, 1]] & (lengths > 1e-6)
-        if both.any():
-            slot = self._tracked_count % cap
-            if self._tracked_count >= cap:  # the ring's oldest row leaves the window
+        # The tracked samples serve until the first calibration frame (then the reference is
+        # the calibration frames' median for good, until a reset forgets it).
+        if both.any() and not counts[2]:
+            slot = counts[3] % cap
+            if counts[3] >= cap:  # the ring's oldest row leaves the window
                 self._ratios.remove(self._tracked[slot] / self._prior)
             self._tracked[slot] = np.where(both, lengths, np.nan)
             self._ratios.add(self._tracked[slot] / self._prior)
-            self._tracked_count += 1
-        if self._neutral_count:
-            if calibration or self._source != "neutral":  # else the same rows, the same median
-                self._reference = np.median(self._neutral[: min(self._neutral_count, cap)], axis=0)
-            self._source = "neutral"
+            counts[3] += 1
+        if counts[2]:
+            if calibration or self.reference_source != "neutral":  # else the same median
+                self._reference = np.median(self._neutral[: min(counts[2], cap)], axis=0)
+            counts[4] = _SOURCES.index("neutral")
             return calibration
         prior = self._prior
-        if self._tracked_count:
+        if counts[3]:
             # One size factor for the whole body: the median ratio of every tracked bone sample
             # to the prior (robust to a minority of wrong samples, needs no bone seen often).
             scale = self._ratios.median()
             if self.config.fallback == "tracked-median":
-                rows = self._tracked[: min(self._tracked_count, cap)]
+                rows = self._tracked[: min(counts[3], cap)]
                 seen = np.any(np.isfinite(rows), axis=0)
                 median = np.full(skeleton.NUM_BONES, np.nan)
                 median[seen] = np.nanmedian(rows[:, seen], axis=0)
                 self._reference = np.where(seen, median, prior * scale)
-                self._source = "tracked-median"
+                counts[4] = _SOURCES.index("tracked-median")
             else:
                 self._reference = prior * scale
-                self._source = "scaled-prior"
+                counts[4] = _SOURCES.index("scaled-prior")
         else:
             scale = float(pose_utils.height(positions)) / self._prior_height
             scale = float(np.clip(scale, 0.5, 1.5)) if scale > 1e-3 else 1.0
             self._reference = prior * scale
-            self._source = "prior-height"
+            counts[4] = _SOURCES.index("prior-height")
         return False
+
+    def _behaviour(self, positions: np.ndarray) -> np.ndarray:
+        """``Rb`` of the frame (Shum §IV-A), the motion history updated: root-relative
+        displacements, the root's own in camera space."""
+        counts, recent, angles = self._counts, self._recent, self._angles
+        local = positions - positions[skeleton.ROOT]
+        local[skeleton.ROOT] = positions[skeleton.ROOT]
+        if counts[0] == 2:
+            angle = behaviour_angles(
+                local - recent[1], recent[1] - recent[0], self.config.min_displacement_m
+            )
+            if counts[1] == len(angles):  # the oldest leaves
+                angles[:-1] = angles[1:]
+                angles[-1] = angle
+            else:
+                angles[counts[1]] = angle
+                counts[1] += 1
+            recent[0] = recent[1]
+            recent[1] = local
+        else:
+            recent[counts[0]] = local
+            counts[0] += 1
+        kept = int(counts[1])
+        # The mean over the last f_b frames: the rows' sum in order, as np.mean sums them.
+        mean_angle = (
+            sum(angles[1:kept], angles[0]) / kept if kept else np.zeros(skeleton.NUM_JOINTS)
+        )
+        return behaviour_reliability(mean_angle, self.config)
 
     def update(self, positions: np.ndarray, states: np.ndarray) -> ReliabilityTerms:
         """Reliability of the next frame.
@@ -497,48 +551,40 @@ class ReliabilityEstimator:
         if states.shape != (skeleton.NUM_JOINTS,):
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
         cfg = self.config
-        history = self._history
-        lengths = pose_utils.bone_lengths(positions)
-        calibration = self._update_reference(positions, states, lengths)
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        if compiled is not None:  # one call up to the two matrix products, the same arithmetic
+            behaviour, deviation, tracking, calibration, body = self._compiled_terms(
+                compiled, positions, states
+            )
+        else:
+            lengths = pose_utils.bone_lengths(positions)
+            calibration = self._update_reference(positions, states, lengths)
+            assert self._reference is not None
+            behaviour = self._behaviour(positions)
+            tracking = tracking_reliability(states)
+            body = bool((states > 0).any())
         assert self._reference is not None
 
-        # Behaviour (Shum §IV-A): root-relative displacements, the root's own in camera space.
-        local = positions - positions[skeleton.ROOT]
-        local[skeleton.ROOT] = positions[skeleton.ROOT]
-        if len(history.positions) == 2:
-            angle = behaviour_angles(
-                local - history.positions[-1],
-                history.positions[-1] - history.positions[-2],
-                cfg.min_displacement_m,
+        # Kinematic (Shum §IV-B) and tracking state (FPG §5), the minimum entering the filter.
+        kept = self._minima_count = min(self._minima_count + 1, cfg.smoothing_frames)
+        minima = self._minima
+        if compiled is not None:
+            kinematic, minimum = compiled.newest_minimum(
+                behaviour, joint_means(deviation), tracking, minima, kept
             )
-            history.angles.append(angle)
-            del history.angles[: -cfg.behaviour_frames]
-        history.positions.append(local)
-        del history.positions[:-2]
-        # The mean over the last f_b frames: the rows' sum in order, as np.mean sums them.
-        mean_angle = (
-            sum(history.angles[1:], history.angles[0]) / len(history.angles)
-            if history.angles
-            else np.zeros(skeleton.NUM_JOINTS)
-        )
-        behaviour = behaviour_reliability(mean_angle, cfg)
-
-        # Kinematic (Shum §IV-B) and tracking state (FPG §5).
-        kinematic = kinematic_reliability(lengths, self._reference)
-        tracking = tracking_reliability(states)
-        minimum = np.minimum(np.minimum(behaviour, kinematic), tracking)
+        else:
+            kinematic = kinematic_reliability(lengths, self._reference)
+            minimum = np.minimum(np.minimum(behaviour, kinematic), tracking)
+            minima[1:kept] = minima[: kept - 1]
+            minima[0] = minimum
 
         # Gaussian temporal filter over the last 6 frames, newest heaviest.
-        history.minima.insert(0, minimum)
-        del history.minima[cfg.smoothing_frames :]
-        w = self._weights[: len(history.minima)]
-        reliability = (w / w.sum()) @ np.asarray(history.minima)
-        if not (states > 0).any():
+        reliability = self._filters[kept - 1] @ minima[:kept]
+        if not body:
             # No body in view: nothing the sensor says is reliable, whatever the filter holds,
             # and the positions must not enter the motion history.
             reliability = np.zeros(skeleton.NUM_JOINTS)
-            history.positions.clear()
-            history.angles.clear()
+            self._counts[:2] = 0
         return ReliabilityTerms(
             reliability=reliability,
             behaviour=behaviour,
@@ -546,9 +592,53 @@ class ReliabilityEstimator:
             tracking=tracking,
             minimum=minimum,
             reference_lengths=self._reference.copy(),
-            reference_source=self._source,
+            reference_source=self.reference_source,
             calibration_frame=calibration,
         )
+
+    def _compiled_terms(
+        self, compiled: Any, positions: np.ndarray, states: np.ndarray
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, bool]:
+        """:func:`fpg_gym.reconstruct.compiled_frame.reliability_frame` on this stream's state:
+        ``Rb``, the bones' deviations, ``Rt``, whether the frame calibrated, whether a body was
+        in view."""
+        cfg = self.config
+        if self._reference is None:
+            self._reference = (
+                self._fixed if self._fixed is not None else np.zeros(skeleton.NUM_BONES)
+            )
+        floor, span = _theta_bounds(cfg)
+        behaviour, deviation, tracking, window, calibration, body = compiled.reliability_frame(
+            np.ascontiguousarray(positions),
+            states,
+            self._recent,
+            self._angles,
+            self._counts,
+            self._neutral,
+            self._tracked,
+            self._ratios.values,
+            self._reference,
+            self._prior,
+            self._fixed is not None,
+            cfg.fallback == "tracked-median",
+            float(cfg.min_displacement_m),
+            floor,
+            span,
+            self._cos_tolerance,
+            self._prior_height,
+            TRACKED,
+            skeleton.ROOT,
+            _CALIBRATION_JOINTS,
+            _FACING,
+            pose_utils._DEGENERATE_LINE_M,
+            skeleton.BONES,
+            pose_utils.REST_DIRECTIONS,
+            _BODY_BONES,
+            _ARM_BONES,
+            _SIDEWAYS,
+        )
+        self._ratios.values = window
+        return behaviour, deviation, tracking, calibration, body
 
 
 def reliability_of_sequence(
