@@ -332,9 +332,8 @@ class SensorFusion:
         cfg = self.config
         database = np.asarray(database, dtype=np.float64)
         trust = np.asarray(trust, dtype=np.float64)
-        everywhere = np.full(skeleton.NUM_JOINTS, skeleton.TRACKED)
         filtered = np.asarray(
-            self._filter.update(np.asarray(sensor, dtype=np.float64), everywhere, timestamp),
+            self._filter.update_tracked(np.asarray(sensor, dtype=np.float64), timestamp),
             dtype=np.float64,
         )
         bone_trust = np.minimum(trust[_PARENT_BONE], trust[_CHILD_BONE])
@@ -345,19 +344,23 @@ class SensorFusion:
             if self.bone_model is None
             else self.bone_model.bone_vectors(np.where(trust[:, None] > 0.5, filtered, database))
         )
+        database_norms = np.linalg.norm(database_bones, axis=-1)
+        sensor_norms = np.linalg.norm(sensor_bones, axis=-1)
+        database_units = _unit(database_bones, database_norms)
+        sensor_units = _unit(sensor_bones, sensor_norms)
         # The user's lengths: the mean of the seen (modelled) bones, then the settling rule.
-        self._length_sum += np.where(seen, np.linalg.norm(sensor_bones, axis=-1), 0.0)
+        self._length_sum += np.where(seen, sensor_norms, 0.0)
         self._length_count += seen
         lengths = np.where(
             self._length_count > 0,
             self._length_sum / np.maximum(self._length_count, 1.0),
-            np.linalg.norm(database_bones, axis=-1),
+            database_norms,
         )
         lengths = self._settler.update(lengths, timestamp)
         # How well the database reproduces each bone while the sensor sees it.
         step = 0.0 if self._last_timestamp is None else timestamp - self._last_timestamp
         self._last_timestamp = timestamp
-        gap = np.linalg.norm(_unit(database_bones) - _unit(sensor_bones), axis=-1)
+        gap = np.linalg.norm(database_units - sensor_units, axis=-1)
         keep = np.exp(-max(step, 0.0) / cfg.agreement_s)
         mixed = np.where(
             np.isnan(self._disagreement), gap, keep * self._disagreement + (1.0 - keep) * gap
@@ -367,12 +370,12 @@ class SensorFusion:
         provisional = np.where(trust[:, None] > 0.5, filtered, database)
         parent_frames = joint_frames(provisional)[_PARENT_BONE]  # (19, 3, 3)
         held = np.einsum("bij,bj->bi", parent_frames, self._held)
-        held = np.where(np.isnan(held), _unit(database_bones), held)
+        held = np.where(np.isnan(held), database_units, held)
         self._last_seen = np.where(seen, timestamp, self._last_seen)
         share = self.database_share(timestamp)[:, None]
-        lost = share * _unit(database_bones) + (1.0 - share) * held
+        lost = share * database_units + (1.0 - share) * held
         weight = bone_trust[:, None]
-        bones = weight * _with_lengths(sensor_bones, lengths) + (1.0 - weight) * _with_lengths(
+        bones = weight * (sensor_units * lengths[:, None]) + (1.0 - weight) * _with_lengths(
             lost, lengths
         )
         pose = fuse_positions(
@@ -383,7 +386,7 @@ class SensorFusion:
             "bji,bj->bi", joint_frames(pose)[_PARENT_BONE], _unit(pose_utils.bone_vectors(pose))
         )
         self._held = np.where(seen[:, None], local, self._held)
-        pose = np.asarray(self._output_filter.update(pose, everywhere, timestamp), dtype=np.float64)
+        pose = np.asarray(self._output_filter.update_tracked(pose, timestamp), dtype=np.float64)
         if cfg.lengths == "retarget":
             return np.asarray(pose_utils.retarget(pose, lengths), dtype=np.float64)
         if cfg.lengths == "solve":  # the same directions at the settled lengths, stiffly
@@ -392,8 +395,11 @@ class SensorFusion:
         return pose
 
 
-def _unit(vectors: np.ndarray) -> np.ndarray:
-    return np.asarray(vectors / np.maximum(np.linalg.norm(vectors, axis=-1, keepdims=True), 1e-9))
+def _unit(vectors: np.ndarray, norms: np.ndarray | None = None) -> np.ndarray:
+    """``vectors / max(|vectors|, 1e-9)`` row by row (``norms``: their lengths, if known)."""
+    if norms is None:
+        norms = np.linalg.norm(vectors, axis=-1)
+    return np.asarray(vectors / np.maximum(norms[..., None], 1e-9))
 
 
 def _with_lengths(vectors: np.ndarray, lengths: np.ndarray) -> np.ndarray:
