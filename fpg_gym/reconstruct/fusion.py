@@ -336,14 +336,74 @@ class SensorFusion:
             self._filter.update_tracked(np.asarray(sensor, dtype=np.float64), timestamp),
             dtype=np.float64,
         )
-        bone_trust = np.minimum(trust[_PARENT_BONE], trust[_CHILD_BONE])
-        seen = bone_trust > 0.9
-        database_bones = pose_utils.bone_vectors(database)
+        provisional = np.where(trust[:, None] > 0.5, filtered, database)
         sensor_bones = (
             pose_utils.bone_vectors(filtered)
             if self.bone_model is None
-            else self.bone_model.bone_vectors(np.where(trust[:, None] > 0.5, filtered, database))
+            else self.bone_model.bone_vectors(provisional)
         )
+        step = 0.0 if self._last_timestamp is None else timestamp - self._last_timestamp
+        self._last_timestamp = timestamp
+        keep = np.exp(-max(step, 0.0) / cfg.agreement_s)
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        if compiled is not None:  # three calls around numpy's exp, frames and solve
+            bone_trust, estimate, database_units, sensor_units = compiled.fusion_bone_terms(
+                np.ascontiguousarray(trust),
+                np.ascontiguousarray(database),
+                np.ascontiguousarray(sensor_bones, dtype=np.float64),
+                skeleton.BONES,
+                self._length_sum,
+                self._length_count,
+                self._disagreement,
+                keep,
+            )
+            seen = bone_trust > 0.9
+            lengths = self._settler.update(estimate, timestamp)
+            self._last_seen = np.where(seen, timestamp, self._last_seen)
+            bones = compiled.fusion_bones(
+                joint_frames(provisional)[_PARENT_BONE],
+                self._held,
+                database_units,
+                sensor_units,
+                self.database_share(timestamp),
+                bone_trust,
+                lengths,
+            )
+            pose = fuse_positions(
+                filtered, trust, database, bones, cfg.bone_weight, cfg.database_weight
+            )
+            pose = np.ascontiguousarray(pose)
+            compiled.held_directions(
+                pose, joint_frames(pose)[_PARENT_BONE], skeleton.BONES, bone_trust, self._held
+            )
+        else:
+            pose, lengths = self._fuse(
+                database, filtered, trust, provisional, sensor_bones, keep, timestamp
+            )
+        pose = np.asarray(self._output_filter.update_tracked(pose, timestamp), dtype=np.float64)
+        if cfg.lengths == "retarget":
+            return np.asarray(pose_utils.retarget(pose, lengths), dtype=np.float64)
+        if cfg.lengths == "solve":  # the same directions at the settled lengths, stiffly
+            own = _with_lengths(pose_utils.bone_vectors(pose), lengths)
+            return fuse_positions(pose, trust, database, own, 100.0, cfg.database_weight)
+        return pose
+
+    def _fuse(
+        self,
+        database: np.ndarray,
+        filtered: np.ndarray,
+        trust: np.ndarray,
+        provisional: np.ndarray,
+        sensor_bones: np.ndarray,
+        keep: float,
+        timestamp: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`update`'s fused pose before the output filter and the settled lengths, the
+        state updated (the definition of its compiled calls)."""
+        cfg = self.config
+        bone_trust = np.minimum(trust[_PARENT_BONE], trust[_CHILD_BONE])
+        seen = bone_trust > 0.9
+        database_bones = pose_utils.bone_vectors(database)
         database_norms = np.linalg.norm(database_bones, axis=-1)
         sensor_norms = np.linalg.norm(sensor_bones, axis=-1)
         database_units = _unit(database_bones, database_norms)
@@ -358,16 +418,12 @@ class SensorFusion:
         )
         lengths = self._settler.update(lengths, timestamp)
         # How well the database reproduces each bone while the sensor sees it.
-        step = 0.0 if self._last_timestamp is None else timestamp - self._last_timestamp
-        self._last_timestamp = timestamp
         gap = np.linalg.norm(database_units - sensor_units, axis=-1)
-        keep = np.exp(-max(step, 0.0) / cfg.agreement_s)
         mixed = np.where(
             np.isnan(self._disagreement), gap, keep * self._disagreement + (1.0 - keep) * gap
         )
         self._disagreement = np.where(seen, mixed, self._disagreement)
         # A lost bone: the database's, or the held one turned with its parent's frame.
-        provisional = np.where(trust[:, None] > 0.5, filtered, database)
         parent_frames = joint_frames(provisional)[_PARENT_BONE]  # (19, 3, 3)
         held = np.einsum("bij,bj->bi", parent_frames, self._held)
         held = np.where(np.isnan(held), database_units, held)
@@ -386,13 +442,7 @@ class SensorFusion:
             "bji,bj->bi", joint_frames(pose)[_PARENT_BONE], _unit(pose_utils.bone_vectors(pose))
         )
         self._held = np.where(seen[:, None], local, self._held)
-        pose = np.asarray(self._output_filter.update_tracked(pose, timestamp), dtype=np.float64)
-        if cfg.lengths == "retarget":
-            return np.asarray(pose_utils.retarget(pose, lengths), dtype=np.float64)
-        if cfg.lengths == "solve":  # the same directions at the settled lengths, stiffly
-            own = _with_lengths(pose_utils.bone_vectors(pose), lengths)
-            return fuse_positions(pose, trust, database, own, 100.0, cfg.database_weight)
-        return pose
+        return pose, lengths
 
 
 def _unit(vectors: np.ndarray, norms: np.ndarray | None = None) -> np.ndarray:
