@@ -340,10 +340,11 @@ class SensorFusion:
             dtype=np.float64,
         )
         provisional = np.where(trust[:, None] > 0.5, filtered, database)
-        sensor_bones = (
+        sensor_bones = np.ascontiguousarray(
             pose_utils.bone_vectors(filtered)
             if self.bone_model is None
-            else self.bone_model.bone_vectors(provisional)
+            else self.bone_model.bone_vectors(provisional),
+            dtype=np.float64,
         )
         step = 0.0 if self._last_timestamp is None else timestamp - self._last_timestamp
         self._last_timestamp = timestamp
@@ -353,7 +354,7 @@ class SensorFusion:
             bone_trust, estimate, database_units, sensor_units = compiled.fusion_bone_terms(
                 np.ascontiguousarray(trust),
                 np.ascontiguousarray(database),
-                np.ascontiguousarray(sensor_bones, dtype=np.float64),
+                sensor_bones,
                 skeleton.BONES,
                 self._length_sum,
                 self._length_count,
