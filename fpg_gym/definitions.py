@@ -182,6 +182,11 @@ def joint_frames(poses: npt.ArrayLike) -> np.ndarray:
     p = np.asarray(poses, dtype=np.float64)
     if p.shape[-2:] != (skeleton.NUM_JOINTS, 3):
         raise ValueError(f"poses: expected shape (..., 20, 3), got {p.shape}")
+    if p.shape == (skeleton.NUM_JOINTS, 3):
+        compiled = compiled_module("fpg_gym.core.compiled_poses")
+        frames_of_pose = None if compiled is None else _pose_frames(compiled, p)
+        if frames_of_pose is not None:
+            return frames_of_pose
     pelvis = _trunk_frame(
         p[..., _J("HipLeft"), :] - p[..., _J("HipRight"), :],
         p[..., _J("ShoulderCenter"), :] - p[..., _J("HipCenter"), :],
@@ -201,6 +206,27 @@ def joint_frames(poses: npt.ArrayLike) -> np.ndarray:
     quaternion = shortest_arc(np.broadcast_to(_BONE_REST, local.shape), local)  # (x, y, z, w)
     turn = quaternion_to_matrix(quaternion[..., [3, 0, 1, 2]])
     frames[..., _BONE_JOINTS, :, :] = base @ turn
+    return frames
+
+
+def _pose_frames(compiled: Any, pose: np.ndarray) -> np.ndarray | None:
+    """:func:`joint_frames` of one pose ``(20, 3)`` float64 in one compiled call and numpy's
+    product of the bones' base frames and turns (its operations in its order); None when a
+    bone points opposite its rest direction."""
+    trunks, base, turn, ok = compiled.bone_frame_turns(
+        np.ascontiguousarray(pose),
+        _TRUNK_JOINTS,
+        _BONE_ENDS,
+        _BONE_PARENTS,
+        _BONE_ON_THORAX,
+        _BONE_REST,
+    )
+    if not ok:
+        return None
+    frames = np.empty((skeleton.NUM_JOINTS, 3, 3))
+    frames[_PELVIS_JOINTS] = trunks[0]
+    frames[_THORAX_JOINTS] = trunks[1]
+    frames[_BONE_JOINTS] = base @ turn
     return frames
 
 

@@ -51,10 +51,11 @@ def test_frames_are_rotations_that_move_with_the_body(rng):
     np.testing.assert_allclose(joint_frames(moved), rotation @ frames, atol=1e-9)
 
 
-def test_one_pose_map_in_compiled_calls_is_the_numpy_map_to_the_bit(rng):
-    """``DefinitionMap.apply`` of one pose through ``compiled_poses.bone_frame_turns`` and
-    ``offset_pose`` (with numba) against its numpy code: equal to the bit on varied and
-    random poses, and a bone pointing opposite its rest direction takes the numpy path."""
+def test_one_pose_map_and_frames_in_compiled_calls_are_the_numpy_code_to_the_bit(rng):
+    """``DefinitionMap.apply`` and ``joint_frames`` of one pose through
+    ``compiled_poses.bone_frame_turns`` (and ``offset_pose``; with numba) against their numpy
+    code: equal to the bit on varied and random poses, and a bone pointing opposite its rest
+    direction takes the numpy path."""
     from fpg_gym.core.compiled import numpy_only
 
     mapping = packaged_map(KINECT_V2_TO_VICON)
@@ -62,12 +63,16 @@ def test_one_pose_map_in_compiled_calls_is_the_numpy_map_to_the_bit(rng):
     opposite = poses.rest_pose().astype(np.float64)
     opposite[J("Head")] = 2 * opposite[J("ShoulderCenter")] - opposite[J("Head")]  # head down
     for pose in [*sample, opposite]:
-        mapped = mapping.apply(pose)
+        mapped, frames = mapping.apply(pose), joint_frames(pose)
         with numpy_only():
-            reference = mapping.apply(pose)
+            reference, reference_frames = mapping.apply(pose), joint_frames(pose)
         np.testing.assert_array_equal(mapped, reference)
+        np.testing.assert_array_equal(frames, reference_frames)
     np.testing.assert_array_equal(
         mapping.apply(np.stack(sample[:5])), np.stack([mapping.apply(p) for p in sample[:5]])
+    )
+    np.testing.assert_array_equal(
+        joint_frames(np.stack(sample[:5])), np.stack([joint_frames(p) for p in sample[:5]])
     )
 
 

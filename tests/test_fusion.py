@@ -187,6 +187,43 @@ def test_fusion_holds_a_lost_limb_where_it_was_moving_with_the_body() -> None:
     assert np.abs(out - moved).max() < 0.02
 
 
+@pytest.mark.parametrize("lengths", ["retarget", "solve", "none"])
+def test_fusion_in_compiled_calls_is_the_numpy_fusion_to_the_bit(lengths: str) -> None:
+    """``SensorFusion.update`` through ``compiled_frame.fusion_bone_terms``, ``fusion_bones``
+    and ``held_directions`` (with numba) against its numpy code on a noisy stream whose limbs
+    are lost and found again (held bones, the database's share, the settling): the same poses
+    and state to the bit, with and without a bone model."""
+    import contextlib
+
+    from fpg_gym.core.compiled import numpy_only
+
+    rng = np.random.default_rng(5)
+    pose = poses.rest_pose().astype(np.float64)
+    count = 90
+    sensor = (
+        pose + rng.normal(0.0, 0.01, (count, 20, 3)) + np.linspace(0, 0.3, count)[:, None, None]
+    )
+    database = sensor + rng.normal(0.0, 0.02, (count, 20, 3))
+    trust = rng.uniform(0.8, 1.0, (count, 20))
+    trust[30:50, [_J("WristLeft"), _J("HandLeft")]] = 0.0  # lost, then found again
+    trust[40:70, [_J("KneeRight"), _J("AnkleRight"), _J("FootRight")]] = 0.3
+    trust[:20, _J("FootLeft")] = 0.0  # never seen before frame 20
+    config = FusionConfig(enabled=True, lengths=lengths)
+    for model in (None, packaged_bone_model("kinect-v2-to-vicon")):
+        runs = []
+        for hidden in (False, True):
+            with numpy_only() if hidden else contextlib.nullcontext():
+                fusion = SensorFusion(config, bone_model=model)
+                out = [
+                    fusion.update(database[t], sensor[t], trust[t], t / 30.0) for t in range(count)
+                ]
+                state = (fusion._held, fusion._disagreement, fusion._last_seen, fusion._length_sum)
+                runs.append((np.array(out), *state))
+        for compiled, reference in zip(*runs, strict=True):
+            np.testing.assert_array_equal(compiled, reference)
+        assert np.isfinite(runs[0][0]).all()
+
+
 # --------------------------------------------------------------------------- bone model
 
 

@@ -301,13 +301,16 @@ class SensorFusion:
         database's)."""
         cfg = self.config
         span = cfg.agreement_bad - cfg.agreement_good
-        agreement = np.clip((cfg.agreement_bad - self._disagreement) / span, 0.0, 1.0)
+        # np.clip's rule, min(max(x, 0), 1), without its wrapper's cost.
+        agreement = np.minimum(
+            np.maximum((cfg.agreement_bad - self._disagreement) / span, 0.0), 1.0
+        )
         agreement = np.where(np.isnan(self._disagreement), 0.5, agreement)
-        lost_for = timestamp - self._last_seen
+        lost_for = timestamp - self._last_seen  # NaN for a bone never seen (its share is 1)
         if cfg.hold_s == 0.0:
             fade = np.ones(skeleton.NUM_BONES)
         else:
-            fade = 1.0 - np.exp(-np.maximum(np.nan_to_num(lost_for), 0.0) / cfg.hold_s)
+            fade = 1.0 - np.exp(-np.maximum(lost_for, 0.0) / cfg.hold_s)
         return np.where(np.isnan(self._last_seen), 1.0, agreement * fade)
 
     def update(
@@ -332,47 +335,107 @@ class SensorFusion:
         cfg = self.config
         database = np.asarray(database, dtype=np.float64)
         trust = np.asarray(trust, dtype=np.float64)
-        everywhere = np.full(skeleton.NUM_JOINTS, skeleton.TRACKED)
         filtered = np.asarray(
-            self._filter.update(np.asarray(sensor, dtype=np.float64), everywhere, timestamp),
+            self._filter.update_tracked(np.asarray(sensor, dtype=np.float64), timestamp),
             dtype=np.float64,
         )
+        provisional = np.where(trust[:, None] > 0.5, filtered, database)
+        sensor_bones = np.ascontiguousarray(
+            pose_utils.bone_vectors(filtered)
+            if self.bone_model is None
+            else self.bone_model.bone_vectors(provisional),
+            dtype=np.float64,
+        )
+        step = 0.0 if self._last_timestamp is None else timestamp - self._last_timestamp
+        self._last_timestamp = timestamp
+        keep = np.exp(-max(step, 0.0) / cfg.agreement_s)
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        if compiled is not None:  # three calls around numpy's exp, frames and solve
+            bone_trust, estimate, database_units, sensor_units = compiled.fusion_bone_terms(
+                np.ascontiguousarray(trust),
+                np.ascontiguousarray(database),
+                sensor_bones,
+                skeleton.BONES,
+                self._length_sum,
+                self._length_count,
+                self._disagreement,
+                keep,
+            )
+            seen = bone_trust > 0.9
+            lengths = self._settler.update(estimate, timestamp)
+            self._last_seen = np.where(seen, timestamp, self._last_seen)
+            bones = compiled.fusion_bones(
+                joint_frames(provisional)[_PARENT_BONE],
+                self._held,
+                database_units,
+                sensor_units,
+                self.database_share(timestamp),
+                bone_trust,
+                lengths,
+            )
+            pose = fuse_positions(
+                filtered, trust, database, bones, cfg.bone_weight, cfg.database_weight
+            )
+            pose = np.ascontiguousarray(pose)
+            compiled.held_directions(
+                pose, joint_frames(pose)[_PARENT_BONE], skeleton.BONES, bone_trust, self._held
+            )
+        else:
+            pose, lengths = self._fuse(
+                database, filtered, trust, provisional, sensor_bones, keep, timestamp
+            )
+        pose = np.asarray(self._output_filter.update_tracked(pose, timestamp), dtype=np.float64)
+        if cfg.lengths == "retarget":
+            return np.asarray(pose_utils.retarget(pose, lengths), dtype=np.float64)
+        if cfg.lengths == "solve":  # the same directions at the settled lengths, stiffly
+            own = _with_lengths(pose_utils.bone_vectors(pose), lengths)
+            return fuse_positions(pose, trust, database, own, 100.0, cfg.database_weight)
+        return pose
+
+    def _fuse(
+        self,
+        database: np.ndarray,
+        filtered: np.ndarray,
+        trust: np.ndarray,
+        provisional: np.ndarray,
+        sensor_bones: np.ndarray,
+        keep: float,
+        timestamp: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """:meth:`update`'s fused pose before the output filter and the settled lengths, the
+        state updated (the definition of its compiled calls)."""
+        cfg = self.config
         bone_trust = np.minimum(trust[_PARENT_BONE], trust[_CHILD_BONE])
         seen = bone_trust > 0.9
         database_bones = pose_utils.bone_vectors(database)
-        sensor_bones = (
-            pose_utils.bone_vectors(filtered)
-            if self.bone_model is None
-            else self.bone_model.bone_vectors(np.where(trust[:, None] > 0.5, filtered, database))
-        )
+        database_norms = np.linalg.norm(database_bones, axis=-1)
+        sensor_norms = np.linalg.norm(sensor_bones, axis=-1)
+        database_units = _unit(database_bones, database_norms)
+        sensor_units = _unit(sensor_bones, sensor_norms)
         # The user's lengths: the mean of the seen (modelled) bones, then the settling rule.
-        self._length_sum += np.where(seen, np.linalg.norm(sensor_bones, axis=-1), 0.0)
+        self._length_sum += np.where(seen, sensor_norms, 0.0)
         self._length_count += seen
         lengths = np.where(
             self._length_count > 0,
             self._length_sum / np.maximum(self._length_count, 1.0),
-            np.linalg.norm(database_bones, axis=-1),
+            database_norms,
         )
         lengths = self._settler.update(lengths, timestamp)
         # How well the database reproduces each bone while the sensor sees it.
-        step = 0.0 if self._last_timestamp is None else timestamp - self._last_timestamp
-        self._last_timestamp = timestamp
-        gap = np.linalg.norm(_unit(database_bones) - _unit(sensor_bones), axis=-1)
-        keep = np.exp(-max(step, 0.0) / cfg.agreement_s)
+        gap = np.linalg.norm(database_units - sensor_units, axis=-1)
         mixed = np.where(
             np.isnan(self._disagreement), gap, keep * self._disagreement + (1.0 - keep) * gap
         )
         self._disagreement = np.where(seen, mixed, self._disagreement)
         # A lost bone: the database's, or the held one turned with its parent's frame.
-        provisional = np.where(trust[:, None] > 0.5, filtered, database)
         parent_frames = joint_frames(provisional)[_PARENT_BONE]  # (19, 3, 3)
         held = np.einsum("bij,bj->bi", parent_frames, self._held)
-        held = np.where(np.isnan(held), _unit(database_bones), held)
+        held = np.where(np.isnan(held), database_units, held)
         self._last_seen = np.where(seen, timestamp, self._last_seen)
         share = self.database_share(timestamp)[:, None]
-        lost = share * _unit(database_bones) + (1.0 - share) * held
+        lost = share * database_units + (1.0 - share) * held
         weight = bone_trust[:, None]
-        bones = weight * _with_lengths(sensor_bones, lengths) + (1.0 - weight) * _with_lengths(
+        bones = weight * (sensor_units * lengths[:, None]) + (1.0 - weight) * _with_lengths(
             lost, lengths
         )
         pose = fuse_positions(
@@ -383,17 +446,14 @@ class SensorFusion:
             "bji,bj->bi", joint_frames(pose)[_PARENT_BONE], _unit(pose_utils.bone_vectors(pose))
         )
         self._held = np.where(seen[:, None], local, self._held)
-        pose = np.asarray(self._output_filter.update(pose, everywhere, timestamp), dtype=np.float64)
-        if cfg.lengths == "retarget":
-            return np.asarray(pose_utils.retarget(pose, lengths), dtype=np.float64)
-        if cfg.lengths == "solve":  # the same directions at the settled lengths, stiffly
-            own = _with_lengths(pose_utils.bone_vectors(pose), lengths)
-            return fuse_positions(pose, trust, database, own, 100.0, cfg.database_weight)
-        return pose
+        return pose, lengths
 
 
-def _unit(vectors: np.ndarray) -> np.ndarray:
-    return np.asarray(vectors / np.maximum(np.linalg.norm(vectors, axis=-1, keepdims=True), 1e-9))
+def _unit(vectors: np.ndarray, norms: np.ndarray | None = None) -> np.ndarray:
+    """``vectors / max(|vectors|, 1e-9)`` row by row (``norms``: their lengths, if known)."""
+    if norms is None:
+        norms = np.linalg.norm(vectors, axis=-1)
+    return np.asarray(vectors / np.maximum(norms[..., None], 1e-9))
 
 
 def _with_lengths(vectors: np.ndarray, lengths: np.ndarray) -> np.ndarray:
