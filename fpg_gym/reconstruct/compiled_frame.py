@@ -339,11 +339,11 @@ def continuity_poses(last, before, root, yaw, ratio, damping):
     (``before`` with no rows: one output only): each root-relative and turned by ``-yaw``
     (``place_pose``), and the prediction ``previous + (previous - before) * ratio``, its velocity
     scaled by ``damping`` (FPG Eq. 6; the same operations as the numpy code, to the bit)."""
-    previous = place_pose(last, last[root], yaw, False)
+    previous = place_pose(last, last[root], yaw, np.bool_(False))  # not Literal: one signature
     prediction = previous.copy()
     if before.shape[0] == 0:
         return previous, prediction
-    turned = place_pose(before, before[root], yaw, False)
+    turned = place_pose(before, before[root], yaw, np.bool_(False))
     for j in range(previous.shape[0]):
         for c in range(3):
             target = previous[j, c] + (previous[j, c] - turned[j, c]) * ratio
