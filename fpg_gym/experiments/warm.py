@@ -6,8 +6,9 @@ twenty seconds of kernels, once. :func:`warm_kernels` does it ahead of time by r
 methods on a short simulated stream, alone and side by side with another, so that every kernel
 compiles with the argument types the real runs use; with ``workers > 1`` this process and
 ``workers - 1`` new ones run them with only their share of the compiled modules switched on
-(:func:`fpg_gym.core.compiled.only_compiled`), so the modules compile in parallel and none twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the
-cache is cold (a compare's workers would otherwise each compile every kernel).
+(:func:`fpg_gym.core.compiled.only_compiled`), so the modules compile in parallel and none
+twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the cache is cold (a
+compare's workers would otherwise each compile every kernel).
 """
 
 from __future__ import annotations
