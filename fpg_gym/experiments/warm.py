@@ -2,9 +2,9 @@
 
 With ``fpg-gym[fast]`` the kernels compile on first use and are cached on disk (numba's
 ``cache=True``, in ``__pycache__`` beside their modules): a fresh installation compiles some
-twenty seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the demo's
-methods on a short simulated stream, alone and side by side with another, so that every kernel
-compiles with the argument types the real runs use; with ``workers > 1`` this process and
+sixteen CPU seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the
+demo's methods on a short simulated stream, alone and side by side with another, so that every
+kernel compiles with the argument types the real runs use; with ``workers > 1`` this process and
 ``workers - 1`` new ones run them with only their share of the compiled modules switched on
 (:func:`fpg_gym.core.compiled.only_compiled`), so the modules compile in parallel and none
 twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the cache is cold (a
