@@ -359,7 +359,7 @@ def finish_pose(local, lengths, root, yaw, bones, rest_directions):
     retargeted to ``lengths`` (``retarget_pose``, float32), then put back at ``root`` and
     ``yaw`` in float64 (``place_pose``) and returned as float32 (the numpy code's operations)."""
     retargeted = retarget_pose(local, lengths, bones, rest_directions)
-    placed = place_pose(retargeted.astype(np.float64), root, yaw, True)
+    placed = place_pose(retargeted.astype(np.float64), root, yaw, np.bool_(True))  # not Literal
     return placed.astype(np.float32)
 
 
