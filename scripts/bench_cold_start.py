@@ -126,8 +126,10 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--rounds", type=int, default=2)
     parser.add_argument("--kernels", action="store_true", help="list what each cold demo compiled")
     parser.add_argument("--json", type=Path, default=None, help="write the figures here")
-    parser.add_argument("demo_args", nargs="*", help="after --: arguments of fpg-gym demo")
-    args = parser.parse_args(argv)
+    argv = sys.argv[1:] if argv is None else argv
+    split = argv.index("--") if "--" in argv else len(argv)
+    args = parser.parse_args(argv[:split])  # after "--": fpg-gym demo's own arguments
+    args.demo_args = argv[split + 1 :]
     figures: dict[str, list[dict[str, Any]]] = {}
     for round_ in range(args.rounds):
         for checkout in args.checkouts if round_ % 2 == 0 else args.checkouts[::-1]:
