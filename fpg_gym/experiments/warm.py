@@ -105,7 +105,7 @@ def _run_methods(modules: Sequence[str], frames: int) -> None:
                 runner.run_many(method, recordings, [0, 1])
 
 
-def warm_kernels(workers: int = 1, *, frames: int = 8) -> float:
+def warm_kernels(workers: int = 1, *, frames: int = 40) -> float:
     """Compile (or load from the disk cache) every kernel the demo's methods run.
 
     Parameters
@@ -113,9 +113,8 @@ def warm_kernels(workers: int = 1, *, frames: int = 8) -> float:
     workers : int
         Processes sharing the compilation (1: in this process).
     frames : int
-        Frames of the streams the methods run: by the eighth frame every kernel has run with
-        the argument types of a whole stream (``tests/test_warm_up.py`` runs 40 frames after a
-        warm-up and checks that nothing more compiles); more frames only add run time.
+        Frames of the streams the methods run (more than a second, so that the bones settle
+        and the ragdoll is rebuilt as in a real run: kernels that run only then compile too).
 
     Returns
     -------
