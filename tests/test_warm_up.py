@@ -50,13 +50,22 @@ missed = [
 ]
 print("compiled after the warm-up:", missed)
 assert not missed
+several = [
+    f"{m}.{n}: {d.signatures}"
+    for m in COMPILED_MODULES
+    for n, d in vars(importlib.import_module(m)).items()
+    if isinstance(d, Dispatcher) and len(d.signatures) > 1
+]
+print("kernels compiled for several argument types:", several)
+assert not several
 """
 
 
 @pytest.mark.slow
 def test_parallel_warm_up_compiles_everything_the_methods_run(tmp_path: Path) -> None:
     """A fresh numba cache: ``fpg-gym warm-up --workers 2`` (each process compiling its share),
-    then a new process running every warm-up method compiles nothing more."""
+    then a new process running every warm-up method compiles nothing more, and each kernel it
+    runs for one set of argument types only (a second would compile again on a fresh install)."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     warm = [sys.executable, "-m", "fpg_gym.cli", "warm-up", "--workers", "2"]
     subprocess.run(warm, env=env, check=True, capture_output=True, text=True)

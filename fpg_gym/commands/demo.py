@@ -13,7 +13,7 @@ HELP = (
     "the whole job on the packaged data (no files needed): real Kinect v2 repetitions against "
     "Vicon, with and without occlusions, then simulated Kinect episodes of the embedded clips; "
     "filters vs reconstruction, tables, plots and a GIF (34 s, 33 CPU s, on a shared 2-core "
-    "machine at load 3.3; 126 s the first time, which compiles the numba kernels)"
+    "machine at load 3.3; 50 s the first time, which compiles the numba kernels)"
 )
 
 

@@ -2,12 +2,13 @@
 
 With ``fpg-gym[fast]`` the kernels compile on first use and are cached on disk (numba's
 ``cache=True``, in ``__pycache__`` beside their modules): a fresh installation compiles some
-twenty seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the demo's
-methods on a short simulated stream, so that every kernel compiles with the argument types the
-real runs use; with ``workers > 1`` each process runs them with only its share of the compiled
-modules switched on (:func:`fpg_gym.core.compiled.only_compiled`), so the modules compile in
-parallel and none twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the
-cache is cold (a compare's workers would otherwise each compile every kernel).
+sixteen CPU seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the
+demo's methods on a short simulated stream, alone and side by side with another, so that every
+kernel compiles with the argument types the real runs use; with ``workers > 1`` this process and
+``workers - 1`` new ones run them with only their share of the compiled modules switched on
+(:func:`fpg_gym.core.compiled.only_compiled`), so the modules compile in parallel and none
+twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the cache is cold (a
+compare's workers would otherwise each compile every kernel).
 """
 
 from __future__ import annotations
@@ -41,8 +42,8 @@ WARM_UP_METHODS: tuple[str, ...] = (
 )
 
 #: The compiled modules in units that compile together (the compiled local search and the
-#: compiled latent space run only with the compiled energy kernel), with the seconds each unit
-#: took to compile on the shared 2-core machine (to share the units out between processes).
+#: compiled latent space run only with the compiled energy kernel), with the CPU seconds each
+#: unit took to compile on the shared 2-core machine (to share the units out between processes).
 _UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
     (
         (
@@ -50,12 +51,12 @@ _UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
             "fpg_gym.reconstruct.compiled_search",
             "fpg_gym.reconstruct.compiled_frame",
         ),
-        14.0,
+        7.8,
     ),
-    (("fpg_gym.reconstruct.compiled_selection",), 7.5),
-    (("fpg_gym.physics.compiled_ragdoll",), 5.0),
-    (("fpg_gym.core.compiled_poses",), 2.5),
-    (("fpg_gym.filters.compiled_filters",), 2.0),
+    (("fpg_gym.reconstruct.compiled_selection",), 3.2),
+    (("fpg_gym.physics.compiled_ragdoll",), 2.2),
+    (("fpg_gym.core.compiled_poses",), 1.3),
+    (("fpg_gym.filters.compiled_filters",), 0.9),
 )
 
 #: Kernels that the first frame of any reconstruction runs: cached means warm.
@@ -89,17 +90,26 @@ def _shares(workers: int) -> list[tuple[str, ...]]:
     return [tuple(share) for share in shares if share]
 
 
+#: Frames of the two streams run side by side (the stacked kernels run from the first frame).
+_SIDE_BY_SIDE_FRAMES = 4
+
+
 def _run_methods(modules: Sequence[str], frames: int) -> None:
-    """Every warm-up method on the first ``frames`` frames of a simulated held-out clip, with
-    only ``modules`` compiled."""
+    """Every warm-up method on the first ``frames`` frames of a simulated held-out clip, and on
+    two short streams side by side (a compare's batches: the stacked kernels), with only
+    ``modules`` compiled."""
     graph = default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)  # the demo's graph, from the cache
     clip = load_default_clips([DEFAULT_HOLDOUT_CLIPS[0]])
-    recording = simulate_clips(clip, ["front-many"], [0], max_frames=frames)[0]
+    (recording,) = simulate_clips(clip, ["front-many"], [0], max_frames=frames)
+    pair = simulate_clips(
+        clip, ["front-many"], [0, 1], max_frames=min(frames, _SIDE_BY_SIDE_FRAMES)
+    )
     with only_compiled(modules), warnings.catch_warnings():
         warnings.simplefilter("ignore", PhysicsWarning)
         with MethodRunner(graph) as runner:
             for method in WARM_UP_METHODS:
                 runner.run(method, recording, 0)
+                runner.run_many(method, pair, [0, 1])
 
 
 def warm_kernels(workers: int = 1, *, frames: int = 40) -> float:
@@ -110,8 +120,8 @@ def warm_kernels(workers: int = 1, *, frames: int = 40) -> float:
     workers : int
         Processes sharing the compilation (1: in this process).
     frames : int
-        Frames of the stream the methods run (more than a second, so that the bones settle and
-        the ragdoll is rebuilt as in a real run).
+        Frames of the streams the methods run (more than a second, so that the bones settle
+        and the ragdoll is rebuilt as in a real run: kernels that run only then compile too).
 
     Returns
     -------
@@ -125,9 +135,11 @@ def warm_kernels(workers: int = 1, *, frames: int = 40) -> float:
     shares = _shares(max(1, int(workers)))
     if len(shares) == 1:
         _run_methods(shares[0], frames)
-    else:
+    else:  # the largest share here (imported already), the others in new processes meanwhile
         context = multiprocessing.get_context("spawn")
-        with ProcessPoolExecutor(len(shares), mp_context=context) as pool:
-            for done in [pool.submit(_run_methods, share, frames) for share in shares]:
+        with ProcessPoolExecutor(len(shares) - 1, mp_context=context) as pool:
+            others = [pool.submit(_run_methods, share, frames) for share in shares[1:]]
+            _run_methods(shares[0], frames)
+            for done in others:
                 done.result()
     return time.perf_counter() - started

@@ -339,11 +339,11 @@ def continuity_poses(last, before, root, yaw, ratio, damping):
     (``before`` with no rows: one output only): each root-relative and turned by ``-yaw``
     (``place_pose``), and the prediction ``previous + (previous - before) * ratio``, its velocity
     scaled by ``damping`` (FPG Eq. 6; the same operations as the numpy code, to the bit)."""
-    previous = place_pose(last, last[root], yaw, False)
+    previous = place_pose(last, last[root], yaw, np.bool_(False))  # not Literal: one signature
     prediction = previous.copy()
     if before.shape[0] == 0:
         return previous, prediction
-    turned = place_pose(before, before[root], yaw, False)
+    turned = place_pose(before, before[root], yaw, np.bool_(False))
     for j in range(previous.shape[0]):
         for c in range(3):
             target = previous[j, c] + (previous[j, c] - turned[j, c]) * ratio
@@ -359,7 +359,7 @@ def finish_pose(local, lengths, root, yaw, bones, rest_directions):
     retargeted to ``lengths`` (``retarget_pose``, float32), then put back at ``root`` and
     ``yaw`` in float64 (``place_pose``) and returned as float32 (the numpy code's operations)."""
     retargeted = retarget_pose(local, lengths, bones, rest_directions)
-    placed = place_pose(retargeted.astype(np.float64), root, yaw, True)
+    placed = place_pose(retargeted.astype(np.float64), root, yaw, np.bool_(True))  # not Literal
     return placed.astype(np.float32)
 
 

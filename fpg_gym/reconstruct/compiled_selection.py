@@ -19,7 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-__all__ = ["fpg_full_best", "fpg_walk_best", "neighbourhood", "shum_full_best"]
+__all__ = ["fpg_walk_best", "neighbourhood", "shum_full_best"]
 
 _FAST = {"reassoc", "contract"}
 
@@ -246,27 +246,6 @@ def fpg_walk_best(
             _gather_block(poses, pool, start, m, xs, ys, zs)
         _fpg_block(xs, ys, zs, m, q, pred, ws, wc, has_prediction, scores, start)
     return _best(pool, scores, k)
-
-
-@numba.njit(cache=True, nogil=True)
-def fpg_full_best(poses, q, pred, ws, wc, has_prediction, k):
-    """FPG's score of every node of ``poses`` ``(N, 20, 3)``; the ``k`` best (:func:`_best`)."""
-    empty = np.empty((0, 0, 3), dtype=np.float32)
-    return fpg_walk_best(
-        np.arange(poses.shape[0]),
-        poses,
-        empty,
-        empty[:, 0],
-        np.empty(0, dtype=np.float32),
-        np.empty((0, 2), dtype=np.int64),
-        False,
-        q,
-        pred,
-        ws,
-        wc,
-        has_prediction,
-        k,
-    )
 
 
 @numba.njit(cache=True, nogil=True, fastmath=_FAST)

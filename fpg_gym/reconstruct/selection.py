@@ -334,8 +334,16 @@ def fpg_best_k(
     if compiled is not None:
         pose = np.asarray(query.pose)
         ws, wc = _fpg_weights(query.reliability, poses.dtype, query.prediction is not None)
-        nodes, scores, tied = compiled.fpg_full_best(  # FPG Eq. 5-7 of every node
+        # FPG Eq. 5-7 of every node: the walk's kernel with the walk's argument types (one
+        # compiled specialisation for both), reading ``poses`` (not retargeting)
+        nodes, scores, tied = compiled.fpg_walk_best(
+            np.arange(len(poses)),
             poses,
+            database.directions,
+            database.roots,
+            _UNIT_LENGTHS,
+            _BONES,
+            False,
             _as_joints(pose, pose),
             _as_joints(query.prediction, pose),
             ws,
@@ -364,6 +372,7 @@ COMPILED_WALK_NODE_COST = 3.5
 COMPILED_WALK_FIXED_COST = 500.0
 
 _BONES = np.ascontiguousarray(skeleton.BONES, dtype=np.int64)
+_UNIT_LENGTHS = np.ones(skeleton.NUM_BONES, dtype=np.float32)  # unused when not retargeting
 
 
 def walk_cost(pool_size: int, compiled: bool) -> float:
