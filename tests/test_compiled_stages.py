@@ -179,7 +179,7 @@ def test_compiled_sorted_window_equals_the_numpy_window() -> None:
 
 
 def test_compiled_remove_sorted_refuses_a_value_not_in_the_window() -> None:
-    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_reliability")
     with pytest.raises(ValueError, match="not in the window"):
         compiled.remove_sorted(np.array([1.0, 2.0]), np.array([3.0]))
 

@@ -110,7 +110,7 @@ def test_trust_keeps_a_joint_the_stream_always_infers() -> None:
 
 
 def test_trust_in_compiled_calls_is_the_numpy_trust_to_the_bit() -> None:
-    """``compiled_frame.trust_exponents`` and ``sensor_trust`` (with numba) against
+    """``compiled_fusion.trust_exponents`` and ``sensor_trust`` (with numba) against
     ``SensorTrust.update``'s numpy code on a noisy stream with flickering, lost and stretched
     joints: the same trust, run starts and trusted lengths to the bit."""
     import contextlib
@@ -189,7 +189,7 @@ def test_fusion_holds_a_lost_limb_where_it_was_moving_with_the_body() -> None:
 
 @pytest.mark.parametrize("lengths", ["retarget", "solve", "none"])
 def test_fusion_in_compiled_calls_is_the_numpy_fusion_to_the_bit(lengths: str) -> None:
-    """``SensorFusion.update`` through ``compiled_frame.fusion_bone_terms``, ``fusion_bones``
+    """``SensorFusion.update`` through ``compiled_fusion.fusion_bone_terms``, ``fusion_bones``
     and ``held_directions`` (with numba) against its numpy code on a noisy stream whose limbs
     are lost and found again (held bones, the database's share, the settling): the same poses
     and state to the bit, with and without a bone model."""

@@ -354,7 +354,7 @@ def _mixed_stream(rng: np.random.Generator, frames: int) -> tuple[np.ndarray, np
     ],
 )
 def test_the_compiled_frame_gives_the_numpy_definitions_terms(settings: dict) -> None:
-    """``compiled_frame.reliability_frame`` (with numba) against the numpy code of
+    """``compiled_reliability.reliability_frame`` (with numba) against the numpy code of
     ``ReliabilityEstimator.update``: the same reference lengths, sources and calibration frames
     to the bit, the terms to rounding (the behaviour angles' arccos), through calibration, the
     windows' wrap-around, lost joints, frames without a body and a motion restart."""
@@ -392,12 +392,12 @@ def test_the_compiled_frame_gives_the_numpy_definitions_terms(settings: dict) ->
 
 
 def test_the_compiled_neutral_pose_check_decides_as_the_numpy_one() -> None:
-    """``compiled_frame.neutral_pose`` against :func:`is_neutral_pose` on rest and T-poses
+    """``compiled_reliability.neutral_pose`` against :func:`is_neutral_pose` on rest and T-poses
     turned, bent and noisy, many of them near the tolerance."""
     from fpg_gym.core.compiled import compiled_module
     from fpg_gym.reconstruct import reliability
 
-    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_reliability")
     if compiled is None:
         pytest.skip("needs numba (fpg-gym[fast])")
     rng = np.random.default_rng(11)
@@ -433,7 +433,7 @@ def test_the_compiled_column_medians_are_numpys_to_the_bit() -> None:
     lengths."""
     from fpg_gym.core.compiled import compiled_module
 
-    compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_reliability")
     if compiled is None:
         pytest.skip("needs numba (fpg-gym[fast])")
     rng = np.random.default_rng(8)

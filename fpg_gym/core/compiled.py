@@ -35,7 +35,9 @@ COMPILED_MODULES: tuple[str, ...] = (
     "fpg_gym.filters.compiled_filters",
     "fpg_gym.physics.compiled_ragdoll",
     "fpg_gym.reconstruct.compiled_frame",
+    "fpg_gym.reconstruct.compiled_fusion",
     "fpg_gym.reconstruct.compiled_kernels",
+    "fpg_gym.reconstruct.compiled_reliability",
     "fpg_gym.reconstruct.compiled_search",
     "fpg_gym.reconstruct.compiled_selection",
 )

@@ -29,6 +29,8 @@ __all__ = [
     "offset_pose",
     "place_pose",
     "retarget_pose",
+    "scalar_maximum",
+    "scalar_minimum",
     "vector_angles",
 ]
 
@@ -267,3 +269,15 @@ def offset_pose(pose, trunks, turned, pelvis_joints, thorax_joints, bone_joints,
                 + source[row, a, 1] * offsets[j, 1]
             )
     return out
+
+
+@numba.njit(cache=True, nogil=True)
+def scalar_maximum(a, b):
+    """``np.maximum`` of two floats (NaN when either is)."""
+    return a if (a >= b or a != a) else b
+
+
+@numba.njit(cache=True, nogil=True)
+def scalar_minimum(a, b):
+    """``np.minimum`` of two floats (NaN when either is)."""
+    return a if (a <= b or a != a) else b

@@ -54,6 +54,8 @@ _UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
         7.8,
     ),
     (("fpg_gym.reconstruct.compiled_selection",), 3.2),
+    (("fpg_gym.reconstruct.compiled_reliability",), 4.0),
+    (("fpg_gym.reconstruct.compiled_fusion",), 1.4),
     (("fpg_gym.physics.compiled_ragdoll",), 2.2),
     (("fpg_gym.core.compiled_poses",), 1.3),
     (("fpg_gym.filters.compiled_filters",), 0.9),

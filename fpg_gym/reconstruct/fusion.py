@@ -175,7 +175,7 @@ class SensorTrust:
         """Trust ``(20,)`` of one frame's joints ``positions`` ``(20, 3)`` with ``states``."""
         cfg = self.config
         states = np.asarray(states)
-        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_fusion")
         if compiled is not None and states.shape == (skeleton.NUM_JOINTS,):
             # Two calls around numpy's power, the same arithmetic.
             exponents = compiled.trust_exponents(
@@ -349,7 +349,7 @@ class SensorFusion:
         step = 0.0 if self._last_timestamp is None else timestamp - self._last_timestamp
         self._last_timestamp = timestamp
         keep = np.exp(-max(step, 0.0) / cfg.agreement_s)
-        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_fusion")
         if compiled is not None:  # three calls around numpy's exp, frames and solve
             bone_trust, estimate, database_units, sensor_units = compiled.fusion_bone_terms(
                 np.ascontiguousarray(trust),

@@ -319,7 +319,7 @@ class SortedWindow:
     def add(self, row: np.ndarray) -> None:
         """Add the finite values of ``row``."""
         new = np.sort(row[np.isfinite(row)])
-        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_reliability")
         if compiled is not None:  # one merge instead of np.insert's index bookkeeping
             self.values = compiled.merge_sorted(self.values, new)
             return
@@ -328,7 +328,7 @@ class SortedWindow:
     def remove(self, row: np.ndarray) -> None:
         """Remove the finite values of ``row``, added before (each value once per occurrence)."""
         old = np.sort(row[np.isfinite(row)])
-        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_reliability")
         if compiled is not None:
             self.values = compiled.remove_sorted(self.values, old)
             return
@@ -551,7 +551,7 @@ class ReliabilityEstimator:
         if states.shape != (skeleton.NUM_JOINTS,):
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
         cfg = self.config
-        compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
+        compiled = compiled_module("fpg_gym.reconstruct.compiled_reliability")
         if compiled is not None:  # one call up to the two matrix products, the same arithmetic
             behaviour, deviation, tracking, calibration, body = self._compiled_terms(
                 compiled, positions, states
@@ -599,9 +599,9 @@ class ReliabilityEstimator:
     def _compiled_terms(
         self, compiled: Any, positions: np.ndarray, states: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool, bool]:
-        """:func:`fpg_gym.reconstruct.compiled_frame.reliability_frame` on this stream's state:
-        ``Rb``, the bones' deviations, ``Rt``, whether the frame calibrated, whether a body was
-        in view."""
+        """:func:`fpg_gym.reconstruct.compiled_reliability.reliability_frame` on this stream's
+        state: ``Rb``, the bones' deviations, ``Rt``, whether the frame calibrated, whether a
+        body was in view."""
         cfg = self.config
         if self._reference is None:
             self._reference = (
