@@ -17,15 +17,9 @@ from gymnasium.utils import EzPickle
 
 from fpg_gym.core import skeleton
 from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
-from fpg_gym.core.metrics import (
-    acceleration,
-    bone_vector_errors,
-    frame_error,
-    second_difference_norms,
-)
-from fpg_gym.core.poses import bone_vectors
 from fpg_gym.env.ragdoll import CountingRagdollFactory, ragdoll_keywords
 from fpg_gym.env.settings import RENDER_MODES, EnvSettings, energy_weights_of
+from fpg_gym.env.step_errors import StepErrors
 from fpg_gym.env.step_types import ExactAction, StageTimes
 from fpg_gym.env_episodes import EpisodeSource
 from fpg_gym.env_observation import ObservationLayout
@@ -46,13 +40,6 @@ __all__ = ["ENV_ID", "KinectPoseEnv"]
 
 #: The registered id.
 ENV_ID = "fpg_gym/KinectPose-v0"
-
-
-def _bone_mean(terms: np.ndarray) -> np.ndarray:
-    """FPG Eq. 13 per frame from its bone terms ``(T, 19)``: their mean, the bones added one
-    after the other, as numpy's mean in :func:`~fpg_gym.core.metrics.frame_error` of two stacked
-    frames adds them (the rewards and errors are those it gives, to the bit)."""
-    return np.add.accumulate(terms, axis=-1)[..., -1] / terms.shape[-1]
 
 
 class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
@@ -288,9 +275,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._last_obs: np.ndarray | None = None
         # The last three outputs and their timestamps (the drawing shows the newest; the
         # "smooth" reward's acceleration needs three).
-        self._outputs: list[tuple[np.ndarray, float]] = []
-        self._truth_bones: np.ndarray | None = None  # (T, 19, 3) of the episode's ground truth
-        self._raw_errors: np.ndarray | None = None  # (T,) FPG Eq. 13 of the sensor stream
+        self._errors = StepErrors()
         self._render_centre: np.ndarray | None = None
         self._window: HumanWindow | None = None
         self._prepare_ms = self._observation_ms = 0.0
@@ -478,14 +463,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             self._counts[key] = 0
         self._t = 0
         self._elapsed = 0
-        self._outputs = []
-        # The reward's fixed parts: the truth's bone vectors, the sensor stream's errors.
-        truth = recording.ground_truth
-        self._truth_bones = self._raw_errors = None
-        if truth is not None:
-            self._truth_bones = bone_vectors(truth.astype(np.float64))
-            sensor = bone_vectors(recording.positions.astype(np.float64))
-            self._raw_errors = _bone_mean(bone_vector_errors(self._truth_bones, sensor))
+        self._errors.reset(recording)
         root = recording.positions[:, skeleton.ROOT]
         self._render_centre = np.array([np.median(root[:, 0]), np.median(root[:, 1])])
         # Reconstructor.reset() starts a stream that does not depend on earlier episodes (same
@@ -548,7 +526,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             "reward_temporal": -w.motion * terms["Em"],
             "reward_prior": -w.prior * terms["Ep"],
         }
-        reward = self._reward(record, pose, recording, info)
+        reward = self._reward(record, pose, info)
         info.update(
             {
                 **self._candidate_info(record.reliability, record.nodes),
@@ -585,33 +563,10 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             self.render()
         return self._observation(obs_vector), reward, terminated, bool(truncated), info
 
-    def _reward(
-        self, record: FrameRecord, pose: np.ndarray, recording: Recording, info: dict[str, Any]
-    ) -> float:
+    def _reward(self, record: FrameRecord, pose: np.ndarray, info: dict[str, Any]) -> float:
         """The step's reward (*Rewards*); keeps the last three outputs and puts ``frame_error``
         and ``raw_frame_error`` (with ground truth) and ``acceleration`` into ``info``."""
-        t = self._t
-        truth = recording.ground_truth
-        if truth is not None:
-            assert self._truth_bones is not None and self._raw_errors is not None
-            output = bone_vectors(pose.astype(np.float64)[None])
-            error = float(_bone_mean(bone_vector_errors(self._truth_bones[t : t + 1], output))[0])
-            if not np.isfinite(error):
-                frame_error(truth[t], pose)  # raises, naming the bad value
-            info["frame_error"] = error
-            info["raw_frame_error"] = float(self._raw_errors[t])
-        self._outputs = [*self._outputs[-2:], (pose, float(record.timestamp))]
-        info["acceleration"] = 0.0
-        if len(self._outputs) == 3:
-            poses, times = zip(*self._outputs, strict=True)
-            outputs = np.stack(poses).astype(np.float64)
-            stamps = np.array(times)
-            jerk = float("nan")
-            if stamps[0] < stamps[1] < stamps[2]:
-                jerk = float(second_difference_norms(outputs, stamps).mean())
-            if not np.isfinite(jerk):
-                acceleration(outputs, timestamps=times)  # raises, naming the bad value
-            info["acceleration"] = jerk
+        info.update(self._errors.output(self._t, pose, float(record.timestamp)))
         if self.reward_mode == "energy":
             reward = -float(record.energy)
         elif self.reward_mode == "error":
@@ -705,7 +660,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         recording = self._recording
         if recording is None:
             return render_panels(None, None, None, None)
-        last = self._outputs[-1][0] if self._outputs else None
+        last = self._errors.outputs[-1][0] if self._errors.outputs else None
         shown = self._t - 1 if last is not None else self._t
         shown = min(max(shown, 0), recording.num_frames - 1)
         name = self._episode.get("recording", "")

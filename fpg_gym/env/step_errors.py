@@ -1,0 +1,76 @@
+"""The errors an env step reports and rewards: FPG Eq. 13 of the output and of the sensor
+against an episode's ground truth, and the output's acceleration over its last three frames."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from fpg_gym.core.metrics import (
+    acceleration,
+    bone_vector_errors,
+    frame_error,
+    second_difference_norms,
+)
+from fpg_gym.core.poses import bone_vectors
+from fpg_gym.io.recording import Recording
+
+__all__ = ["StepErrors"]
+
+
+def _bone_mean(terms: np.ndarray) -> np.ndarray:
+    """FPG Eq. 13 per frame from its bone terms ``(T, 19)``: their mean, the bones added one
+    after the other, as numpy's mean in :func:`~fpg_gym.core.metrics.frame_error` of two stacked
+    frames adds them (the rewards and errors are those it gives, to the bit)."""
+    return np.add.accumulate(terms, axis=-1)[..., -1] / terms.shape[-1]
+
+
+class StepErrors:
+    """One episode's step errors; :meth:`reset` at each episode, :meth:`output` at each step."""
+
+    def __init__(self) -> None:
+        self.outputs: list[tuple[np.ndarray, float]] = []  # the last three (pose, timestamp)
+        self._truth: np.ndarray | None = None
+        self._truth_bones: np.ndarray | None = None  # (T, 19, 3) of the ground truth
+        self._raw_errors: np.ndarray | None = None  # (T,) FPG Eq. 13 of the sensor stream
+
+    def reset(self, recording: Recording) -> None:
+        """Start an episode: the truth's bone vectors and the sensor stream's errors, once."""
+        self.outputs = []
+        self._truth = recording.ground_truth
+        self._truth_bones = self._raw_errors = None
+        if self._truth is not None:
+            self._truth_bones = bone_vectors(self._truth.astype(np.float64))
+            sensor = bone_vectors(recording.positions.astype(np.float64))
+            self._raw_errors = _bone_mean(bone_vector_errors(self._truth_bones, sensor))
+
+    def output(self, t: int, pose: np.ndarray, timestamp: float) -> dict[str, float]:
+        """Frame ``t``'s output: ``frame_error`` and ``raw_frame_error`` (with ground truth) and
+        ``acceleration`` (m/s², the mean over joints of the last three outputs; 0 before).
+
+        Raises
+        ------
+        ValueError
+            On a non-finite output, naming the bad value.
+        """
+        errors: dict[str, float] = {}
+        if self._truth is not None:
+            assert self._truth_bones is not None and self._raw_errors is not None
+            output = bone_vectors(pose.astype(np.float64)[None])
+            error = float(_bone_mean(bone_vector_errors(self._truth_bones[t : t + 1], output))[0])
+            if not np.isfinite(error):
+                frame_error(self._truth[t], pose)  # raises, naming the bad value
+            errors["frame_error"] = error
+            errors["raw_frame_error"] = float(self._raw_errors[t])
+        self.outputs = [*self.outputs[-2:], (pose, timestamp)]
+        errors["acceleration"] = 0.0
+        if len(self.outputs) == 3:
+            poses, times = zip(*self.outputs, strict=True)
+            outputs = np.stack(poses).astype(np.float64)
+            stamps = np.array(times)
+            jerk = float("nan")
+            if stamps[0] < stamps[1] < stamps[2]:
+                jerk = float(second_difference_norms(outputs, stamps).mean())
+            if not np.isfinite(jerk):
+                acceleration(outputs, timestamps=times)  # raises, naming the bad value
+            errors["acceleration"] = jerk
+        return errors
