@@ -15,7 +15,6 @@ from fpg_gym.definitions import (
     KINECT_V2_TO_VICON,
     TRUNK_JOINTS,
     DefinitionMap,
-    OnlineDefinitionFit,
     fit_sensor_maps,
     fit_to_database,
     joint_frames,
@@ -25,6 +24,7 @@ from fpg_gym.definitions import (
 from fpg_gym.graph import FilteredPoseGraph
 from fpg_gym.io import Clip, Recording
 from fpg_gym.reconstruct import BoneSettlingConfig, Reconstructor
+from fpg_gym.reconstruct.output_calibration import OnlineDefinitionFit
 
 J = skeleton.joint_index
 

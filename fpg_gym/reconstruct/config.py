@@ -119,8 +119,9 @@ class ReconstructorConfig:
     calibrate_output : bool
         Beyond the papers (off by default): instead of a fixed ``output_map``, fit the map from
         the database's definitions to the sensor's while the stream runs, from this user's
-        tracked joints (:class:`fpg_gym.definitions.OnlineDefinitionFit`: a running mean of
-        the output-to-sensor residual in each joint's frame), and apply it to the returned
+        tracked joints
+        (:class:`fpg_gym.reconstruct.output_calibration.OnlineDefinitionFit`: a running mean
+        of the output-to-sensor residual in each joint's frame), and apply it to the returned
         pose. Needs no paired data; the output comes in the sensor's definitions, or in those
         of ``calibration_map``.
     calibration_map : PoseMap, optional

@@ -39,26 +39,22 @@ constant-velocity prediction of the previous outputs under four labellings
 (:data:`LABELLINGS`: as reported, mirrored, arms swapped, legs swapped); another labelling is
 used when it is clearly closer (``left_right_margin``) and the frame's record says which.
 
-Temporal coherence and bone lengths (issue 15)
-----------------------------------------------
-Beyond the papers, switchable (``config.temporal``, ``config.bones``): the output is placed with a
-smoothed root and heading, the latent axes keep their signs from frame to frame, ``Em`` is
-anchored on the previous reconstruction with a larger weight, a Kalman stage filters the output
-(bone lengths restored), and the user's bone lengths settle after one second
-(:mod:`fpg_gym.reconstruct.temporal`, :mod:`fpg_gym.reconstruct.bones`).
-``TemporalConfig.off()`` and ``BoneSettlingConfig(enabled=False)`` give the papers' pipeline.
+Temporal coherence and bone lengths
+-----------------------------------
+Beyond the papers, switchable (``config.temporal``, ``config.bones``; ``TemporalConfig.off()``
+and ``BoneSettlingConfig(enabled=False)`` give the papers' pipeline): a smoothed root and
+heading, latent axes that keep their signs, ``Em`` anchored on the previous output, a Kalman
+output filter, bone lengths that settle after one second (:mod:`~fpg_gym.reconstruct.temporal`,
+:mod:`~fpg_gym.reconstruct.bones`).
 
 Ragdoll
 -------
-With ``ragdoll=`` (a factory ``lengths -> ragdoll``, such as :class:`fpg_gym.physics.ragdoll.
-Ragdoll` itself: the ragdoll is injected, this layer imports no physics; the layers above turn a
-flag into the factory with :func:`fpg_gym.methods.ragdoll_factory`), the camera-space target is
-tracked by the ragdoll and its simulated pose is the output.
-The ragdoll runs in camera space shifted down by the floor height, estimated as the lowest joint
-of the targets so far (camera space has no floor); it is rebuilt when the user's reference bone
-lengths move by more than ``ragdoll_rebuild_m``. It runs after denormalisation, not in the
-normalised frame: physics needs one consistent world frame, and the normalised frame jumps with
-the sensor's root and heading every frame.
+With ``ragdoll=`` (a factory ``lengths -> ragdoll`` such as
+:class:`fpg_gym.physics.ragdoll.Ragdoll`, injected: this layer imports no physics), the ragdoll
+tracks the camera-space target and its simulated pose is the output. It runs after
+denormalisation (physics needs one consistent world frame), in camera space shifted down by the
+floor height (the lowest joint of the targets so far), and is rebuilt when the user's reference
+bone lengths move by more than ``ragdoll_rebuild_m``.
 
 Learned output correction (issue 19)
 ------------------------------------
@@ -80,7 +76,7 @@ import numpy as np
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
-from fpg_gym.definitions import OnlineDefinitionFit, sensor_to_output_map
+from fpg_gym.definitions import sensor_to_output_map
 from fpg_gym.reconstruct.bones import BoneSettler, OutputLengths
 from fpg_gym.reconstruct.config import RagdollFactory, RagdollLike, ReconstructorConfig
 from fpg_gym.reconstruct.drivers import FrameDrivers
@@ -88,6 +84,7 @@ from fpg_gym.reconstruct.energy import EnergyModel
 from fpg_gym.reconstruct.fusion import SensorFusion, SensorTrust
 from fpg_gym.reconstruct.latent import LatentSpace
 from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, LABELLINGS, best_labelling
+from fpg_gym.reconstruct.output_calibration import OnlineDefinitionFit
 from fpg_gym.reconstruct.output_correction import (
     CorrectionState,
     OutputCorrection,
