@@ -123,9 +123,7 @@ def local_search(
     best = np.inf
     centre_energy = np.inf
     current_step = step
-    evaluations = 0
-    asks = 0
-    iteration = 0
+    evaluations = asks = iteration = 0
     done = False  # the optimiser's own stop (it answers None to the next ask)
     energies = np.empty(samples, dtype=matrix.dtype)
     product = np.empty((samples, matrix.shape[1]), dtype=matrix.dtype)  # z @ matrix
