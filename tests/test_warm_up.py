@@ -42,6 +42,22 @@ from fpg_gym.core.compiled import COMPILED_MODULES
 from fpg_gym.experiments.warm import _run_methods, warm_kernels_cached
 assert warm_kernels_cached()
 _run_methods(COMPILED_MODULES, 40)
+# The real Kinect v2 path as the demo's real sections and ``fpg-gym reconstruct`` run it (the
+# auto preset's maps and fusion), written out here so that the warm-up must cover it.
+import warnings
+from fpg_gym.experiments.demo import REAL_METHODS, demo_recordings
+from fpg_gym.graph import load_graph
+from fpg_gym.io.recording import load_recording
+from fpg_gym.methods import MethodRunner
+from fpg_gym.reconstruct.presets import choose_pipeline, default_graph_name, sensor_of
+real = [load_recording(p) for p in demo_recordings()[:2]]
+graph = load_graph(default_graph_name(sensor_of(real[0])))
+options = {"k": 30, **choose_pipeline("auto", sensor_of(real[0]), graph).options}
+warnings.simplefilter("ignore")
+with MethodRunner(graph, reconstructor_options=options) as runner:
+    for method in (*REAL_METHODS, "fpg:local-search"):
+        runner.run(method, real[0], 0)
+        runner.run_many(method, real, [0, 1])
 missed = [
     f"{m}.{n}"
     for m in COMPILED_MODULES
@@ -64,8 +80,9 @@ assert not several
 @pytest.mark.slow
 def test_parallel_warm_up_compiles_everything_the_methods_run(tmp_path: Path) -> None:
     """A fresh numba cache: ``fpg-gym warm-up --workers 2`` (each process compiling its share),
-    then a new process running every warm-up method compiles nothing more, and each kernel it
-    runs for one set of argument types only (a second would compile again on a fresh install)."""
+    then a new process running every warm-up method, and the real Kinect v2 path of the demo's
+    real sections, compiles nothing more, and each kernel it runs for one set of argument types
+    only (a second would compile again on a fresh install)."""
     env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "numba"))
     warm = [sys.executable, "-m", "fpg_gym.cli", "warm-up", "--workers", "2"]
     subprocess.run(warm, env=env, check=True, capture_output=True, text=True)

@@ -131,7 +131,7 @@ def normalise_pose(pose, root, hip_left, hip_right, shoulder_left, shoulder_righ
     (:func:`facing_yaw_pose`) and the pose turned into it about its ``root`` joint
     (:func:`place_pose`) as float32."""
     yaw = facing_yaw_pose(pose, hip_left, hip_right, shoulder_left, shoulder_right, degenerate)
-    placed = place_pose(pose, pose[root], yaw, False)
+    placed = place_pose(pose, pose[root], yaw, np.bool_(False))
     out = np.empty(placed.shape, dtype=np.float32)
     for j in range(placed.shape[0]):
         for c in range(3):

@@ -3,7 +3,8 @@
 With ``fpg-gym[fast]`` the kernels compile on first use and are cached on disk (numba's
 ``cache=True``, in ``__pycache__`` beside their modules): a fresh installation compiles some
 sixteen CPU seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the
-demo's methods on a short simulated stream, alone and side by side with another, so that every
+demo's methods on a short simulated stream and the real sections' on a packaged Kinect v2
+recording (the auto preset: maps and fusion), alone and side by side with another, so that every
 kernel compiles with the argument types the real runs use; with ``workers > 1`` this process and
 ``workers - 1`` new ones run them with only their share of the compiled modules switched on
 (:func:`fpg_gym.core.compiled.only_compiled`), so the modules compile in parallel and none
@@ -18,16 +19,19 @@ import time
 import warnings
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
 
 from fpg_gym.core.compiled import COMPILED_MODULES, kernels_cached, numba_available, only_compiled
 from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
-from fpg_gym.graph import default_graph
+from fpg_gym.graph import default_graph, load_graph
 from fpg_gym.io import load_default_clips
+from fpg_gym.io.recording import load_recording
 from fpg_gym.methods import MethodRunner
 from fpg_gym.physics.ragdoll import PhysicsWarning
+from fpg_gym.reconstruct.presets import choose_pipeline, default_graph_name, sensor_of
 from fpg_gym.simulate import simulate_clips
 
-__all__ = ["WARM_UP_METHODS", "warm_kernels", "warm_kernels_cached"]
+__all__ = ["REAL_WARM_UP_METHODS", "WARM_UP_METHODS", "warm_kernels", "warm_kernels_cached"]
 
 #: Methods whose code paths the warm-up runs (every compiled kernel of the demo).
 WARM_UP_METHODS: tuple[str, ...] = (
@@ -40,10 +44,17 @@ WARM_UP_METHODS: tuple[str, ...] = (
     "fpg:closed-form",
     "fpg:local-search+prior",
 )
+#: Methods run on a packaged real Kinect v2 recording with the auto preset (the sensor and
+#: definition maps, the fusion's trust: the demo's real sections and ``fpg-gym reconstruct``).
+REAL_WARM_UP_METHODS: tuple[str, ...] = ("holt+map", "fpg:closed-form", "fpg:local-search")
+#: The packaged real recording (one of :func:`fpg_gym.experiments.demo.demo_recordings`).
+_REAL_RECORDING = Path(__file__).resolve().parents[1] / "data" / "demo" / "m01_s08_e05.npz"
 
 #: The compiled modules in units that compile together (the compiled local search and the
 #: compiled latent space run only with the compiled energy kernel), with the CPU seconds each
-#: unit took to compile on the shared 2-core machine (to share the units out between processes).
+#: unit took to compile on the shared 2-core machine (to share the units out between processes):
+#: ``_run_methods(unit, 40)`` in a new process with an empty ``NUMBA_CACHE_DIR``, less the same
+#: with no module compiled (3.6 s); a callee in another unit's module counts in both.
 _UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
     (
         (
@@ -51,14 +62,14 @@ _UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
             "fpg_gym.reconstruct.compiled_search",
             "fpg_gym.reconstruct.compiled_frame",
         ),
-        7.8,
+        10.0,
     ),
-    (("fpg_gym.reconstruct.compiled_selection",), 3.2),
-    (("fpg_gym.reconstruct.compiled_reliability",), 4.0),
-    (("fpg_gym.reconstruct.compiled_fusion",), 1.4),
-    (("fpg_gym.physics.compiled_ragdoll",), 2.2),
-    (("fpg_gym.core.compiled_poses",), 1.3),
-    (("fpg_gym.filters.compiled_filters",), 0.9),
+    (("fpg_gym.reconstruct.compiled_selection",), 4.4),
+    (("fpg_gym.reconstruct.compiled_reliability",), 6.3),
+    (("fpg_gym.reconstruct.compiled_fusion",), 2.8),
+    (("fpg_gym.physics.compiled_ragdoll",), 3.2),
+    (("fpg_gym.core.compiled_poses",), 2.5),
+    (("fpg_gym.filters.compiled_filters",), 1.7),
 )
 
 #: Kernels that the first frame of any reconstruction runs: cached means warm.
@@ -97,21 +108,30 @@ _SIDE_BY_SIDE_FRAMES = 4
 
 
 def _run_methods(modules: Sequence[str], frames: int) -> None:
-    """Every warm-up method on the first ``frames`` frames of a simulated held-out clip, and on
-    two short streams side by side (a compare's batches: the stacked kernels), with only
-    ``modules`` compiled."""
+    """Every warm-up method on the first ``frames`` frames of a simulated held-out clip, the real
+    ones on those of a packaged Kinect v2 recording with the auto preset, and each on two short
+    streams side by side (a compare's batches: the stacked kernels), with only ``modules``
+    compiled."""
     graph = default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)  # the demo's graph, from the cache
     clip = load_default_clips([DEFAULT_HOLDOUT_CLIPS[0]])
     (recording,) = simulate_clips(clip, ["front-many"], [0], max_frames=frames)
     pair = simulate_clips(
         clip, ["front-many"], [0, 1], max_frames=min(frames, _SIDE_BY_SIDE_FRAMES)
     )
+    real = load_recording(_REAL_RECORDING)
+    real_graph = load_graph(default_graph_name(sensor_of(real)))
+    chosen = choose_pipeline("auto", sensor_of(real), real_graph)
+    real_pair = [real.head(min(frames, _SIDE_BY_SIDE_FRAMES))] * 2
     with only_compiled(modules), warnings.catch_warnings():
         warnings.simplefilter("ignore", PhysicsWarning)
         with MethodRunner(graph) as runner:
             for method in WARM_UP_METHODS:
                 runner.run(method, recording, 0)
                 runner.run_many(method, pair, [0, 1])
+        with MethodRunner(real_graph, reconstructor_options=dict(chosen.options)) as runner:
+            for method in REAL_WARM_UP_METHODS:
+                runner.run(method, real.head(frames), 0)
+                runner.run_many(method, real_pair, [0, 1])
 
 
 def warm_kernels(workers: int = 1, *, frames: int = 40) -> float:

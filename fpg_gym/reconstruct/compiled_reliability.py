@@ -149,7 +149,7 @@ def neutral_pose(
     direction against its rest direction (the dot products summed in ``np.einsum``'s order) or,
     for the arms, sideways (``sideways`` ``(2, 3)``, the left arm's and the right's, along X)."""
     yaw = facing_yaw_pose(pose, facing[0], facing[1], facing[2], facing[3], degenerate)
-    placed = place_pose(pose, pose[root], yaw, False)
+    placed = place_pose(pose, pose[root], yaw, np.bool_(False))
     count = bones.shape[0]
     directions = np.empty((count, 3))
     for b in range(count):
