@@ -415,7 +415,7 @@ def test_the_compiled_neutral_pose_check_decides_as_the_numpy_one() -> None:
             float(np.cos(np.deg2rad(tolerance))),
             skeleton.ROOT,
             reliability._FACING,
-            poses._DEGENERATE_LINE_M,
+            poses.DEGENERATE_LINE_M,
             skeleton.BONES,
             poses.REST_DIRECTIONS,
             reliability._BODY_BONES,

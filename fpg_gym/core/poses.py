@@ -48,8 +48,10 @@ _HIP_LEFT = skeleton.joint_index("HipLeft")
 _HIP_RIGHT = skeleton.joint_index("HipRight")
 _SHOULDER_LEFT = skeleton.joint_index("ShoulderLeft")
 _SHOULDER_RIGHT = skeleton.joint_index("ShoulderRight")
-_DEGENERATE_LINE_M = 1e-4
-_FACING_JOINTS = (_HIP_LEFT, _HIP_RIGHT, _SHOULDER_LEFT, _SHOULDER_RIGHT)
+#: A hip or shoulder line shorter than this (m, in the ground plane) gives no heading.
+DEGENERATE_LINE_M = 1e-4
+#: The joints whose lines give a pose's heading: hips (left, right), then shoulders.
+FACING_JOINTS = (_HIP_LEFT, _HIP_RIGHT, _SHOULDER_LEFT, _SHOULDER_RIGHT)
 
 
 def as_poses(value: object, name: str = "poses", *, ndim: int | None = None) -> np.ndarray:
@@ -177,11 +179,11 @@ def facing_yaw(poses: FloatArray) -> np.ndarray:
     poses = np.asarray(poses, dtype=np.float64)
     right = poses[..., _HIP_RIGHT, :] - poses[..., _HIP_LEFT, :]
     shoulders = poses[..., _SHOULDER_RIGHT, :] - poses[..., _SHOULDER_LEFT, :]
-    hip_ok = np.hypot(right[..., 0], right[..., 2]) > _DEGENERATE_LINE_M
+    hip_ok = np.hypot(right[..., 0], right[..., 2]) > DEGENERATE_LINE_M
     right = np.where(hip_ok[..., None], right, shoulders)
     # forward = up x right = (r_z, 0, -r_x); yaw measured from +Z towards +X.
     forward_x, forward_z = right[..., 2], -right[..., 0]
-    ok = np.hypot(forward_x, forward_z) > _DEGENERATE_LINE_M
+    ok = np.hypot(forward_x, forward_z) > DEGENERATE_LINE_M
     return np.where(ok, np.arctan2(forward_x, forward_z), 0.0)
 
 
@@ -203,7 +205,7 @@ def normalise(poses: FloatArray) -> tuple[np.ndarray, Placement]:
     compiled = _one_pose_kernels(poses64)
     if compiled is not None:  # one pose: one compiled call
         normalised, angle = compiled.normalise_pose(
-            np.ascontiguousarray(poses64), skeleton.ROOT, *_FACING_JOINTS, _DEGENERATE_LINE_M
+            np.ascontiguousarray(poses64), skeleton.ROOT, *FACING_JOINTS, DEGENERATE_LINE_M
         )
         return normalised, Placement(root=root, yaw=np.asarray(angle))
     yaw = facing_yaw(poses64)

@@ -297,7 +297,7 @@ def is_neutral_pose(pose: np.ndarray, tolerance_deg: float = 30.0) -> bool:
 
 #: :attr:`ReliabilityEstimator.reference_source` by the code the compiled frame keeps.
 _SOURCES = ("given", "neutral", "scaled-prior", "tracked-median", "prior-height")
-_FACING = np.array(pose_utils._FACING_JOINTS)
+_FACING = np.array(pose_utils.FACING_JOINTS)
 _ARM_BONES = np.stack([_LEFT_ARM_BONES, _RIGHT_ARM_BONES])
 _SIDEWAYS = np.stack([_T_LEFT, _T_RIGHT])
 
@@ -630,7 +630,7 @@ class ReliabilityEstimator:
             skeleton.ROOT,
             _CALIBRATION_JOINTS,
             _FACING,
-            pose_utils._DEGENERATE_LINE_M,
+            pose_utils.DEGENERATE_LINE_M,
             skeleton.BONES,
             pose_utils.REST_DIRECTIONS,
             _BODY_BONES,
