@@ -1,8 +1,8 @@
 """Compile the numba kernels before the first frame, sharing the work between processes.
 
 With ``fpg-gym[fast]`` the kernels compile on first use and are cached on disk (numba's
-``cache=True``, in ``__pycache__`` beside their modules): a fresh installation compiles some
-sixteen CPU seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the
+``cache=True``, in ``__pycache__`` beside their modules): a fresh installation compiles about
+thirty CPU seconds of kernels, once. :func:`warm_kernels` does it ahead of time by running the
 demo's methods on a short simulated stream and the real sections' on a packaged Kinect v2
 recording (the auto preset: maps and fusion), alone and side by side with another, so that every
 kernel compiles with the argument types the real runs use; with ``workers > 1`` this process and
