@@ -31,6 +31,7 @@ __all__ = [
     "retarget_pose",
     "scalar_maximum",
     "scalar_minimum",
+    "unit_and_norm",
     "vector_angles",
 ]
 
@@ -161,18 +162,19 @@ def place_pose(pose, root, yaw, inverse):
 
 
 @numba.njit(cache=True, nogil=True)
-def _unit_vector(vx, vy, vz):
-    """``v / max(|v|, 1e-9)`` (:func:`fpg_gym.definitions._unit`, the norm's squares summed in
-    order)."""
-    norm = max(np.sqrt((vx * vx + vy * vy) + vz * vz), 1e-9)
-    return vx / norm, vy / norm, vz / norm
+def unit_and_norm(x, y, z):
+    """A vector's norm (its squares summed in order, as numpy's) and the vector over
+    ``np.maximum(norm, 1e-9)`` (:func:`fpg_gym.definitions._unit`)."""
+    norm = np.sqrt((x * x + y * y) + z * z)
+    scale = scalar_maximum(norm, 1e-9)
+    return norm, x / scale, y / scale, z / scale
 
 
 @numba.njit(cache=True, nogil=True)
 def _trunk_frame(pose, left_end, right_end, top, bottom, out):
     """:func:`fpg_gym.definitions._trunk_frame` of ``left = p[left_end] - p[right_end]`` and
     ``up = p[top] - p[bottom]`` into ``out`` ``(3, 3)`` (columns: left, up, forward)."""
-    x0, x1, x2 = _unit_vector(
+    _, x0, x1, x2 = unit_and_norm(
         pose[left_end, 0] - pose[right_end, 0],
         pose[left_end, 1] - pose[right_end, 1],
         pose[left_end, 2] - pose[right_end, 2],
@@ -181,7 +183,7 @@ def _trunk_frame(pose, left_end, right_end, top, bottom, out):
     u1 = pose[top, 1] - pose[bottom, 1]
     u2 = pose[top, 2] - pose[bottom, 2]
     along = (u0 * x0 + u1 * x1) + u2 * x2
-    y0, y1, y2 = _unit_vector(u0 - along * x0, u1 - along * x1, u2 - along * x2)
+    _, y0, y1, y2 = unit_and_norm(u0 - along * x0, u1 - along * x1, u2 - along * x2)
     out[0, 0], out[1, 0], out[2, 0] = x0, x1, x2
     out[0, 1], out[1, 1], out[2, 1] = y0, y1, y2
     out[0, 2] = x1 * y2 - x2 * y1  # np.cross's products
@@ -215,7 +217,7 @@ def bone_frame_turns(pose, trunk_joints, ends, parents, on_thorax, rest):
             for c in range(3):
                 base[b, r, c] = trunks[t, r, c]
         end, parent = ends[b], parents[b]
-        d0, d1, d2 = _unit_vector(
+        _, d0, d1, d2 = unit_and_norm(
             pose[end, 0] - pose[parent, 0],
             pose[end, 1] - pose[parent, 1],
             pose[end, 2] - pose[parent, 2],

@@ -13,7 +13,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
-from fpg_gym.core.compiled_poses import bone_lengths_pose, scalar_maximum, scalar_minimum
+from fpg_gym.core.compiled_poses import (
+    bone_lengths_pose,
+    scalar_maximum,
+    scalar_minimum,
+    unit_and_norm,
+)
 
 __all__ = [
     "fusion_bone_terms",
@@ -93,14 +98,6 @@ def sensor_trust(
 
 
 @numba.njit(cache=True, nogil=True)
-def _unit_row(x, y, z):
-    """A row's norm (numpy's sum of squares, in order) and the row over ``max(norm, 1e-9)``."""
-    norm = np.sqrt((x * x + y * y) + z * z)
-    scale = scalar_maximum(norm, 1e-9)
-    return norm, x / scale, y / scale, z / scale
-
-
-@numba.njit(cache=True, nogil=True)
 def fusion_bone_terms(
     trust, database, sensor_bones, bones, length_sum, length_count, disagreement, keep
 ):
@@ -118,12 +115,12 @@ def fusion_bone_terms(
         parent, child = bones[b, 0], bones[b, 1]
         bone_trust[b] = scalar_minimum(trust[parent], trust[child])
         seen = bone_trust[b] > 0.9
-        database_norm, d0, d1, d2 = _unit_row(
+        database_norm, d0, d1, d2 = unit_and_norm(
             database[child, 0] - database[parent, 0],
             database[child, 1] - database[parent, 1],
             database[child, 2] - database[parent, 2],
         )
-        sensor_norm, s0, s1, s2 = _unit_row(
+        sensor_norm, s0, s1, s2 = unit_and_norm(
             sensor_bones[b, 0], sensor_bones[b, 1], sensor_bones[b, 2]
         )
         database_units[b, 0], database_units[b, 1], database_units[b, 2] = d0, d1, d2
@@ -163,7 +160,7 @@ def fusion_bones(parent_frames, held, database_units, sensor_units, share, bone_
         l0 = share[b] * database_units[b, 0] + (1.0 - share[b]) * turned[0]
         l1 = share[b] * database_units[b, 1] + (1.0 - share[b]) * turned[1]
         l2 = share[b] * database_units[b, 2] + (1.0 - share[b]) * turned[2]
-        _, l0, l1, l2 = _unit_row(l0, l1, l2)
+        _, l0, l1, l2 = unit_and_norm(l0, l1, l2)
         weight = bone_trust[b]
         out[b, 0] = weight * (sensor_units[b, 0] * lengths[b]) + (1.0 - weight) * (l0 * lengths[b])
         out[b, 1] = weight * (sensor_units[b, 1] * lengths[b]) + (1.0 - weight) * (l1 * lengths[b])
@@ -180,7 +177,7 @@ def held_directions(pose, parent_frames, bones, bone_trust, held):
         if not bone_trust[b] > 0.9:
             continue
         parent, child = bones[b, 0], bones[b, 1]
-        _, u0, u1, u2 = _unit_row(
+        _, u0, u1, u2 = unit_and_norm(
             pose[child, 0] - pose[parent, 0],
             pose[child, 1] - pose[parent, 1],
             pose[child, 2] - pose[parent, 2],
