@@ -27,8 +27,8 @@ def _blas_libraries() -> tuple[Any, ...]:
 
 
 class _OneBlasThread:
-    """:func:`one_blas_thread`'s context manager (a class: the block costs about 2 µs against
-    about 8 µs for a generator's ``contextmanager`` here)."""
+    """:func:`one_blas_thread`'s context manager (a class: an empty block costs 3.9 µs of CPU
+    against 5.8 µs for a generator's ``contextmanager``, numpy's and scipy's OpenBLAS loaded)."""
 
     __slots__ = ("_restore",)
 
