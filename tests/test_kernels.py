@@ -159,3 +159,33 @@ def test_compiled_energy_rows_equal_their_source_to_the_bit(bones: int) -> None:
     compiled.energy_rows(p, z, 0.25, ycst, b0, lengths, 0.1, out)
     compiled.energy_rows.py_func(p, z, 0.25, ycst, b0, lengths, 0.1, expected)
     np.testing.assert_array_equal(out, expected)
+
+
+@pytest.mark.skipif(not numba_available(), reason="the compiled rows need numba (fpg-gym[fast])")
+@pytest.mark.parametrize("seed", range(5))
+def test_energy_rows_lowest_only_keep_the_first_lowest_row(seed: int) -> None:
+    """``lowest_only`` (the compiled local search's rows) skips Ek where it cannot make the
+    lowest row: the first lowest row and its energy stay the full rows' to the bit, the other
+    rows never drop below an earlier full energy, and some rows are skipped."""
+    compiled = compiled_module("fpg_gym.reconstruct.compiled_kernels")
+    assert compiled is not None
+    rng = np.random.default_rng(seed)
+    n, d, k = 100, 6, 4
+    p = rng.normal(0.0, 1.0, (n, d + 1 + k + 3 * skeleton.NUM_BONES))
+    if seed == 0:
+        p[40, 2] = np.nan  # a NaN row stays NaN (np.argmin's first NaN)
+    z, ycst = rng.normal(0.0, 1.0, (n, d)), rng.uniform(0.0, 1.0, k)
+    b0, lengths = rng.normal(0.0, 0.3, 3 * skeleton.NUM_BONES), rng.uniform(0.1, 0.5, 19)
+    full, lowest = np.empty(n), np.empty(n)
+    compiled.energy_rows(p, z, 0.25, ycst, b0, lengths, 0.1, full, False)
+    compiled.energy_rows(p, z, 0.25, ycst, b0, lengths, 0.1, lowest, True)
+    row = int(np.argmin(full))
+    assert int(np.argmin(lowest)) == row
+    assert np.array_equal(lowest[row], full[row], equal_nan=True)
+    assert np.array_equal(np.isnan(lowest), np.isnan(full))
+    skipped = np.flatnonzero(~np.isnan(full) & (lowest != full))
+    assert 0 < len(skipped) < n
+    assert np.all(lowest[skipped] <= full[skipped])
+    assert np.all(lowest[skipped] > np.fmin.accumulate(full)[skipped - 1])
+    finite_row = int(np.nanargmin(full))  # the lowest row besides NaN rows too
+    assert int(np.nanargmin(lowest)) == finite_row and lowest[finite_row] == full[finite_row]

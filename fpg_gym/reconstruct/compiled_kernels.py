@@ -33,15 +33,23 @@ def _bone_errors(bones, row, b0, lengths, diff):
 
 
 @numba.njit(cache=True, nogil=True)
-def energy_rows(p, z, c0, ycst, b0, lengths, wk, out):
+def energy_rows(p, z, c0, ycst, b0, lengths, wk, out, lowest_only=False):
     """``out[i] = z_i . P[i, :d] + P[i, d] + c0 + min_k (P[i, d+1+k] + ycst[k]) + wk * sum_b
     (|P[i, bone b] + b0_b| - lengths_b)^2`` (Shum Eq. 10 as in the tables; ``p``, ``b0`` and
-    ``lengths`` in one dtype, as the tables hold them)."""
+    ``lengths`` in one dtype, as the tables hold them).
+
+    With ``lowest_only`` (a search that keeps only the first lowest row), a row whose sum
+    before ``Ek`` is finite and above an earlier row's energy gets that sum instead: ``Ek``
+    (``wk * sum_b ... >= 0``) cannot lower it, so the first lowest row, its energy and whether
+    the energies are finite stay those of the full rows (unless the bone columns of ``P``
+    overflow), and the row skips ``Ek``'s square roots."""
     n, d = z.shape
     k = ycst.shape[0]
     bones = lengths.shape[0]
     base = d + 1 + k
     diff = np.empty(bones, dtype=p.dtype)
+    lowest = np.inf
+    skip = lowest_only and wk > 0.0
     for i in range(n):
         e = c0 + p[i, d]
         for j in range(d):
@@ -51,6 +59,10 @@ def energy_rows(p, z, c0, ycst, b0, lengths, wk, out):
             v = p[i, d + 1 + m] + ycst[m]
             if v < best:
                 best = v
+        partial = e + best
+        if skip and lowest < partial < np.inf:
+            out[i] = partial
+            continue
         # Ek, Eq. 13: the row's bone errors first (one vectorised loop for the skeleton's
         # bones), then their squares summed in order (the same result to the bit)
         row = p[i, base : base + 3 * bones]
@@ -61,14 +73,16 @@ def energy_rows(p, z, c0, ycst, b0, lengths, wk, out):
         s = 0.0
         for b in range(bones):
             s += diff[b] * diff[b]
-        out[i] = e + best + wk * s
+        out[i] = partial + wk * s
+        if out[i] < lowest:
+            lowest = out[i]
 
 
 @numba.njit(cache=True, nogil=True)
 def fused_kernel(z, matrix, c0, ycst, b0, lengths, wk):
     """One frame: points ``(n, d)`` -> ``(n,)``."""
     out = np.empty(z.shape[0], dtype=z.dtype)
-    energy_rows(z @ matrix, z, c0, ycst, b0, lengths, wk, out)
+    energy_rows(z @ matrix, z, c0, ycst, b0, lengths, wk, out, np.bool_(False))
     return out
 
 
@@ -77,5 +91,7 @@ def stacked_fused_kernel(z, matrix, c0, ycst, b0, lengths, wk):
     """S stacked frames: points ``(S, n, d)`` -> ``(S, n)``."""
     out = np.empty(z.shape[:2], dtype=z.dtype)
     for f in range(z.shape[0]):
-        energy_rows(z[f] @ matrix[f], z[f], c0[f], ycst[f], b0[f], lengths[f], wk, out[f])
+        energy_rows(
+            z[f] @ matrix[f], z[f], c0[f], ycst[f], b0[f], lengths[f], wk, out[f], np.bool_(False)
+        )
     return out

