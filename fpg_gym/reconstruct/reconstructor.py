@@ -477,13 +477,12 @@ class Reconstructor(FrameDrivers):
     ) -> tuple[ReliabilityTerms, np.ndarray | None, np.ndarray]:
         """The frame's reliability terms (scaled by the fusion's trust, if any), the trust and
         the user's bone lengths after the settling rule."""
-        terms = self.reliability.update(positions, states)
         trust = None
         if self._trust is not None:  # the fusion's trust scales R (not in the papers)
             # In the output's definitions, as the fusion sees the sensor (a database's own
             # definitions may make a bone short enough for its noise to look like a jump).
             trust = self._trust.update(compared, states, timestamp)
-            terms = replace(terms, reliability=terms.reliability * trust)
+        terms = self.reliability.update(positions, states, trust)
         was_settled = self.bones.settled
         lengths = self.bones.update(terms.reference_lengths, timestamp)
         if self.bones.settled and not was_settled:
