@@ -382,6 +382,11 @@ class Reconstructor(FrameDrivers):
             "selection": 1e3 * (t3 - t2),
             "latent": 1e3 * (t4 - t3),
         }
+        tracked = None
+        if self._calibration is not None:  # the joints it fits: tracked (or trusted) ones
+            tracked = ((states == skeleton.TRACKED) if trust is None else (trust > 0.9)) & (
+                not no_body
+            )
         self._pending = Pending(
             problem,
             output_placement,
@@ -395,7 +400,7 @@ class Reconstructor(FrameDrivers):
             LABELLINGS[labelling],
             np.asarray(lengths, dtype=np.float64),
             sensor,
-            ((states == skeleton.TRACKED) if trust is None else (trust > 0.9)) & (not no_body),
+            tracked,
             sensor_states=raw_states,
             trust=trust,
             permutation=LABEL_PERMUTATIONS[labelling],
