@@ -323,15 +323,35 @@ class Reconstructor(FrameDrivers):
         ValueError
             On a wrong shape or a non-finite position.
         """
-        if self._pending is not None:
-            raise RuntimeError(
-                "prepare: the previous frame's problem was not finished (call finish)"
-            )
         t0 = time.perf_counter()
         positions = pose_utils.as_poses(positions, "positions", ndim=2)
         states = np.asarray(states)
         if states.shape != (skeleton.NUM_JOINTS,):
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
+        return self._prepare_checked(positions, states, timestamp, t0)
+
+    def _prepare_checked(
+        self,
+        positions: np.ndarray,
+        states: np.ndarray,
+        timestamp: float | None = None,
+        started: float | None = None,
+    ) -> SearchProblem:
+        """:meth:`prepare` of a frame whose input was checked before: ``positions`` ``(20, 3)``
+        float32 and finite, ``states`` ``(20,)`` (a recording's frames, checked as a whole
+        when its :class:`~fpg_gym.reconstruct.streams.Stream` starts); ``started`` is the
+        frame's ``time.perf_counter()`` start.
+
+        Raises
+        ------
+        RuntimeError
+            If the previous problem was not finished.
+        """
+        if self._pending is not None:
+            raise RuntimeError(
+                "prepare: the previous frame's problem was not finished (call finish)"
+            )
+        t0 = time.perf_counter() if started is None else started
         cfg = self.config
         sensor, raw_states, mapped = positions, states, None
         if cfg.sensor_map is not None:  # the sensor's body points -> the database's
