@@ -42,6 +42,7 @@ True
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 from dataclasses import dataclass, field
@@ -285,9 +286,9 @@ class DefinitionMap:
         """The map that moves nothing."""
         return cls(np.zeros((skeleton.NUM_JOINTS, 3)), source=definitions, target=definitions)
 
-    @property
+    @functools.cached_property
     def is_identity(self) -> bool:
-        """Whether every offset is zero."""
+        """Whether every offset is zero (the offsets are read-only: looked at once)."""
         return not np.any(self.offsets)
 
     def apply(self, poses: npt.ArrayLike) -> np.ndarray:

@@ -220,6 +220,19 @@ def test_inferred_joint_fades_out_with_the_gaussian_filter() -> None:
     assert r[2] == pytest.approx(1.0 - w[0] / w[:3].sum())
 
 
+def test_a_scale_multiplies_the_filtered_reliability_only(rng: np.random.Generator) -> None:
+    clip = standing(8, speed=0.01)
+    states = tracked(8)
+    states[4:, KNEE] = 1
+    plain, scaled = ReliabilityEstimator(), ReliabilityEstimator()
+    for pose, state in zip(clip, states, strict=True):
+        scale = rng.uniform(0.0, 1.0, skeleton.NUM_JOINTS)
+        a, b = plain.update(pose, state), scaled.update(pose, state, scale)
+        assert np.array_equal(b.reliability, a.reliability * scale)
+        for name in ("behaviour", "kinematic", "tracking", "minimum", "reference_lengths"):
+            assert np.array_equal(getattr(b, name), getattr(a, name))
+
+
 def test_neutral_and_t_pose_detection() -> None:
     assert is_neutral_pose(poses.rest_pose())
     assert is_neutral_pose(t_pose())

@@ -192,8 +192,9 @@ def _gather_block(poses, nodes, start, m, xs, ys, zs):
 @numba.njit(cache=True, nogil=True)
 def _retarget_block(directions, roots, lengths, bones, nodes, start, m, xs, ys, zs):
     """Joints of ``nodes[start:start + m]`` retargeted in float64: the root plus the unit bone
-    ``directions`` times ``lengths``, summed from the root along ``bones`` ((parent, child),
-    parents first), joint-major."""
+    ``directions`` times ``lengths`` (rounded to float32, as ``NodeDatabase.poses_for`` takes
+    them), summed from the root along ``bones`` ((parent, child), parents first),
+    joint-major."""
     for t in range(m):
         node = nodes[start + t]
         xs[0, t] = roots[node, 0]
@@ -202,12 +203,29 @@ def _retarget_block(directions, roots, lengths, bones, nodes, start, m, xs, ys, 
     for b in range(bones.shape[0]):  # bone by bone, the nodes side by side
         parent = bones[b, 0]
         child = bones[b, 1]
-        length = np.float64(lengths[b])
+        length = np.float64(np.float32(lengths[b]))  # the float32 lengths of poses_for
         for t in range(m):
             node = nodes[start + t]
             xs[child, t] = xs[parent, t] + np.float64(directions[node, b, 0]) * length
             ys[child, t] = ys[parent, t] + np.float64(directions[node, b, 1]) * length
             zs[child, t] = zs[parent, t] + np.float64(directions[node, b, 2]) * length
+
+
+@numba.njit(cache=True, nogil=True)
+def _fpg_weights(reliability, has_prediction):
+    """FPG Eq. 5-6's joint weights ``R / 20`` and ``(1 - R) / 20`` (zeros without a
+    prediction) as :func:`fpg_gym.reconstruct.selection.fpg_score` forms them from float32
+    poses: ``R`` rounded to float32, the arithmetic in float32; float64 out."""
+    joints = reliability.shape[0]
+    ws = np.empty(joints)
+    wc = np.zeros(joints)
+    count = np.float32(joints)
+    for j in range(joints):
+        r = np.float32(reliability[j])
+        ws[j] = np.float64(r / count)
+        if has_prediction:
+            wc[j] = np.float64((np.float32(1.0) - r) / count)
+    return ws, wc
 
 
 @numba.njit(cache=True, nogil=True)
@@ -219,22 +237,24 @@ def fpg_walk_best(
     lengths,
     bones,
     retarget,
-    q,
-    pred,
-    ws,
-    wc,
+    pose,
+    prediction,
+    reliability,
     has_prediction,
     k,
 ):
     """FPG's score of the ``pool`` nodes (the graph walk's neighbourhood, or every node); the
     ``k`` best (:func:`_best`).
 
-    With ``retarget``, a node's pose is retargeted on the fly (:func:`_retarget_block`),
-    otherwise read from ``poses``; neither is stored.
+    ``pose`` and ``prediction`` ``(20, 3)`` are the sensor pose ``p_k`` and ``p_l + v_l dt``
+    (read in float64), ``reliability`` ``(20,)`` ``R`` (:func:`_fpg_weights`). With
+    ``retarget``, a node's pose is retargeted on the fly to ``lengths`` ``(19,)``
+    (:func:`_retarget_block`), otherwise read from ``poses``; neither is stored.
     """
     count = pool.shape[0]
     scores = np.empty(count, dtype=np.float64)
     joints = poses.shape[1]
+    ws, wc = _fpg_weights(reliability, has_prediction)
     xs = np.empty((joints, BLOCK))
     ys = np.empty((joints, BLOCK))
     zs = np.empty((joints, BLOCK))
@@ -244,7 +264,7 @@ def fpg_walk_best(
             _retarget_block(directions, roots, lengths, bones, pool, start, m, xs, ys, zs)
         else:
             _gather_block(poses, pool, start, m, xs, ys, zs)
-        _fpg_block(xs, ys, zs, m, q, pred, ws, wc, has_prediction, scores, start)
+        _fpg_block(xs, ys, zs, m, pose, prediction, ws, wc, has_prediction, scores, start)
     return _best(pool, scores, k)
 
 

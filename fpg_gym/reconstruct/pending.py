@@ -38,7 +38,7 @@ class Pending:
     labelling: str = "as-reported"
     lengths: np.ndarray | None = None
     sensor: np.ndarray | None = None  # the raw input frame, before the sensor map
-    tracked: np.ndarray | None = None  # its tracked joints
+    tracked: np.ndarray | None = None  # its tracked joints (for the online calibration)
     found: np.ndarray | None = None  # the best point of search(), if one ran
     sensor_states: np.ndarray | None = None  # the raw input's tracking states
     correction: OutputCorrection | None = None  # the searching optimiser's, if it has one

@@ -323,15 +323,35 @@ class Reconstructor(FrameDrivers):
         ValueError
             On a wrong shape or a non-finite position.
         """
-        if self._pending is not None:
-            raise RuntimeError(
-                "prepare: the previous frame's problem was not finished (call finish)"
-            )
         t0 = time.perf_counter()
         positions = pose_utils.as_poses(positions, "positions", ndim=2)
         states = np.asarray(states)
         if states.shape != (skeleton.NUM_JOINTS,):
             raise ValueError(f"states: expected shape (20,), got {states.shape}")
+        return self._prepare_checked(positions, states, timestamp, t0)
+
+    def _prepare_checked(
+        self,
+        positions: np.ndarray,
+        states: np.ndarray,
+        timestamp: float | None = None,
+        started: float | None = None,
+    ) -> SearchProblem:
+        """:meth:`prepare` of a frame whose input was checked before: ``positions`` ``(20, 3)``
+        float32 and finite, ``states`` ``(20,)`` (a recording's frames, checked as a whole
+        when its :class:`~fpg_gym.reconstruct.streams.Stream` starts); ``started`` is the
+        frame's ``time.perf_counter()`` start.
+
+        Raises
+        ------
+        RuntimeError
+            If the previous problem was not finished.
+        """
+        if self._pending is not None:
+            raise RuntimeError(
+                "prepare: the previous frame's problem was not finished (call finish)"
+            )
+        t0 = time.perf_counter() if started is None else started
         cfg = self.config
         sensor, raw_states, mapped = positions, states, None
         if cfg.sensor_map is not None:  # the sensor's body points -> the database's
@@ -382,6 +402,11 @@ class Reconstructor(FrameDrivers):
             "selection": 1e3 * (t3 - t2),
             "latent": 1e3 * (t4 - t3),
         }
+        tracked = None
+        if self._calibration is not None:  # the joints it fits: tracked (or trusted) ones
+            tracked = ((states == skeleton.TRACKED) if trust is None else (trust > 0.9)) & (
+                not no_body
+            )
         self._pending = Pending(
             problem,
             output_placement,
@@ -395,7 +420,7 @@ class Reconstructor(FrameDrivers):
             LABELLINGS[labelling],
             np.asarray(lengths, dtype=np.float64),
             sensor,
-            ((states == skeleton.TRACKED) if trust is None else (trust > 0.9)) & (not no_body),
+            tracked,
             sensor_states=raw_states,
             trust=trust,
             permutation=LABEL_PERMUTATIONS[labelling],
@@ -477,13 +502,12 @@ class Reconstructor(FrameDrivers):
     ) -> tuple[ReliabilityTerms, np.ndarray | None, np.ndarray]:
         """The frame's reliability terms (scaled by the fusion's trust, if any), the trust and
         the user's bone lengths after the settling rule."""
-        terms = self.reliability.update(positions, states)
         trust = None
         if self._trust is not None:  # the fusion's trust scales R (not in the papers)
             # In the output's definitions, as the fusion sees the sensor (a database's own
             # definitions may make a bone short enough for its noise to look like a jump).
             trust = self._trust.update(compared, states, timestamp)
-            terms = replace(terms, reliability=terms.reliability * trust)
+        terms = self.reliability.update(positions, states, trust)
         was_settled = self.bones.settled
         lengths = self.bones.update(terms.reference_lengths, timestamp)
         if self.bones.settled and not was_settled:

@@ -385,6 +385,7 @@ class ReliabilityEstimator:
             )
         self._prior_height = float(pose_utils.height(pose_utils.rest_pose(self._prior)))
         self._cos_tolerance = float(np.cos(np.deg2rad(self.config.neutral_tolerance_deg)))
+        self._theta_bounds = _theta_bounds(self.config)
         weights = self.config.weights()
         # The filter's weights over the first n frames of a stream, normalised to sum to 1.
         self._filters = [weights[:n] / weights[:n].sum() for n in range(1, len(weights) + 1)]
@@ -530,7 +531,9 @@ class ReliabilityEstimator:
         )
         return behaviour_reliability(mean_angle, self.config)
 
-    def update(self, positions: np.ndarray, states: np.ndarray) -> ReliabilityTerms:
+    def update(
+        self, positions: np.ndarray, states: np.ndarray, scale: np.ndarray | None = None
+    ) -> ReliabilityTerms:
         """Reliability of the next frame.
 
         Parameters
@@ -539,6 +542,9 @@ class ReliabilityEstimator:
             The frame's joint positions in camera space (metres).
         states : array_like, shape (20,)
             Tracking states: 2 tracked, 1 inferred, 0 not tracked.
+        scale : ndarray, shape (20,), optional
+            A factor of ``R`` after its filter (the fusion's trust; the other terms as they
+            are).
 
         Returns
         -------
@@ -585,6 +591,8 @@ class ReliabilityEstimator:
             # and the positions must not enter the motion history.
             reliability = np.zeros(skeleton.NUM_JOINTS)
             self._counts[:2] = 0
+        if scale is not None:
+            reliability = reliability * scale
         return ReliabilityTerms(
             reliability=reliability,
             behaviour=behaviour,
@@ -607,7 +615,7 @@ class ReliabilityEstimator:
             self._reference = (
                 self._fixed if self._fixed is not None else np.zeros(skeleton.NUM_BONES)
             )
-        floor, span = _theta_bounds(cfg)
+        floor, span = self._theta_bounds
         behaviour, deviation, tracking, window, calibration, body = compiled.reliability_frame(
             np.ascontiguousarray(positions),
             states,

@@ -34,7 +34,8 @@ differently by position: ``poses_for`` of a subset differs in the last bits from
 rows of a larger call), while the compiled score depends on the pose alone: identical poses tie
 exactly and are ordered by node id; a tie across the K-th place (every node scores 0 when no joint
 is reliable and there is no prediction) runs the numpy path, which keeps the tied nodes its
-partition leaves, as before. The walk's K poses come from :meth:`NodeDatabase.poses_for` as before.
+partition leaves, as before. The walk's kernel also gives its K poses, those of
+:meth:`NodeDatabase.poses_for`.
 Without numba the numpy paths run (the previous implementation, unchanged).
 ``tests/test_fast_selection.py`` compares both with the reference of
 ``tests/reference_selection.py``.
@@ -131,20 +132,21 @@ def compiled_available() -> bool:
     return _compiled() is not None
 
 
-def _fpg_weights(
-    reliability: np.ndarray, dtype: np.dtype, prediction: bool
-) -> tuple[np.ndarray, np.ndarray]:
-    """``R / 20`` and ``(1 - R) / 20`` as :func:`fpg_score` forms them (in ``dtype``), float64."""
-    r = np.asarray(reliability, dtype=dtype)
-    ws = (r / skeleton.NUM_JOINTS).astype(np.float64)
-    wc = ((1.0 - r) / skeleton.NUM_JOINTS).astype(np.float64) if prediction else np.zeros_like(ws)
-    return ws, wc
+def _as_joints(pose: np.ndarray) -> np.ndarray:
+    """``pose`` as a C-contiguous float64 ``(20, 3)`` array."""
+    return np.ascontiguousarray(pose, dtype=np.float64).reshape(skeleton.NUM_JOINTS, 3)
 
 
-def _as_joints(pose: np.ndarray | None, like: np.ndarray) -> np.ndarray:
-    """``pose`` (or ``like`` when None) as a C-contiguous float64 ``(20, 3)`` array."""
-    return np.ascontiguousarray(like if pose is None else pose, dtype=np.float64).reshape(
-        skeleton.NUM_JOINTS, 3
+def _walk_query(query: SelectionQuery) -> tuple[np.ndarray, np.ndarray, np.ndarray, bool]:
+    """The query as :func:`~fpg_gym.reconstruct.compiled_selection.fpg_walk_best` reads it:
+    the sensor pose, the prediction (zeros without one), ``R`` float64 and whether there is a
+    prediction."""
+    prediction = query.prediction
+    return (
+        np.asarray(query.pose),
+        _NO_PREDICTION if prediction is None else np.asarray(prediction, dtype=np.float64),
+        np.asarray(query.reliability, dtype=np.float64),
+        prediction is not None,
     )
 
 
@@ -285,7 +287,7 @@ def shum_best_k(
     compiled = _compiled()
     if compiled is not None:  # Shum Eq. 9 of every node
         nodes, scores, tied = compiled.shum_full_best(
-            database.all_poses(query.lengths), _as_joints(query.pose, query.pose), reliability, k
+            database.all_poses(query.lengths), _as_joints(query.pose), reliability, k
         )
         if not tied:
             return nodes, scores
@@ -332,8 +334,6 @@ def fpg_best_k(
     poses = database.all_poses(query.lengths)
     compiled = _compiled()
     if compiled is not None:
-        pose = np.asarray(query.pose)
-        ws, wc = _fpg_weights(query.reliability, poses.dtype, query.prediction is not None)
         # FPG Eq. 5-7 of every node: the walk's kernel with the walk's argument types (one
         # compiled specialisation for both), reading ``poses`` (not retargeting)
         nodes, scores, tied = compiled.fpg_walk_best(
@@ -344,11 +344,7 @@ def fpg_best_k(
             _UNIT_LENGTHS,
             _BONES,
             False,
-            _as_joints(pose, pose),
-            _as_joints(query.prediction, pose),
-            ws,
-            wc,
-            query.prediction is not None,
+            *_walk_query(query),
             k,
         )
         if not tied:
@@ -372,7 +368,8 @@ COMPILED_WALK_NODE_COST = 3.5
 COMPILED_WALK_FIXED_COST = 500.0
 
 _BONES = np.ascontiguousarray(skeleton.BONES, dtype=np.int64)
-_UNIT_LENGTHS = np.ones(skeleton.NUM_BONES, dtype=np.float32)  # unused when not retargeting
+_UNIT_LENGTHS = np.ones(skeleton.NUM_BONES)  # unused when not retargeting
+_NO_PREDICTION = np.zeros((skeleton.NUM_JOINTS, 3))  # unused without a prediction
 
 
 def walk_cost(pool_size: int, compiled: bool) -> float:
@@ -531,26 +528,15 @@ class GraphSelector:
         tie across the cut (the numpy walk then picks the tied nodes kept, as before)."""
         database = self.database
         retarget = query.lengths is not None
-        dtype = np.dtype(np.float32) if retarget else database.poses.dtype
-        pose = np.asarray(query.pose)
-        has_prediction = query.prediction is not None
-        ws, wc = _fpg_weights(query.reliability, dtype, has_prediction)
-        lengths = np.asarray(
-            query.lengths if retarget else np.ones(skeleton.NUM_BONES), dtype=np.float32
-        )
         nodes, scores, tied = compiled.fpg_walk_best(  # FPG Eq. 5-7 of every pool node
             pool,
             database.poses,
             database.directions,
             database.roots,
-            lengths,
+            np.asarray(query.lengths, dtype=np.float64) if retarget else _UNIT_LENGTHS,
             _BONES,
             retarget,
-            _as_joints(pose, pose),
-            _as_joints(query.prediction, pose),
-            ws,
-            wc,
-            has_prediction,
+            *_walk_query(query),
             self.k,
         )
         if tied:

@@ -178,7 +178,9 @@ class Stream:
             if self._frames is None or self.done:
                 raise RuntimeError(f"stream {self.index}: no frame left to prepare")
             t = self.next
-            positions, states, timestamp = (a[t] for a in self._frames)
+            positions, states, timestamps = self._frames
+            # checked with the recording (_stream_arrays)
+            return self.reconstructor._prepare_checked(positions[t], states[t], timestamps[t])
         assert states is not None
         return self.reconstructor.prepare(positions, states, timestamp)
 
