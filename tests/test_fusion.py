@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -15,6 +16,7 @@ from fpg_gym.io import Recording, load_default_clips
 from fpg_gym.reconstruct import Reconstructor
 from fpg_gym.reconstruct.bone_model import LinearBoneModel, packaged_bone_model
 from fpg_gym.reconstruct.fusion import FusionConfig, SensorFusion, SensorTrust, fuse_positions
+from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, LABELLINGS
 from fpg_gym.reconstruct.presets import (
     SensorResources,
     choose_pipeline,
@@ -361,3 +363,25 @@ def test_cli_gives_a_kinect_v2_recording_its_pipeline(
     summary = json.loads((compare / "summary.json").read_text())["methods"]
     assert summary["fpg:closed-form"]["mpjpe_m"] < summary["holt+map"]["mpjpe_m"]
     assert summary["holt+map"]["mpjpe_m"] < summary["raw"]["mpjpe_m"]
+
+
+def test_fusion_reuses_the_relabelling_map_only_where_the_labels_stay(stream: Recording) -> None:
+    """The fusion takes the sensor in the output's definitions from the relabelling (mapped
+    once a frame) where the labels stay, and maps a relabelled frame again: the outputs are
+    those of mapping every frame again, to the bit."""
+    graph = default_graph(exclude=["walk"])
+    chosen = pipeline("auto", "kinect-v2", packaged_graph("uiprmd"))
+    positions = stream.positions.copy()
+    arms = LABEL_PERMUTATIONS[LABELLINGS.index("arms-swapped")]
+    positions[40:55] = positions[40:55][:, arms]
+    swapped = dataclasses.replace(stream, positions=positions)
+    outputs, labellings = [], []
+    for reuse in (True, False):
+        with Reconstructor(graph, **chosen.options) as reconstructor:
+            assert reconstructor._maps_for_fusion
+            reconstructor._maps_for_fusion = reuse
+            result = reconstructor.reconstruct(swapped, "closed-form", rng=0)
+        outputs.append(result.poses)
+        labellings.append(result.arrays()["labelling"])
+    assert (labellings[0] != 0).any() and (labellings[0] == 0).any()
+    np.testing.assert_array_equal(outputs[0], outputs[1])

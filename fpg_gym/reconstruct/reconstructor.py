@@ -213,6 +213,8 @@ class Reconstructor(FrameDrivers):
             else None
         )
         self._sensor_output_map = sensor_to_output_map(config)
+        #: Whether ``_relabel`` maps the sensor into the output's definitions (the fusion's).
+        self._maps_for_fusion = self._fusion is not None and self._sensor_output_map is not None
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -399,6 +401,9 @@ class Reconstructor(FrameDrivers):
             sensor_states=raw_states,
             trust=trust,
             permutation=LABEL_PERMUTATIONS[labelling],
+            # The fusion's sensor in the output's definitions: the relabelling's, when the
+            # labels stay (a relabelled pose is mapped again: the map reads its labels).
+            output_sensor=compared if labelling == 0 and self._maps_for_fusion else None,
         )
         return problem
 
@@ -648,11 +653,13 @@ class Reconstructor(FrameDrivers):
             # Fusion (not in the papers): the sensor where it is trusted, the reconstruction
             # where it is not.
             t5 = time.perf_counter()
-            mapped = (
-                sensor
-                if self._sensor_output_map is None
-                else (self._sensor_output_map.apply(sensor))
-            )
+            mapped = pending.output_sensor
+            if mapped is None:
+                mapped = (
+                    sensor
+                    if self._sensor_output_map is None
+                    else self._sensor_output_map.apply(sensor)
+                )
             pose = self._fusion.update(pose, mapped, pending.trust, pending.timestamp)
             self._fused_history.append((np.asarray(pose, dtype=np.float64), pending.timestamp))
             del self._fused_history[:-2]
