@@ -182,7 +182,10 @@ class LinearBoneModel:
 
     def corrections(self, poses: npt.ArrayLike) -> np.ndarray:
         """Predicted truth-minus-sensor bone vectors ``(N, 19, 3)`` in the poses' space."""
-        sensor = _poses(poses, "poses")
+        return self._corrections(_poses(poses, "poses"))
+
+    def _corrections(self, sensor: np.ndarray) -> np.ndarray:
+        """:meth:`corrections` of checked poses ``(N, 20, 3)`` float64."""
         features, turn = _features(sensor)
         local = predict_ridge(self._model, features).reshape(len(sensor), skeleton.NUM_BONES, 3)
         return np.asarray(np.einsum("nbd,ncd->nbc", local, turn))
@@ -190,7 +193,7 @@ class LinearBoneModel:
     def bone_vectors(self, pose: npt.ArrayLike) -> np.ndarray:
         """Corrected bone vectors ``(19, 3)`` of one pose ``(20, 3)`` (:class:`BoneModel`)."""
         sensor = _poses(pose, "pose")
-        return np.asarray(pose_utils.bone_vectors(sensor)[0] + self.corrections(sensor)[0])
+        return np.asarray(pose_utils.bone_vectors(sensor)[0] + self._corrections(sensor)[0])
 
     # ------------------------------------------------------------------ files
 

@@ -602,7 +602,7 @@ class Reconstructor(FrameDrivers):
         del self._history[:-2]
         self._placement = pending.placement
         self._last_timestamp = pending.timestamp
-        ms = dict(pending.ms)
+        ms = pending.ms  # the frame's own (prepare made it)
         ms["search"] = 1e3 * (t0 - pending.prepared_at)
         ms["finish"] = 1e3 * ((t1 - t0) + (t3 - t2))  # the output stage counts as finishing
         ms["ragdoll"] = 1e3 * (t2 - t1)
