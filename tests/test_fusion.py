@@ -13,7 +13,7 @@ from fpg_gym.core import metrics, poses, skeleton
 from fpg_gym.core.errors import DataFormatError
 from fpg_gym.graph import default_graph, packaged_graph
 from fpg_gym.io import Recording, load_default_clips
-from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.reconstruct import Reconstructor, bone_model
 from fpg_gym.reconstruct.bone_model import LinearBoneModel, packaged_bone_model
 from fpg_gym.reconstruct.fusion import FusionConfig, SensorFusion, SensorTrust, fuse_positions
 from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, LABELLINGS
@@ -385,3 +385,18 @@ def test_fusion_reuses_the_relabelling_map_only_where_the_labels_stay(stream: Re
         labellings.append(result.arrays()["labelling"])
     assert (labellings[0] != 0).any() and (labellings[0] == 0).any()
     np.testing.assert_array_equal(outputs[0], outputs[1])
+
+
+def test_bone_model_of_one_pose_is_its_numpy_model_to_the_bit(
+    stream: Recording, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A single pose's corrected bones (compiled turns with numba) equal those of numpy's
+    einsums, to the bit."""
+    model = packaged_bone_model("kinect-v2-to-vicon")
+    batch = stream.positions[::7].astype(np.float64)
+    batch[1] += 1.5  # away from the origin, and a half-turned pose
+    batch[2] = batch[2] * np.array([-1.0, 1.0, -1.0])
+    fast = [model.bone_vectors(pose) for pose in batch]
+    monkeypatch.setattr(bone_model, "compiled_module", lambda name: None)
+    for pose, expected in zip(batch, fast, strict=True):
+        np.testing.assert_array_equal(model.bone_vectors(pose), expected)
