@@ -573,9 +573,10 @@ class Reconstructor(FrameDrivers):
         if z is None:
             z = problem.x0 if pending.found is None else pending.found
         z = np.asarray(z, dtype=np.float64).reshape(-1)
-        if z.shape != (problem.dim,) or not np.isfinite(z).all():
-            raise ValueError(f"z: expected {problem.dim} finite values, got shape {z.shape}")
-        points = np.empty((2, problem.dim))  # z and x0 (an encoded pose: finite)
+        dim = problem.dim
+        if z.shape != (dim,) or not np.isfinite(z).all():
+            raise ValueError(f"z: expected {dim} finite values, got shape {z.shape}")
+        points = np.empty((2, dim))  # z and x0 (an encoded pose: finite)
         points[0] = z
         points[1] = problem.x0
         chosen = problem.energy.terms_and_total(points)  # evaluate_terms's, checked, uncounted

@@ -178,7 +178,8 @@ class Stream:
             if self._frames is None or self.done:
                 raise RuntimeError(f"stream {self.index}: no frame left to prepare")
             t = self.next
-            positions, states, timestamp = (a[t] for a in self._frames)
+            recorded, recorded_states, timestamps = self._frames
+            positions, states, timestamp = recorded[t], recorded_states[t], timestamps[t]
         assert states is not None
         return self.reconstructor.prepare(positions, states, timestamp)
 
