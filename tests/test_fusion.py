@@ -365,12 +365,19 @@ def test_cli_gives_a_kinect_v2_recording_its_pipeline(
     assert summary["holt+map"]["mpjpe_m"] < summary["raw"]["mpjpe_m"]
 
 
-def test_fusion_reuses_the_relabelling_map_only_where_the_labels_stay(stream: Recording) -> None:
-    """The fusion takes the sensor in the output's definitions from the relabelling (mapped
-    once a frame) where the labels stay, and maps a relabelled frame again: the outputs are
-    those of mapping every frame again, to the bit."""
+@pytest.mark.parametrize("database", ["uiprmd", "embedded"])
+def test_fusion_reuses_the_relabelling_map_only_where_the_labels_stay(
+    stream: Recording, database: str
+) -> None:
+    """The fusion (and the online calibration, the embedded database's pipeline) take the
+    sensor in the output's definitions from the relabelling (mapped once a frame) where the
+    labels stay, and map a relabelled frame again: the outputs are those of mapping every
+    frame again, to the bit."""
     graph = default_graph(exclude=["walk"])
-    chosen = pipeline("auto", "kinect-v2", packaged_graph("uiprmd"))
+    chosen = pipeline(
+        "auto", "kinect-v2", packaged_graph("uiprmd") if database == "uiprmd" else graph
+    )
+    assert chosen.options.get("calibrate_output", False) == (database == "embedded")
     positions = stream.positions.copy()
     arms = LABEL_PERMUTATIONS[LABELLINGS.index("arms-swapped")]
     positions[40:55] = positions[40:55][:, arms]

@@ -645,7 +645,9 @@ class Reconstructor(FrameDrivers):
             sensor = sensor[pending.permutation]  # the labels the frame was reconstructed with
         if self._calibration is not None and sensor is not None and pending.tracked is not None:
             target = sensor
-            if self.config.calibration_map is not None:
+            if pending.output_sensor is not None:  # the calibration map's (the fusion's too)
+                target = pending.output_sensor
+            elif self.config.calibration_map is not None:
                 target = self.config.calibration_map.apply(target)
             pose = self._calibration.update(pose, target, pending.tracked)
         if self._output_bones is not None and not pending.no_body:
