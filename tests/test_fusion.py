@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from pathlib import Path
 from typing import Any
 
@@ -12,9 +13,10 @@ from fpg_gym.core import metrics, poses, skeleton
 from fpg_gym.core.errors import DataFormatError
 from fpg_gym.graph import default_graph, packaged_graph
 from fpg_gym.io import Recording, load_default_clips
-from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.reconstruct import Reconstructor, bone_model
 from fpg_gym.reconstruct.bone_model import LinearBoneModel, packaged_bone_model
 from fpg_gym.reconstruct.fusion import FusionConfig, SensorFusion, SensorTrust, fuse_positions
+from fpg_gym.reconstruct.left_right import LABEL_PERMUTATIONS, LABELLINGS
 from fpg_gym.reconstruct.presets import (
     SensorResources,
     choose_pipeline,
@@ -361,3 +363,47 @@ def test_cli_gives_a_kinect_v2_recording_its_pipeline(
     summary = json.loads((compare / "summary.json").read_text())["methods"]
     assert summary["fpg:closed-form"]["mpjpe_m"] < summary["holt+map"]["mpjpe_m"]
     assert summary["holt+map"]["mpjpe_m"] < summary["raw"]["mpjpe_m"]
+
+
+@pytest.mark.parametrize("database", ["uiprmd", "embedded"])
+def test_fusion_reuses_the_relabelling_map_only_where_the_labels_stay(
+    stream: Recording, database: str
+) -> None:
+    """The fusion (and the online calibration, the embedded database's pipeline) take the
+    sensor in the output's definitions from the relabelling (mapped once a frame) where the
+    labels stay, and map a relabelled frame again: the outputs are those of mapping every
+    frame again, to the bit."""
+    graph = default_graph(exclude=["walk"])
+    chosen = pipeline(
+        "auto", "kinect-v2", packaged_graph("uiprmd") if database == "uiprmd" else graph
+    )
+    assert chosen.options.get("calibrate_output", False) == (database == "embedded")
+    positions = stream.positions.copy()
+    arms = LABEL_PERMUTATIONS[LABELLINGS.index("arms-swapped")]
+    positions[40:55] = positions[40:55][:, arms]
+    swapped = dataclasses.replace(stream, positions=positions)
+    outputs, labellings = [], []
+    for reuse in (True, False):
+        with Reconstructor(graph, **chosen.options) as reconstructor:
+            assert reconstructor._maps_for_fusion
+            reconstructor._maps_for_fusion = reuse
+            result = reconstructor.reconstruct(swapped, "closed-form", rng=0)
+        outputs.append(result.poses)
+        labellings.append(result.arrays()["labelling"])
+    assert (labellings[0] != 0).any() and (labellings[0] == 0).any()
+    np.testing.assert_array_equal(outputs[0], outputs[1])
+
+
+def test_bone_model_of_one_pose_is_its_numpy_model_to_the_bit(
+    stream: Recording, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """A single pose's corrected bones (compiled turns with numba) equal those of numpy's
+    einsums, to the bit."""
+    model = packaged_bone_model("kinect-v2-to-vicon")
+    batch = stream.positions[::7].astype(np.float64)
+    batch[1] += 1.5  # away from the origin, and a half-turned pose
+    batch[2] = batch[2] * np.array([-1.0, 1.0, -1.0])
+    fast = [model.bone_vectors(pose) for pose in batch]
+    monkeypatch.setattr(bone_model, "compiled_module", lambda name: None)
+    for pose, expected in zip(batch, fast, strict=True):
+        np.testing.assert_array_equal(model.bone_vectors(pose), expected)

@@ -31,6 +31,7 @@ import numpy.typing as npt
 
 from fpg_gym.core import poses as pose_utils
 from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import compiled_module
 from fpg_gym.core.errors import DataFormatError
 from fpg_gym.core.outputs import save_npz
 from fpg_gym.core.ridge import fit_ridge, predict_ridge, ridge_sums
@@ -46,6 +47,7 @@ _NUM_FEATURES = skeleton.NUM_JOINTS * 3 + skeleton.NUM_BONES * 3
 _NUM_TARGETS = skeleton.NUM_BONES * 3
 _DATA = Path(__file__).resolve().parents[1] / "data"
 _ARRAYS = ("regressor_mean", "regressor_scale", "weights", "bias")
+_ORIGIN = np.zeros(3)
 
 
 def _features(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -54,10 +56,15 @@ def _features(poses: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     yaw = pose_utils.facing_yaw(poses)
     turn = pose_utils.yaw_matrix(yaw)
     local = np.einsum("njc,ncd->njd", poses - poses[:, skeleton.ROOT : skeleton.ROOT + 1], turn)
+    return _regressors(local), turn
+
+
+def _regressors(local: np.ndarray) -> np.ndarray:
+    """Regressors ``(N, 117)`` of poses ``(N, 20, 3)`` root-relative and facing +Z."""
     bones = pose_utils.bone_vectors(local)
     directions = bones / np.maximum(np.linalg.norm(bones, axis=-1, keepdims=True), 1e-9)
-    count = len(poses)
-    return np.concatenate([local.reshape(count, -1), directions.reshape(count, -1)], 1), turn
+    count = len(local)
+    return np.concatenate([local.reshape(count, -1), directions.reshape(count, -1)], 1)
 
 
 def _targets(sensor: np.ndarray, truth: np.ndarray, turn: np.ndarray) -> np.ndarray:
@@ -182,7 +189,20 @@ class LinearBoneModel:
 
     def corrections(self, poses: npt.ArrayLike) -> np.ndarray:
         """Predicted truth-minus-sensor bone vectors ``(N, 19, 3)`` in the poses' space."""
-        sensor = _poses(poses, "poses")
+        return self._corrections(_poses(poses, "poses"))
+
+    def _corrections(self, sensor: np.ndarray) -> np.ndarray:
+        """:meth:`corrections` of checked poses ``(N, 20, 3)`` float64."""
+        compiled = compiled_module("fpg_gym.core.compiled_poses") if len(sensor) == 1 else None
+        if compiled is not None:
+            # One pose (the fusion's, every frame): both turns by the compiled placement, the
+            # products of the einsums below in their order (equal to the bit).
+            pose = np.ascontiguousarray(sensor[0])
+            yaw = float(pose_utils.facing_yaw(pose))
+            local = compiled.place_pose(pose, pose[skeleton.ROOT], yaw, False)
+            turned = predict_ridge(self._model, _regressors(local[None]))
+            offsets = turned.reshape(skeleton.NUM_BONES, 3)
+            return np.asarray(compiled.place_pose(offsets, _ORIGIN, yaw, True))[None]
         features, turn = _features(sensor)
         local = predict_ridge(self._model, features).reshape(len(sensor), skeleton.NUM_BONES, 3)
         return np.asarray(np.einsum("nbd,ncd->nbc", local, turn))
@@ -190,7 +210,7 @@ class LinearBoneModel:
     def bone_vectors(self, pose: npt.ArrayLike) -> np.ndarray:
         """Corrected bone vectors ``(19, 3)`` of one pose ``(20, 3)`` (:class:`BoneModel`)."""
         sensor = _poses(pose, "pose")
-        return np.asarray(pose_utils.bone_vectors(sensor)[0] + self.corrections(sensor)[0])
+        return np.asarray(pose_utils.bone_vectors(sensor)[0] + self._corrections(sensor)[0])
 
     # ------------------------------------------------------------------ files
 

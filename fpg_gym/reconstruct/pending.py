@@ -44,6 +44,7 @@ class Pending:
     correction: OutputCorrection | None = None  # the searching optimiser's, if it has one
     trust: np.ndarray | None = None  # the fusion's trust in each (relabelled) sensor joint
     permutation: np.ndarray | None = None  # the labelling's joint permutation
+    output_sensor: np.ndarray | None = None  # the sensor in the output's definitions, if mapped
 
 
 def output_pose(

@@ -213,6 +213,8 @@ class Reconstructor(FrameDrivers):
             else None
         )
         self._sensor_output_map = sensor_to_output_map(config)
+        #: Whether ``_relabel`` maps the sensor into the output's definitions (the fusion's).
+        self._maps_for_fusion = self._fusion is not None and self._sensor_output_map is not None
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -424,6 +426,9 @@ class Reconstructor(FrameDrivers):
             sensor_states=raw_states,
             trust=trust,
             permutation=LABEL_PERMUTATIONS[labelling],
+            # The fusion's sensor in the output's definitions: the relabelling's, when the
+            # labels stay (a relabelled pose is mapped again: the map reads its labels).
+            output_sensor=compared if labelling == 0 and self._maps_for_fusion else None,
         )
         return problem
 
@@ -592,9 +597,10 @@ class Reconstructor(FrameDrivers):
         if z is None:
             z = problem.x0 if pending.found is None else pending.found
         z = np.asarray(z, dtype=np.float64).reshape(-1)
-        if z.shape != (problem.dim,) or not np.isfinite(z).all():
-            raise ValueError(f"z: expected {problem.dim} finite values, got shape {z.shape}")
-        points = np.empty((2, problem.dim))  # z and x0 (an encoded pose: finite)
+        dim = problem.dim
+        if z.shape != (dim,) or not np.isfinite(z).all():
+            raise ValueError(f"z: expected {dim} finite values, got shape {z.shape}")
+        points = np.empty((2, dim))  # z and x0 (an encoded pose: finite)
         points[0] = z
         points[1] = problem.x0
         chosen = problem.energy.terms_and_total(points)  # evaluate_terms's, checked, uncounted
@@ -621,7 +627,7 @@ class Reconstructor(FrameDrivers):
         del self._history[:-2]
         self._placement = pending.placement
         self._last_timestamp = pending.timestamp
-        ms = dict(pending.ms)
+        ms = pending.ms  # the frame's own (prepare made it)
         ms["search"] = 1e3 * (t0 - pending.prepared_at)
         ms["finish"] = 1e3 * ((t1 - t0) + (t3 - t2))  # the output stage counts as finishing
         ms["ragdoll"] = 1e3 * (t2 - t1)
@@ -663,7 +669,9 @@ class Reconstructor(FrameDrivers):
             sensor = sensor[pending.permutation]  # the labels the frame was reconstructed with
         if self._calibration is not None and sensor is not None and pending.tracked is not None:
             target = sensor
-            if self.config.calibration_map is not None:
+            if pending.output_sensor is not None:  # the calibration map's (the fusion's too)
+                target = pending.output_sensor
+            elif self.config.calibration_map is not None:
                 target = self.config.calibration_map.apply(target)
             pose = self._calibration.update(pose, target, pending.tracked)
         if self._output_bones is not None and not pending.no_body:
@@ -672,11 +680,13 @@ class Reconstructor(FrameDrivers):
             # Fusion (not in the papers): the sensor where it is trusted, the reconstruction
             # where it is not.
             t5 = time.perf_counter()
-            mapped = (
-                sensor
-                if self._sensor_output_map is None
-                else (self._sensor_output_map.apply(sensor))
-            )
+            mapped = pending.output_sensor
+            if mapped is None:
+                mapped = (
+                    sensor
+                    if self._sensor_output_map is None
+                    else self._sensor_output_map.apply(sensor)
+                )
             pose = self._fusion.update(pose, mapped, pending.trust, pending.timestamp)
             self._fused_history.append((np.asarray(pose, dtype=np.float64), pending.timestamp))
             del self._fused_history[:-2]
