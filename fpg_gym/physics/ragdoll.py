@@ -91,6 +91,7 @@ from __future__ import annotations
 
 import math
 import warnings
+from itertools import chain, repeat
 from types import TracebackType
 from typing import Any, Literal
 
@@ -289,6 +290,8 @@ class Ragdoll:
         # The physics client draws nothing (building bodies costs half as much without the
         # renderer); render() draws the body in a client of its own, built on first use.
         self.client = connect_direct(renderer=False)
+        # pybullet.changeConstraint's trailing positional arguments in track(), for map().
+        self._unchanged = tuple(repeat(value) for value in (*_UNCHANGED, self.client))
         self._closed = False
         self._scene: Scene | None = None
         self.bodies: list[int] = []
@@ -497,18 +500,18 @@ class Ragdoll:
             centres_all, orientations_all, world1 = substep_goals(
                 root0, world0, root1, world1, n, self._rest_vectors, self._capsule_frames
             )
-        centres = centres_all.tolist()
-        orientations = orientations_all.tolist()
         goal = (root1, world1)
         change, step, cid = pybullet.changeConstraint, pybullet.stepSimulation, self.client
-        pairs = list(enumerate(self._tracking))
-        for k in range(n):  # the pybullet call boundary: one call per body part and step
-            centres_k, orientations_k = centres[k], orientations[k]
-            for bone, constraint in pairs:
-                # Positional (half the cost of keywords): the pivot and orientation, then
-                # pybullet's "leave unchanged" maxForce, gearRatio, gearAuxLink,
-                # relativePositionTarget and erp, then the client.
-                change(constraint, centres_k[bone], orientations_k[bone], *_UNCHANGED, cid)
+        tracking, unchanged = self._tracking, self._unchanged
+        # The pybullet call boundary: one call per body part and step, made by map (no Python
+        # frame per call), positional (half the cost of keywords): the pivot and orientation,
+        # then pybullet's "leave unchanged" maxForce, gearRatio, gearAuxLink,
+        # relativePositionTarget and erp, then the client.
+        for centres_k, orientations_k in zip(
+            centres_all.tolist(), orientations_all.tolist(), strict=True
+        ):
+            for _ in map(change, tracking, centres_k, orientations_k, *unchanged):
+                pass
             step(physicsClientId=cid)
         self._goal = goal
         self._target = target.copy()
@@ -550,9 +553,11 @@ class Ragdoll:
     # ----------------------------------------------------------------------- state
 
     def _body_states(self) -> tuple[np.ndarray, np.ndarray]:
-        get, cid = pybullet.getBasePositionAndOrientation, self.client
-        states = [get(body, physicsClientId=cid) for body in self.bodies]
-        return np.array([s[0] for s in states]), np.array([s[1] for s in states])
+        """The capsules' centres ``(19, 3)`` and orientations ``(19, 4)`` (x, y, z, w)."""
+        states = map(pybullet.getBasePositionAndOrientation, self.bodies, repeat(self.client))
+        flat = np.fromiter(chain.from_iterable(chain.from_iterable(states)), np.float64)
+        flat = flat.reshape(len(self.bodies), 7)
+        return flat[:, :3].copy(), flat[:, 3:].copy()
 
     def _pose_from(
         self, centres: np.ndarray, orientations: np.ndarray
