@@ -270,11 +270,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._recording: Recording | None = None
         self._episode: dict[str, Any] = {}
         self._problem: SearchProblem | None = None
-        self._t = 0
         self._elapsed = 0
         self._last_obs: np.ndarray | None = None
-        # The last three outputs and their timestamps (the drawing shows the newest; the
-        # "smooth" reward's acceleration needs three).
+        # The step's errors against the episode's truth (the outputs are the stream's).
         self._errors = StepErrors()
         self._render_centre: np.ndarray | None = None
         self._window: HumanWindow | None = None
@@ -378,7 +376,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     @property
     def frame(self) -> int:
         """Index of the frame the next step reconstructs."""
-        return self._t
+        return 0 if self._stream is None else self._stream.next
 
     @property
     def observation_layout(self) -> dict[str, slice]:
@@ -461,7 +459,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         self._episode = episode
         for key in self._counts:
             self._counts[key] = 0
-        self._t = 0
         self._elapsed = 0
         self._errors.reset(recording)
         root = recording.positions[:, skeleton.ROOT]
@@ -506,11 +503,12 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         recording = self._recording
         assert recording is not None
         z, clipped = self._latent_point(action, problem)
-        assert self._stream is not None
-        pose, record = self._stream.finish(z)
+        stream = self._stream
+        assert stream is not None
+        t = stream.next
+        pose, record = stream.finish(z)
         if record.ragdoll:
             self._counts["ragdoll_divergences"] += int(record.ragdoll.get("new_divergences", 0))
-        t = self._t
 
         w = problem.weights
         terms = record.terms
@@ -526,7 +524,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             "reward_temporal": -w.motion * terms["Em"],
             "reward_prior": -w.prior * terms["Ep"],
         }
-        reward = self._reward(record, pose, info)
+        reward = self._reward(record, info)
         info.update(
             {
                 **self._candidate_info(record.reliability, record.nodes),
@@ -543,9 +541,8 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         for key in self._counts:
             self._counts[key] = 0
 
-        self._t += 1
         self._elapsed += 1
-        terminated = self._t >= recording.num_frames
+        terminated = stream.done
         self._prepare_ms = self._observation_ms = 0.0
         if terminated:
             self._problem = None
@@ -563,10 +560,11 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             self.render()
         return self._observation(obs_vector), reward, terminated, bool(truncated), info
 
-    def _reward(self, record: FrameRecord, pose: np.ndarray, info: dict[str, Any]) -> float:
-        """The step's reward (*Rewards*); keeps the last three outputs and puts ``frame_error``
-        and ``raw_frame_error`` (with ground truth) and ``acceleration`` into ``info``."""
-        info.update(self._errors.output(self._t, pose, float(record.timestamp)))
+    def _reward(self, record: FrameRecord, info: dict[str, Any]) -> float:
+        """The step's reward (*Rewards*); puts ``frame_error`` and ``raw_frame_error`` (with
+        ground truth) and ``acceleration`` of the frame just finished into ``info``."""
+        assert self._stream is not None
+        info.update(self._errors.output(self._stream))
         if self.reward_mode == "energy":
             reward = -float(record.energy)
         elif self.reward_mode == "error":
@@ -612,10 +610,10 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     # ------------------------------------------------------------------ frames
 
     def _prepare(self) -> np.ndarray:
-        """Prepare frame ``self._t``; returns (and keeps) its observation vector."""
+        """Prepare the stream's next frame; returns (and keeps) its observation vector."""
         recording, stream = self._recording, self._stream
         assert recording is not None and stream is not None
-        t = self._t
+        t = stream.next
         states = recording.states[t]
         t0 = time.perf_counter()
         problem = stream.prepare()
@@ -643,7 +641,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
     def _frame_info(self) -> dict[str, Any]:
         problem = self._require_problem("info")
         return {
-            "frame": self._t,
+            "frame": self.frame,
             **self._candidate_info(problem.reliability, problem.nodes),
             "full_search": bool(problem.selection.full_search),
             "recovered": bool(problem.selection.recovered),
@@ -660,8 +658,10 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         recording = self._recording
         if recording is None:
             return render_panels(None, None, None, None)
-        last = self._errors.outputs[-1][0] if self._errors.outputs else None
-        shown = self._t - 1 if last is not None else self._t
+        stream = self._stream
+        done = 0 if stream is None else stream.next
+        last = stream.poses[done - 1] if stream is not None and done > 0 else None
+        shown = done - 1 if last is not None else done
         shown = min(max(shown, 0), recording.num_frames - 1)
         name = self._episode.get("recording", "")
         return render_panels(

@@ -13,6 +13,7 @@ from fpg_gym.core.metrics import (
 )
 from fpg_gym.core.poses import bone_vectors
 from fpg_gym.io.recording import Recording
+from fpg_gym.reconstruct.streams import Stream
 
 __all__ = ["StepErrors"]
 
@@ -25,17 +26,19 @@ def _bone_mean(terms: np.ndarray) -> np.ndarray:
 
 
 class StepErrors:
-    """One episode's step errors; :meth:`reset` at each episode, :meth:`output` at each step."""
+    """One episode's step errors; :meth:`reset` at each episode, :meth:`output` at each step.
+
+    The outputs and their timestamps are the episode's stream's
+    (:class:`~fpg_gym.reconstruct.streams.Stream`), read where it keeps them.
+    """
 
     def __init__(self) -> None:
-        self.outputs: list[tuple[np.ndarray, float]] = []  # the last three (pose, timestamp)
         self._truth: np.ndarray | None = None
         self._truth_bones: np.ndarray | None = None  # (T, 19, 3) of the ground truth
         self._raw_errors: np.ndarray | None = None  # (T,) FPG Eq. 13 of the sensor stream
 
     def reset(self, recording: Recording) -> None:
         """Start an episode: the truth's bone vectors and the sensor stream's errors, once."""
-        self.outputs = []
         self._truth = recording.ground_truth
         self._truth_bones = self._raw_errors = None
         if self._truth is not None:
@@ -43,34 +46,34 @@ class StepErrors:
             sensor = bone_vectors(recording.positions.astype(np.float64))
             self._raw_errors = _bone_mean(bone_vector_errors(self._truth_bones, sensor))
 
-    def output(self, t: int, pose: np.ndarray, timestamp: float) -> dict[str, float]:
-        """Frame ``t``'s output: ``frame_error`` and ``raw_frame_error`` (with ground truth) and
-        ``acceleration`` (m/s², the mean over joints of the last three outputs; 0 before).
+    def output(self, stream: Stream) -> dict[str, float]:
+        """The errors of the stream's last finished frame ``t``: ``frame_error`` and
+        ``raw_frame_error`` (with ground truth) and ``acceleration`` (m/s², the mean over joints
+        of the outputs of frames ``t - 2 ... t``; 0 before).
 
         Raises
         ------
         ValueError
             On a non-finite output, naming the bad value.
         """
+        t = stream.next - 1
         errors: dict[str, float] = {}
         if self._truth is not None:
             assert self._truth_bones is not None and self._raw_errors is not None
-            output = bone_vectors(pose.astype(np.float64)[None])
+            output = bone_vectors(stream.poses[t : t + 1].astype(np.float64))
             error = float(_bone_mean(bone_vector_errors(self._truth_bones[t : t + 1], output))[0])
             if not np.isfinite(error):
-                frame_error(self._truth[t], pose)  # raises, naming the bad value
+                frame_error(self._truth[t], stream.poses[t])  # raises, naming the bad value
             errors["frame_error"] = error
             errors["raw_frame_error"] = float(self._raw_errors[t])
-        self.outputs = [*self.outputs[-2:], (pose, timestamp)]
         errors["acceleration"] = 0.0
-        if len(self.outputs) == 3:
-            poses, times = zip(*self.outputs, strict=True)
-            outputs = np.stack(poses).astype(np.float64)
-            stamps = np.array(times)
+        if t >= 2:
+            outputs = stream.poses[t - 2 : t + 1].astype(np.float64)
+            stamps = np.array([float(record.timestamp) for record in stream.records[-3:]])
             jerk = float("nan")
             if stamps[0] < stamps[1] < stamps[2]:
                 jerk = float(second_difference_norms(outputs, stamps).mean())
             if not np.isfinite(jerk):
-                acceleration(outputs, timestamps=times)  # raises, naming the bad value
+                acceleration(outputs, timestamps=stamps)  # raises, naming the bad value
             errors["acceleration"] = jerk
         return errors
