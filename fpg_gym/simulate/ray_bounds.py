@@ -33,18 +33,34 @@ __all__ = ["MARGIN", "rays_to_cast", "segment_distances"]
 MARGIN = 0.01
 
 
+def _dot(u: np.ndarray | list[np.ndarray], v: np.ndarray | list[np.ndarray]) -> np.ndarray:
+    """Dot products of vectors given by their coordinates ``(3, ...)``, summed in order as
+    ``np.sum(u * v, axis=-1)`` sums them (the same floats, without a reduction per vector)."""
+    return np.asarray((u[0] * v[0] + u[1] * v[1]) + u[2] * v[2])
+
+
 def segment_distances(
     start: np.ndarray, end: np.ndarray, first: np.ndarray, second: np.ndarray
 ) -> np.ndarray:
     """Distances between segments ``start``-``end`` and ``first``-``second`` (``(..., 3)``,
     broadcast), the closest points clamped to both segments (Ericson 2005, 5.1.9); the second
     segment may be a point."""
+    # Coordinates first, (3, ...): every operation runs along the many segments.
+    return _distances(
+        *(np.moveaxis(x, -1, 0) for x in np.broadcast_arrays(start, end, first, second))
+    )
+
+
+def _distances(
+    start: np.ndarray, end: np.ndarray, first: np.ndarray, second: np.ndarray
+) -> np.ndarray:
+    """:func:`segment_distances` of segments given by their coordinates ``(3, ...)``."""
     d1, d2, r = end - start, second - first, start - first
-    a = np.sum(d1 * d1, axis=-1)
-    e = np.sum(d2 * d2, axis=-1)
-    f = np.sum(d2 * r, axis=-1)
-    c = np.sum(d1 * r, axis=-1)
-    b = np.sum(d1 * d2, axis=-1)
+    a = _dot(d1, d1)
+    e = _dot(d2, d2)
+    f = _dot(d2, r)
+    c = _dot(d1, r)
+    b = _dot(d1, d2)
     denominator = a * e - b * b
     safe_a = np.maximum(a, 1e-300)
     point = e <= 1e-18
@@ -55,8 +71,8 @@ def segment_distances(
     s = np.where(u < 0.0, np.clip(-c / safe_a, 0.0, 1.0), s)
     s = np.where(u > 1.0, np.clip((b - c) / safe_a, 0.0, 1.0), s)
     u = np.clip(u, 0.0, 1.0)
-    gap = start + d1 * s[..., None] - first - d2 * u[..., None]
-    return np.asarray(np.sqrt(np.sum(gap * gap, axis=-1)))
+    gap = [start[k] + d1[k] * s - first[k] - d2[k] * u for k in range(3)]
+    return np.asarray(np.sqrt(_dot(gap, gap)))
 
 
 def _slab_entry(
@@ -160,11 +176,13 @@ def rays_to_cast(
     matters = (~own.T[:capsules, None, :] & ~by_box) | settleable
     c, t, r = np.nonzero((closest < bound * bound) & matters)
     if len(t):
-        # The capsules' axes: their rotations' Z columns, (T, C, 3).
-        z_axes = quaternion_to_matrix(shape_quat[:, :capsules][..., [3, 0, 1, 2]])[..., 2]
-        axis = z_axes[t, c] * half_height[c, None]
-        middle = shape_pos[t, c]
-        distance = segment_distances(camera, targets[t, r], middle - axis, middle + axis)
+        # The capsules' axes: their rotations' Z columns, coordinates first (3, T, C).
+        rotations = quaternion_to_matrix(shape_quat[:, :capsules][..., [3, 0, 1, 2]])
+        z_axes = np.moveaxis(rotations[..., 2], -1, 0)
+        axis = z_axes[:, t, c] * half_height[c]
+        middle = np.moveaxis(shape_pos, -1, 0)[:, t, c]
+        ends = np.moveaxis(targets, -1, 0)[:, t, r]
+        distance = _distances(camera[:, None], ends, middle - axis, middle + axis)
         near[c, t, r] = distance < radius[c] + margin
     meets = np.concatenate([near, np.isfinite(grown)])  # (S, T, R)
     cast = np.any(meets & ~own.T[:, None, :], axis=0)
