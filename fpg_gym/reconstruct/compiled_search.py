@@ -151,7 +151,7 @@ def local_search(
         for i in range(admitted):
             values[i] = energies[i]
             finite = finite and np.isfinite(values[i])
-        if not finite:  # element loops: np.all(np.isfinite(...)) compiles for seconds
+        if not finite:  # element loops: np.all(np.isfinite(...)) compiles numba's reductions
             for i in range(admitted):
                 for j in range(z.shape[1]):
                     if not np.isfinite(z[i, j]):
