@@ -281,6 +281,12 @@ class DefinitionMap:
         object.__setattr__(self, "offsets", offsets)
         object.__setattr__(self, "info", dict(self.info))
 
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        """Unpickled (e.g. in a worker process) with its offsets read-only again, as built (a
+        writeable array would compile the offsets' kernel a second time)."""
+        self.__dict__.update(state)
+        self.offsets.flags.writeable = False
+
     @classmethod
     def identity(cls, definitions: str = "same") -> DefinitionMap:
         """The map that moves nothing."""

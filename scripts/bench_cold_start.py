@@ -80,7 +80,8 @@ def _demo(
     command = [sys.executable, "-m", "fpg_gym.cli", "demo", "--out", str(out), *demo_args]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
     started = time.perf_counter()
-    subprocess.run(command, env=env, check=True, stdout=subprocess.DEVNULL)
+    # run in the checkout: ``python -m`` puts the working directory first on sys.path
+    subprocess.run(command, env=env, check=True, stdout=subprocess.DEVNULL, cwd=checkout)
     wall = time.perf_counter() - started
     after = resource.getrusage(resource.RUSAGE_CHILDREN)
     cpu = after.ru_utime - before.ru_utime + after.ru_stime - before.ru_stime

@@ -76,6 +76,19 @@ def test_one_pose_map_and_frames_in_compiled_calls_are_the_numpy_code_to_the_bit
     )
 
 
+def test_a_map_sent_to_another_process_keeps_its_offsets_read_only(rng):
+    """A map unpickled in a worker process keeps read-only offsets (as built: a writeable array
+    would compile ``offset_pose`` for a second argument type) and maps as the original."""
+    import pickle
+
+    mapping = packaged_map(KINECT_V2_TO_VICON)
+    copy = pickle.loads(pickle.dumps(mapping))
+    assert not copy.offsets.flags.writeable
+    assert (copy.source, copy.target, copy.info) == (mapping.source, mapping.target, mapping.info)
+    pose = _poses(rng, 1)[0]
+    np.testing.assert_array_equal(copy.apply(pose), mapping.apply(pose))
+
+
 def test_fit_is_exact_on_synthetic_data_with_known_offsets(rng):
     offsets = 0.05 * rng.normal(size=(20, 3))
     truth = DefinitionMap(offsets, source="a", target="b")

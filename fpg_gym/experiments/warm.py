@@ -25,7 +25,7 @@ from fpg_gym.core.compiled import COMPILED_MODULES, kernels_cached, numba_availa
 from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.graph import default_graph, load_graph
 from fpg_gym.io import load_default_clips
-from fpg_gym.io.recording import load_recording
+from fpg_gym.io.recording import Recording, load_recording
 from fpg_gym.methods import MethodRunner
 from fpg_gym.physics.ragdoll import PhysicsWarning
 from fpg_gym.reconstruct.presets import choose_pipeline, default_graph_name, sensor_of
@@ -53,8 +53,9 @@ _REAL_RECORDING = Path(__file__).resolve().parents[1] / "data" / "demo" / "m01_s
 #: The compiled modules in units that compile together (the compiled local search and the
 #: compiled latent space run only with the compiled energy kernel), with the CPU seconds each
 #: unit took to compile on the shared 2-core machine (to share the units out between processes):
-#: ``_run_methods(unit, 40)`` in a new process with an empty ``NUMBA_CACHE_DIR``, less the same
-#: with no module compiled (3.6 s); a callee in another unit's module counts in both.
+#: numba's compile events of ``_run_methods(unit, 40)`` in a new process with an empty
+#: ``NUMBA_CACHE_DIR``; a callee in another unit's module counts in both. The other process
+#: also pays its start and the numpy code of the modules it does not compile (about 3 CPU s).
 _UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
     (
         (
@@ -62,14 +63,14 @@ _UNITS: tuple[tuple[tuple[str, ...], float], ...] = (
             "fpg_gym.reconstruct.compiled_search",
             "fpg_gym.reconstruct.compiled_frame",
         ),
-        10.0,
+        11.3,
     ),
-    (("fpg_gym.reconstruct.compiled_selection",), 4.4),
-    (("fpg_gym.reconstruct.compiled_reliability",), 6.3),
-    (("fpg_gym.reconstruct.compiled_fusion",), 2.8),
-    (("fpg_gym.physics.compiled_ragdoll",), 3.2),
-    (("fpg_gym.core.compiled_poses",), 2.5),
-    (("fpg_gym.filters.compiled_filters",), 1.7),
+    (("fpg_gym.reconstruct.compiled_selection",), 3.7),
+    (("fpg_gym.reconstruct.compiled_reliability",), 7.0),
+    (("fpg_gym.reconstruct.compiled_fusion",), 2.0),
+    (("fpg_gym.physics.compiled_ragdoll",), 2.8),
+    (("fpg_gym.core.compiled_poses",), 3.0),
+    (("fpg_gym.filters.compiled_filters",), 1.0),
 )
 
 #: Kernels that the first frame of any reconstruction runs: cached means warm.
@@ -107,17 +108,27 @@ def _shares(workers: int) -> list[tuple[str, ...]]:
 _SIDE_BY_SIDE_FRAMES = 4
 
 
-def _run_methods(modules: Sequence[str], frames: int) -> None:
-    """Every warm-up method on the first ``frames`` frames of a simulated held-out clip, the real
-    ones on those of a packaged Kinect v2 recording with the auto preset, and each on two short
-    streams side by side (a compare's batches: the stacked kernels), with only ``modules``
-    compiled."""
-    graph = default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)  # the demo's graph, from the cache
+def _simulated(frames: int) -> list[Recording]:
+    """The first ``frames`` frames of a simulated held-out clip, then two streams of its first
+    few (seeds 0 and 1): made once, in the first process, and sent to the others (which then
+    load no simulator: its filters' import alone costs more than a CPU second)."""
     clip = load_default_clips([DEFAULT_HOLDOUT_CLIPS[0]])
     (recording,) = simulate_clips(clip, ["front-many"], [0], max_frames=frames)
     pair = simulate_clips(
         clip, ["front-many"], [0, 1], max_frames=min(frames, _SIDE_BY_SIDE_FRAMES)
     )
+    return [recording, *pair]
+
+
+def _run_methods(
+    modules: Sequence[str], frames: int, simulated: list[Recording] | None = None
+) -> None:
+    """Every warm-up method on the first ``frames`` frames of a simulated held-out clip, the real
+    ones on those of a packaged Kinect v2 recording with the auto preset, and each on two short
+    streams side by side (a compare's batches: the stacked kernels), with only ``modules``
+    compiled (``simulated``: :func:`_simulated`'s streams, made here when None)."""
+    graph = default_graph(exclude=DEFAULT_HOLDOUT_CLIPS)  # the demo's graph, from the cache
+    recording, *pair = _simulated(frames) if simulated is None else simulated
     real = load_recording(_REAL_RECORDING)
     real_graph = load_graph(default_graph_name(sensor_of(real)))
     chosen = choose_pipeline("auto", sensor_of(real), real_graph)
@@ -160,8 +171,11 @@ def warm_kernels(workers: int = 1, *, frames: int = 40) -> float:
     else:  # the largest share here (imported already), the others in new processes meanwhile
         context = multiprocessing.get_context("spawn")
         with ProcessPoolExecutor(len(shares) - 1, mp_context=context) as pool:
-            others = [pool.submit(_run_methods, share, frames) for share in shares[1:]]
-            _run_methods(shares[0], frames)
+            for _ in shares[1:]:  # the processes start (their imports) while this one simulates
+                pool.submit(warm_kernels_cached)
+            simulated = _simulated(frames)
+            others = [pool.submit(_run_methods, share, frames, simulated) for share in shares[1:]]
+            _run_methods(shares[0], frames, simulated)
             for done in others:
                 done.result()
     return time.perf_counter() - started

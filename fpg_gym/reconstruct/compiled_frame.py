@@ -80,7 +80,10 @@ def whitened_axes(centred, values, vectors, dim, min_std, max_condition):
     compilation).
     """
     count, size = centred.shape
-    singular = np.sqrt(np.maximum(values[::-1], 0.0))
+    ranks = values.shape[0]  # np.sqrt(np.maximum(values[::-1], 0.0)), element by element
+    singular = np.empty(ranks)
+    for a in range(ranks):
+        singular[a] = np.sqrt(scalar_maximum(values[ranks - 1 - a], 0.0))
     if not (singular[dim - 1] > 0.0 and singular[0] <= max_condition * singular[dim - 1]):
         return np.zeros((dim, size)), np.zeros(dim), np.zeros(dim, dtype=np.bool_), 0.0, False
     basis = np.zeros((dim, size))

@@ -151,8 +151,11 @@ def local_search(
         for i in range(admitted):
             values[i] = energies[i]
             finite = finite and np.isfinite(values[i])
-        if not finite and not np.all(np.isfinite(z[:admitted])):
-            return best_x, best, evaluations, asks, STATUS_NON_FINITE
+        if not finite:  # element loops: np.all(np.isfinite(...)) compiles numba's reductions
+            for i in range(admitted):
+                for j in range(z.shape[1]):
+                    if not np.isfinite(z[i, j]):
+                        return best_x, best, evaluations, asks, STATUS_NON_FINITE
         for i in range(admitted, samples):
             values[i] = np.inf
         evaluations += admitted

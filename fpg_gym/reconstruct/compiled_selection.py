@@ -24,7 +24,7 @@ __all__ = ["fpg_walk_best", "neighbourhood", "shum_full_best"]
 _FAST = {"reassoc", "contract"}
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(cache=True, nogil=True)
 def _heap_push(heap, size, k, value):
     """Keep the ``k`` smallest values seen in the max-heap ``heap[:size]``; new size."""
     if size < k:  # sift up
