@@ -600,3 +600,20 @@ def test_energy_weights_reach_the_problem(cache_dir: Path) -> None:
     assert env.problem is not None
     assert (env.problem.weights.control, env.problem.weights.motion) == (2.0, 0.0)
     env.close()
+
+
+def test_float32_energy_reaches_the_env(cache_dir: Path) -> None:
+    """``reconstructor_options={"energy_dtype": ...}``: the same actions give the same poses
+    (the actions' points do not read the energy) and rewards equal to float32's rounding."""
+    actions = np.random.default_rng(2).uniform(-0.3, 0.3, (6, 20)).astype(np.float32)
+    poses, rewards = {}, {}
+    for dtype in ("float64", "float32"):
+        env = make(cache_dir, reconstructor_options={"energy_dtype": dtype})
+        env.reset(seed=3)
+        steps = [env.step(action) for action in actions]
+        assert env.problem is not None and env.problem.energy.dtype == np.dtype(dtype)
+        poses[dtype] = np.stack([info["pose"] for *_, info in steps])
+        rewards[dtype] = np.array([reward for _, reward, *_ in steps])
+        env.close()
+    np.testing.assert_array_equal(poses["float32"], poses["float64"])
+    np.testing.assert_allclose(rewards["float32"], rewards["float64"], rtol=1e-5)
