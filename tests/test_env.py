@@ -225,8 +225,10 @@ def test_problem_is_public_and_an_optimiser_point_is_reconstructed_exactly(
     np.testing.assert_array_equal(action, env.action_for(found.x))
     _, reward, _, _, info = env.step(action)
     assert info["evaluations"] == problem.evaluations
-    assert info["energy"] == pytest.approx(found.energy, rel=1e-9)
-    assert reward == pytest.approx(-found.energy, rel=1e-9)
+    # float32 energies (the default): the search's fused rows and the record's terms round
+    # differently (1e-9 in float64)
+    assert info["energy"] == pytest.approx(found.energy, rel=1e-5)
+    assert reward == pytest.approx(-found.energy, rel=1e-5)
     assert env.problem is not problem
     env.close()
 
