@@ -16,7 +16,7 @@ Usage::
 
     python scripts/bench_many_streams.py --streams 32 --frames 30
     python scripts/bench_many_streams.py --graph bandai_graph.npz --streams 32
-    python scripts/bench_many_streams.py --proposals normal --energy-dtype float32
+    python scripts/bench_many_streams.py --proposals normal --energy-dtype float64
 """
 
 from __future__ import annotations
@@ -37,7 +37,7 @@ import numpy as np
 
 from fpg_gym.graph import load_graph
 from fpg_gym.io import load_default_clips
-from fpg_gym.reconstruct import Reconstructor
+from fpg_gym.reconstruct import Reconstructor, ReconstructorConfig
 from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.reconstruct.streams import run_streams
 from fpg_gym.simulate import simulate
@@ -100,7 +100,10 @@ def main() -> None:
     parser.add_argument("--alone", type=int, default=4, help="streams also run one by one")
     parser.add_argument("--processes", type=int, default=2)
     parser.add_argument(
-        "--energy-dtype", choices=("float64", "float32"), default="float64", help="energy precision"
+        "--energy-dtype",
+        choices=("float64", "float32"),
+        default=ReconstructorConfig().energy_dtype,
+        help="energy precision (default %(default)s)",
     )
     parser.add_argument(
         "--proposals",

@@ -55,6 +55,7 @@ from fpg_gym.io.positions import read_positions
 from fpg_gym.io.recording import Recording, load_recording
 from fpg_gym.io.ui_prmd_import import import_uiprmd
 from fpg_gym.methods import MethodRunner
+from fpg_gym.reconstruct import ReconstructorConfig
 from fpg_gym.reconstruct.bone_model import LinearBoneModel
 from fpg_gym.reconstruct.presets import SensorResources, pipeline
 from fpg_gym.simulate import episode_seed
@@ -228,7 +229,11 @@ def _run_fold(task: dict[str, Any]) -> dict[str, Any]:
                 "papers": pipeline("papers", "kinect-v2", graph),
             }
             runners = {
-                name: MethodRunner(graph, budget=task["budget"], reconstructor_options=p.options)
+                name: MethodRunner(
+                    graph,
+                    budget=task["budget"],
+                    reconstructor_options={**p.options, "energy_dtype": task["energy_dtype"]},
+                )
                 for name, p in chosen.items()
             }
             setups[movement] = ((resources, graph, chosen), runners)
@@ -344,6 +349,12 @@ def main(argv: list[str] | None = None) -> int:
         help="fit the map, the bone model and the UI-PRMD database without the scored "
         "episode's exercise too (a person and a movement never seen)",
     )
+    parser.add_argument(
+        "--energy-dtype",
+        choices=("float64", "float32"),
+        default=ReconstructorConfig().energy_dtype,
+        help="the energy's arithmetic (ReconstructorConfig.energy_dtype; default %(default)s)",
+    )
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--json", type=Path, help="write every row here")
     args = parser.parse_args(argv)
@@ -373,6 +384,7 @@ def main(argv: list[str] | None = None) -> int:
             "uiprmd_thres1": args.uiprmd_thres1,
             "seed": args.seed,
             "leave_exercise_out": args.leave_exercise_out,
+            "energy_dtype": args.energy_dtype,
         }
         for database in args.databases.split(",")
         for subject in args.subjects.split(",")
@@ -392,7 +404,7 @@ def main(argv: list[str] | None = None) -> int:
         f"UI-PRMD leave-subjects-out, subjects {args.subjects}, {args.reps} repetition(s) per "
         f"exercise, occlusions {args.occlusions}, seed {args.seed}"
         + (", exercises left out too" if args.leave_exercise_out else "")
-        + "; "
+        + f", energy {args.energy_dtype}; "
         f"wall {time.perf_counter() - start_wall:.0f} s\n"
     )
     for database in args.databases.split(","):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from types import SimpleNamespace
+from typing import Any
 
 import numpy as np
 import pytest
@@ -33,21 +34,27 @@ def _short(rec: SimpleNamespace, frames: int) -> SimpleNamespace:
 def test_each_stream_equals_its_single_stream_run(
     compiled_search: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
-    # Streams of different lengths (one leaves the batch early) and one with another energy
-    # (the prior term: another stack key, evaluated in its own group). Without the compiled
-    # local search (fpg_gym.reconstruct.search) the streams' batches are stacked.
+    # Streams of different lengths (one leaves the batch early) and two with another energy
+    # (the prior term, float32 arithmetic: other stack keys, evaluated in their own groups).
+    # Without the compiled local search (fpg_gym.reconstruct.search) the batches are stacked.
     if not compiled_search:
         monkeypatch.setattr(search_module, "_compiled", lambda: None)
     recs = [
         _short(recording("punch", seed=1), 24),
         _short(recording("walk", seed=2), 16),
         _short(recording("kick", noise=0.02, seed=3), 24),
+        _short(recording("walk", noise=0.02, seed=4), 16),
     ]
-    configs = [{}, {}, {"weights": EnergyWeights.with_prior()}]
-    seeds = [5, 6, 7]
+    configs: list[dict[str, Any]] = [
+        {},
+        {},
+        {"weights": EnergyWeights.with_prior()},
+        {"energy_dtype": "float32"},
+    ]
+    seeds = [5, 6, 7, 8]
     reconstructors = [Reconstructor(graph(), **c) for c in configs]
     many = run_streams(reconstructors, recs, "local-search", rngs=seeds)
-    assert [m.num_frames for m in many] == [24, 16, 24]
+    assert [m.num_frames for m in many] == [24, 16, 24, 16]
     for rec, config, seed, result in zip(recs, configs, seeds, many, strict=True):
         alone = Reconstructor(graph(), **config).reconstruct(rec, "local-search", rng=seed)
         np.testing.assert_allclose(result.poses, alone.poses, atol=1e-5)

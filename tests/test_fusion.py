@@ -324,6 +324,37 @@ def test_kinect_v2_pipeline_runs_and_keeps_a_tracked_stream_near_the_sensor(
     assert fused < raw
 
 
+def test_float32_energies_in_the_kinect_v2_pipeline(stream: Recording) -> None:
+    """``energy_dtype`` through the auto preset's path (map, bone model, fusion): the closed
+    form's point does not read the energy (same poses to the bit), its recorded energy is the
+    float32 one; the local search keeps its accuracy on a lost limb."""
+    graph = default_graph(exclude=["walk"])
+    chosen = pipeline("auto", "kinect-v2", graph)
+    occluded = occlude(stream, "legs", seed=2)
+    assert occluded.ground_truth is not None
+    out = {}
+    for dtype in ("float64", "float32"):
+        for method in ("closed-form", "local-search"):
+            with Reconstructor(graph, **chosen.options, energy_dtype=dtype) as reconstructor:
+                out[dtype, method] = reconstructor.reconstruct(occluded, method, rng=0)
+    with Reconstructor(graph, **chosen.options, energy_dtype="float32") as reconstructor:
+        first = reconstructor.prepare(occluded.positions[0], occluded.states[0], 0.0)
+        assert first.energy.tables.matrix.dtype == np.float32
+    np.testing.assert_array_equal(
+        out["float32", "closed-form"].poses, out["float64", "closed-form"].poses
+    )
+    energies = {
+        d: np.array([r.energy for r in out[d, "closed-form"].records])
+        for d in ("float64", "float32")
+    }
+    np.testing.assert_allclose(energies["float32"], energies["float64"], rtol=1e-4)
+    errors = {
+        d: metrics.mpjpe(occluded.ground_truth, out[d, "local-search"].poses)
+        for d in ("float64", "float32")
+    }
+    assert errors["float32"] == pytest.approx(errors["float64"], rel=0.01)
+
+
 def test_cli_gives_a_kinect_v2_recording_its_pipeline(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

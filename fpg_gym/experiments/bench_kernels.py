@@ -88,10 +88,11 @@ def frame_problem(graph: Any, recording: Any, frame: int) -> SearchProblem:
 
 
 def energy_rows(graph: Any, recording: Any, quick: bool = False) -> list[dict[str, Any]]:
-    """CPU microseconds of the energy of 100 points for each kernel and the definition."""
+    """CPU microseconds of the energy of 100 points (in the reconstructor's energy dtype) for
+    each kernel and the definition."""
     problem = frame_problem(graph, recording, 20 if quick else 60)
-    z = np.random.default_rng(0).standard_normal((100, problem.dim))
     energy = problem.energy
+    z = np.random.default_rng(0).standard_normal((100, problem.dim)).astype(energy.dtype)
     direct = type(energy)(
         energy.latent,
         energy.sensor.reshape(skeleton.NUM_JOINTS, 3),

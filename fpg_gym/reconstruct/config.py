@@ -77,8 +77,10 @@ class ReconstructorConfig:
         Frame interval assumed on a first frame or without timestamps (1/30 s).
     ragdoll_rebuild_m : float
         Rebuild the ragdoll when a reference bone length moved by more than this (0.02 m).
-    energy_dtype : {"float64", "float32"}
-        Arithmetic precision of the energy (see :class:`EnergyModel`).
+    energy_dtype : {"float32", "float64"}
+        Arithmetic precision of the energy the search compares (float32; see
+        :class:`EnergyModel`): the same accuracy as float64 on held-out UI-PRMD and simulated
+        streams, a faster search (docs/performance.md).
     energy_kernel : {"auto", "numba", "numpy", "direct"}
         The search's energy kernel (:mod:`fpg_gym.reconstruct.kernels`; ``"auto"``: compiled
         when ``fpg-gym[fast]`` is installed); ``"direct"`` evaluates the terms' definitions on
@@ -152,7 +154,7 @@ class ReconstructorConfig:
     max_gap_s: float = 0.5
     frame_dt: float = 1.0 / 30.0
     ragdoll_rebuild_m: float = 0.02
-    energy_dtype: str = "float64"
+    energy_dtype: str = "float32"
     energy_kernel: str = "auto"
     left_right_fix: bool = True
     length_prior: str = "database"

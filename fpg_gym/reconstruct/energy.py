@@ -199,7 +199,8 @@ class EnergyModel:
         Motion target for ``Em`` (see :func:`motion_target`); None gives ``Em = 0``.
     weights : EnergyWeights, optional
     dtype : numpy dtype
-        Arithmetic precision of the fused kernel (float64). ``float32`` is about 4x faster for
+        Arithmetic precision of the fused kernel (float64 here; the reconstructor's default,
+        ``ReconstructorConfig.energy_dtype``, is float32). ``float32`` is about 4x faster for
         batches of a few thousand points and ~20 % faster at 100; energies are returned as
         float64 either way.
     kernel : {"auto", "numba", "numpy", "direct"}
