@@ -210,10 +210,11 @@ def test_out_of_bound_actions_are_clipped_unless_disabled(cache_dir: Path) -> No
     loose.close()
 
 
+@pytest.mark.parametrize(("dtype", "rel"), [("float64", 1e-9), ("float32", 1e-5)])
 def test_problem_is_public_and_an_optimiser_point_is_reconstructed_exactly(
-    cache_dir: Path,
+    cache_dir: Path, dtype: str, rel: float
 ) -> None:
-    env = make(cache_dir, clip_actions=False)
+    env = make(cache_dir, clip_actions=False, reconstructor_options={"energy_dtype": dtype})
     env.reset(seed=7)
     env.step(np.zeros(20, np.float32))
     problem = env.problem
@@ -225,10 +226,9 @@ def test_problem_is_public_and_an_optimiser_point_is_reconstructed_exactly(
     np.testing.assert_array_equal(action, env.action_for(found.x))
     _, reward, _, _, info = env.step(action)
     assert info["evaluations"] == problem.evaluations
-    # float32 energies (the default): the search's fused rows and the record's terms round
-    # differently (1e-9 in float64)
-    assert info["energy"] == pytest.approx(found.energy, rel=1e-5)
-    assert reward == pytest.approx(-found.energy, rel=1e-5)
+    # the search's fused rows and the record's terms round differently (float32: 1e-5)
+    assert info["energy"] == pytest.approx(found.energy, rel=rel)
+    assert reward == pytest.approx(-found.energy, rel=rel)
     assert env.problem is not problem
     env.close()
 
