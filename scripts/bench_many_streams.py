@@ -37,7 +37,7 @@ import numpy as np
 
 from fpg_gym.graph import load_graph
 from fpg_gym.io import load_default_clips
-from fpg_gym.reconstruct import Reconstructor, ReconstructorConfig
+from fpg_gym.reconstruct import ENERGY_DTYPES, Reconstructor, ReconstructorConfig
 from fpg_gym.reconstruct.kernels import compile_kernels
 from fpg_gym.reconstruct.streams import run_streams
 from fpg_gym.simulate import simulate
@@ -101,7 +101,7 @@ def main() -> None:
     parser.add_argument("--processes", type=int, default=2)
     parser.add_argument(
         "--energy-dtype",
-        choices=("float64", "float32"),
+        choices=ENERGY_DTYPES,
         default=ReconstructorConfig().energy_dtype,
         help="energy precision (default %(default)s)",
     )

@@ -55,7 +55,7 @@ from fpg_gym.io.positions import read_positions
 from fpg_gym.io.recording import Recording, load_recording
 from fpg_gym.io.ui_prmd_import import import_uiprmd
 from fpg_gym.methods import MethodRunner
-from fpg_gym.reconstruct import ReconstructorConfig
+from fpg_gym.reconstruct import ENERGY_DTYPES, ReconstructorConfig
 from fpg_gym.reconstruct.bone_model import LinearBoneModel
 from fpg_gym.reconstruct.presets import SensorResources, pipeline
 from fpg_gym.simulate import episode_seed
@@ -351,7 +351,7 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument(
         "--energy-dtype",
-        choices=("float64", "float32"),
+        choices=ENERGY_DTYPES,
         default=ReconstructorConfig().energy_dtype,
         help="the energy's arithmetic (ReconstructorConfig.energy_dtype; default %(default)s)",
     )

@@ -12,6 +12,7 @@ from fpg_gym.reconstruct.bones import BoneSettler, BoneSettlingConfig
 from fpg_gym.reconstruct.closed_form import ClosedForm
 from fpg_gym.reconstruct.config import ReconstructorConfig
 from fpg_gym.reconstruct.energy import (
+    ENERGY_DTYPES,
     ENERGY_KERNELS,
     POSE_TERM_NAMES,
     TERM_NAMES,
@@ -55,6 +56,7 @@ from fpg_gym.reconstruct.temporal import (
 )
 
 __all__ = [
+    "ENERGY_DTYPES",
     "ENERGY_KERNELS",
     "LABELLINGS",
     "POSE_TERM_NAMES",

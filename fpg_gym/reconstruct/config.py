@@ -14,7 +14,7 @@ from fpg_gym.core import skeleton
 from fpg_gym.core.validation import check_choice, check_integer, check_number
 from fpg_gym.definitions import PoseMap
 from fpg_gym.reconstruct.bones import BoneSettlingConfig
-from fpg_gym.reconstruct.energy import ENERGY_KERNELS, EnergyWeights
+from fpg_gym.reconstruct.energy import ENERGY_DTYPES, ENERGY_KERNELS, EnergyWeights
 from fpg_gym.reconstruct.fusion import BoneModel, FusionConfig
 from fpg_gym.reconstruct.reliability import ReliabilityConfig
 from fpg_gym.reconstruct.temporal import TemporalConfig
@@ -177,7 +177,7 @@ class ReconstructorConfig:
         check_number(self.frame_dt, "frame_dt", low=0.0, low_open=True)
         check_choice(self.selector, "selector", ("graph", "brute-force", "auto"))
         check_choice(self.length_prior, "length_prior", ("database", "default"))
-        check_choice(self.energy_dtype, "energy_dtype", ("float64", "float32"))
+        check_choice(self.energy_dtype, "energy_dtype", ENERGY_DTYPES)
         check_choice(self.energy_kernel, "energy_kernel", ENERGY_KERNELS)
         if self.calibrate_output and self.output_map is not None:
             raise ValueError(

@@ -57,6 +57,9 @@ TERM_NAMES: tuple[str, ...] = (*POSE_TERM_NAMES, "Ep")
 #: Kernels of :class:`EnergyModel`'s total: the fused ones of :mod:`fpg_gym.reconstruct.kernels`
 #: and ``"direct"``, the terms' definitions on decoded poses (:func:`pose_energy_terms`, slow).
 ENERGY_KERNELS: tuple[str, ...] = (*KERNELS, "direct")
+#: Arithmetic precisions of :class:`EnergyModel`'s fused kernel
+#: (``ReconstructorConfig.energy_dtype``).
+ENERGY_DTYPES: tuple[str, ...] = ("float64", "float32")
 #: Prior weight chosen on a validation split of Bandai Namco takes (README, "Beyond the papers").
 TUNED_PRIOR_WEIGHT = 0.1
 
@@ -173,7 +176,7 @@ _PARENT_COORDS = (3 * skeleton.BONES[:, 0][:, None] + np.arange(3)).reshape(-1)
 _NO_TARGET = np.zeros(0)
 _TERMS_AND_TOTAL = (*TERM_NAMES, "E")
 _FLOAT64 = np.dtype(np.float64)
-_DTYPES = (np.dtype(np.float32), _FLOAT64)
+_DTYPES = tuple(np.dtype(name) for name in ENERGY_DTYPES)
 
 
 @functools.cache
