@@ -89,10 +89,12 @@ def _slab_entry(
         with np.errstate(divide="ignore", invalid="ignore"):
             near = (-extent - origin) / step
             far = (extent - origin) / step
+        low, high = np.minimum(near, far), np.maximum(near, far)
         parallel = step == 0.0
-        inside = np.abs(origin) <= extent
-        low = np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(near, far))
-        high = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(near, far))
+        if parallel.any():  # a segment parallel to the slab: inside it all along, or never
+            inside = np.broadcast_to(np.abs(origin) <= extent, parallel.shape)[parallel]
+            low[parallel] = np.where(inside, -np.inf, np.inf)
+            high[parallel] = np.where(inside, np.inf, -np.inf)
         enter, leave = np.maximum(enter, low), np.minimum(leave, high)
     return np.where(enter <= leave, enter, np.inf)
 
@@ -169,7 +171,6 @@ def rays_to_cast(
     distance2 = centre[:, 0] ** 2 + centre[:, 1] ** 2 + centre[:, 2] ** 2
     closest = distance2 - (2.0 * along - reach) * reach / np.maximum(squared, 1e-300)
     bound = (radius + half_height + margin)[:, None, None]  # (C, 1, 1)
-    capsule_low = (along / length - bound) / length  # a fraction of the ray
     near = np.zeros(along.shape, dtype=bool)
     # Whether a capsule is near a ray matters when it may block the ray (not the ray's own, and
     # no box makes the ray cast anyway) or when the ray may be settled.
@@ -186,9 +187,17 @@ def rays_to_cast(
         near[c, t, r] = distance < radius[c] + margin
     meets = np.concatenate([near, np.isfinite(grown)])  # (S, T, R)
     cast = np.any(meets & ~own.T[:, None, :], axis=0)
-    # Whether the first box a ray surely enters comes before any other shape.
-    low = np.where(meets, np.concatenate([capsule_low, grown]), np.inf)
-    np.put_along_axis(low, (capsules + box)[None], np.inf, axis=0)
-    settled = cast & settleable & (enters < low.min(axis=0))
-    first = np.where(settled, capsules + box, -1)
+    # Whether the first box a ray surely enters comes before any other shape: only for the rays
+    # that may be settled, (S, N).
+    t, r = np.nonzero(cast & settleable)
+    first = np.full(cast.shape, -1)
+    if len(t):
+        length_n = length[t, r]
+        capsule_low = (along[:, t, r] / length_n - bound[:, :, 0]) / length_n  # a fraction
+        low = np.where(meets[:, t, r], np.concatenate([capsule_low, grown[:, t, r]]), np.inf)
+        entered = capsules + box[t, r]
+        low[entered, np.arange(len(t))] = np.inf
+        settled = enters[t, r] < low.min(axis=0)
+        first[t[settled], r[settled]] = entered[settled]
+    return cast & (first < 0), first
     return cast & ~settled, first
