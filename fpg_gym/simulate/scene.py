@@ -28,7 +28,7 @@ import numpy.typing as npt
 
 from fpg_gym.core import poses, skeleton
 from fpg_gym.core.rotations import matrix_to_quaternion_xyzw, shortest_arc
-from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
+from fpg_gym.physics.pybullet_utils import hand_back, pybullet, reuse_direct
 from fpg_gym.simulate.ray_bounds import rays_to_cast
 
 __all__ = ["Box", "RayCaster", "TraceResult", "body_shape_poses", "box_poses"]
@@ -273,7 +273,7 @@ class RayCaster:
             raise ValueError(f"rays_per_joint: expected 1 or 5, got {rays_per_joint}")
         self.rays_per_joint = rays_per_joint
         self.spread = float(spread)
-        self._client: int | None = connect_direct(renderer=False)
+        self._client: int | None = reuse_direct("rays")  # the first build resets its world
         self._uids: list[int] = []
         self._shape_of_uid = np.zeros(0, dtype=np.intp)
         self._radius = self._half_height = np.zeros(0)
@@ -283,13 +283,11 @@ class RayCaster:
 
     # -- lifecycle
     def close(self) -> None:
-        """Disconnect the pybullet client (idempotent)."""
+        """Release the pybullet client (idempotent): emptied and kept for the next caster
+        (:func:`fpg_gym.physics.pybullet_utils.hand_back`)."""
         if self._client is not None:
-            try:
-                pybullet.disconnect(physicsClientId=self._client)
-            except pybullet.error:  # pragma: no cover - already gone
-                pass
-            self._client = None
+            client, self._client = self._client, None
+            hand_back("rays", client)
 
     def __enter__(self) -> RayCaster:
         return self
@@ -298,7 +296,10 @@ class RayCaster:
         self.close()
 
     def __del__(self) -> None:  # pragma: no cover - best effort
-        self.close()
+        try:
+            self.close()
+        except Exception:
+            pass
 
     @property
     def client(self) -> int:
