@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import repeat
 from typing import Any
 
 import numpy as np
@@ -479,14 +480,19 @@ class RayCaster:
         uids = np.empty(len(ends), dtype=np.intp)
         stops = ends.copy()
         start, first = camera.tolist(), 0
-        client, reset, uid_list = self.client, pybullet.resetBasePositionAndOrientation, self._uids
+        client, reset = self.client, pybullet.resetBasePositionAndOrientation
+        moving_uids = [self._uids[k] for k in moving]
+        moving_pos, moving_quat = shape_pos[:, moving], shape_quat[:, moving]
+        counts = per_frame.tolist()
         # Python objects live one frame at a time: a clip's worth at once sets off the garbage
         # collector, whose full passes cost as much as the rest in a process holding many.
-        for t in np.flatnonzero(per_frame):
-            pos_t, quat_t = shape_pos[t].tolist(), shape_quat[t].tolist()
-            for k in moving:
-                reset(uid_list[k], pos_t[k], quat_t[k], client)
-            last = first + int(per_frame[t])
+        for t in np.flatnonzero(per_frame).tolist():
+            # The moving shapes placed by map (no Python frame per call), positionally.
+            for _ in map(
+                reset, moving_uids, moving_pos[t].tolist(), moving_quat[t].tolist(), repeat(client)
+            ):
+                pass
+            last = first + counts[t]
             result = pybullet.rayTestBatch(
                 [start] * (last - first), ends[first:last].tolist(), physicsClientId=client
             )
