@@ -14,6 +14,7 @@ from conftest import shared_path
 from fpg_gym.core import poses, skeleton
 from fpg_gym.core.compiled import numba_available, numpy_only
 from fpg_gym.io import BANDAI_NAMCO_MAP, load_default_clips, read_bvh
+from fpg_gym.physics import pybullet_utils
 from fpg_gym.physics import ragdoll as ragdoll_module
 from fpg_gym.physics.ragdoll import FloorShift, PhysicsError, PhysicsWarning, Ragdoll
 from fpg_gym.physics.ragdoll_model import (
@@ -269,6 +270,31 @@ def test_a_rebuilt_body_tracks_as_a_new_one(
     with Ragdoll(poses.bone_lengths(walk[0])) as fresh:
         np.testing.assert_array_equal(again, _run(fresh, walk))
         assert info == fresh.info
+
+
+def test_a_ragdoll_on_a_handed_back_client_tracks_as_on_a_new_one(
+    clips: dict[str, np.ndarray], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A closed ragdoll hands its client back (its world reset) and the next ragdoll takes it:
+    # after a body with other settings that touched the floor, the next tracks as on a new
+    # client, to the bit.
+    monkeypatch.setattr(pybullet_utils, "_handed_back", {})
+    kick, walk = clips["kick"], clips["walk"]
+    with Ragdoll(physics_rate=240, erp=0.4, solver_iterations=10, friction=0.5) as used:
+        _run(used, kick)
+        _run(used, walk[:20] + 1.0)
+        client = used.client
+    with Ragdoll(poses.bone_lengths(walk[0])) as again:
+        assert again.client == client
+        reused = _run(again, walk)
+    monkeypatch.setattr(pybullet_utils, "_handed_back", {})
+    with Ragdoll(poses.bone_lengths(walk[0])) as fresh:
+        assert fresh.client != client
+        np.testing.assert_array_equal(reused, _run(fresh, walk))
+    monkeypatch.setattr(pybullet_utils, "KEPT_CLIENTS", 0)  # none kept: disconnected
+    body = Ragdoll()
+    body.close()
+    assert not pybullet_utils.pybullet.isConnected(physicsClientId=body.client)
 
 
 def test_no_floor_and_degenerate_targets() -> None:

@@ -28,7 +28,7 @@ from fpg_gym.simulate import (
     scene,
     simulate,
 )
-from fpg_gym.simulate.ray_bounds import segment_distances
+from fpg_gym.simulate.ray_bounds import _slab_entry, segment_distances
 
 REPO = Path(__file__).resolve().parents[1]
 HAND_RIGHT = skeleton.joint_index("HandRight")
@@ -352,3 +352,18 @@ def test_realism_script_smoke(
     text = capsys.readouterr().out
     assert "| sim clean |" in text and "| sim front-many |" in text
     assert "HandRight" in text
+
+
+def test_slab_entry_of_segments_parallel_to_a_slab() -> None:
+    """A segment parallel to a box's slab enters where the other slabs say when it lies
+    inside that slab, and never when it lies outside."""
+    half = np.array([[1.0, 1.0, 1.0]])
+    starts = np.array([[-2.0, 0.5, 0.0], [-2.0, 1.5, 0.0], [0.0, 0.0, 0.0], [0.5, -3.0, 2.0]])
+    ends = np.array([[2.0, 0.5, 0.0], [2.0, 1.5, 0.0], [0.0, 0.0, 0.0], [0.5, 1.0, 2.0]])
+    start = [starts[None, :, k, None] for k in range(3)]  # (B, T, 1) per coordinate
+    direction = [(ends - starts)[None, :, k, None] for k in range(3)]  # (B, T, R)
+    entry = _slab_entry(start, direction, half)[0, :, 0]
+    assert entry[0] == 0.25  # inside the Y and Z slabs all along
+    assert entry[1] == np.inf  # outside the Y slab all along
+    assert entry[2] == 0.0  # a point inside the box
+    assert entry[3] == np.inf  # outside the Z slab

@@ -268,6 +268,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
 
         # Episode state.
         self._recording: Recording | None = None
+        self._body_present: list[bool] = []
         self._episode: dict[str, Any] = {}
         self._problem: SearchProblem | None = None
         self._elapsed = 0
@@ -432,9 +433,9 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         if a.size != self.latent_dim:
             raise ValueError(f"action: expected shape ({self.latent_dim},), got {np.shape(action)}")
         a = a.reshape(self.latent_dim)
-        if not np.all(np.isfinite(a)):
+        if not np.isfinite(a).all():
             raise ValueError("action: NaN or inf value")
-        clipped = bool(np.any(np.abs(a) > 1.0))
+        clipped = bool((np.abs(a) > 1.0).any())
         if clipped and self.clip_actions and not exact:
             a = np.clip(a, -1.0, 1.0)
         d = min(problem.dim, self.latent_dim)
@@ -456,6 +457,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         super().reset(seed=seed)
         recording, episode = self.episodes.draw(self.np_random, dict(options or {}))
         self._recording = recording
+        self._body_present = recording.body_present.tolist()  # the sensor saw a joint, per frame
         self._episode = episode
         for key in self._counts:
             self._counts[key] = 0
@@ -614,7 +616,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         recording, stream = self._recording, self._stream
         assert recording is not None and stream is not None
         t = stream.next
-        states = recording.states[t]
         t0 = time.perf_counter()
         problem = stream.prepare()
         self._problem = problem
@@ -623,7 +624,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             problem,
             action_scale=self.action_scale,
             delta=self.action_mode == "delta",
-            no_body=not bool(np.any(states > 0)),
+            no_body=not self._body_present[t],
             progress=t / recording.num_frames,
             frame_dt=self.reconstructor.config.frame_dt,
         )

@@ -102,7 +102,7 @@ from fpg_gym.core.compiled import compiled_module
 from fpg_gym.core.errors import FpgGymError
 from fpg_gym.core.poses import FloorShift
 from fpg_gym.core.rotations import shortest_arc
-from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
+from fpg_gym.physics.pybullet_utils import hand_back, pybullet, reuse_direct
 from fpg_gym.physics.ragdoll_build import build_body, build_world, place_body, remove_body
 from fpg_gym.physics.ragdoll_guards import divergence, glide
 from fpg_gym.physics.ragdoll_kinematics import (
@@ -288,8 +288,9 @@ class Ragdoll:
             np.tile([0.0, 0.0, 1.0], (NUM_BONES, 1)), self._rest_directions
         )
         # The physics client draws nothing (building bodies costs half as much without the
-        # renderer); render() draws the body in a client of its own, built on first use.
-        self.client = connect_direct(renderer=False)
+        # renderer); render() draws the body in a client of its own, built on first use. A
+        # closed ragdoll's client is reused (the first rebuild resets its world and settings).
+        self.client = reuse_direct("ragdoll")
         # pybullet.changeConstraint's trailing positional arguments in track(), for map().
         self._unchanged = tuple(repeat(value) for value in (*_UNCHANGED, self.client))
         self._closed = False
@@ -666,16 +667,14 @@ class Ragdoll:
             raise RuntimeError("this Ragdoll is closed")
 
     def close(self) -> None:
-        """Disconnect the pybullet client (idempotent)."""
+        """Release the pybullet client (idempotent): emptied and kept for the next ragdoll
+        (:func:`fpg_gym.physics.pybullet_utils.hand_back`)."""
         if not self._closed:
             self._closed = True
             if self._scene is not None:
                 self._scene.close()
                 self._scene = None
-            try:
-                pybullet.disconnect(physicsClientId=self.client)
-            except pybullet.error:
-                pass
+            hand_back("ragdoll", self.client)
 
     def __enter__(self) -> Ragdoll:
         return self

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from fpg_gym.core import skeleton
-from fpg_gym.core.rotations import axis_angle_matrix
+from fpg_gym.core.rotations import axis_angle_matrix, cross_product
 from fpg_gym.core.skeleton import INFERRED, NOT_TRACKED, TRACKED
 from fpg_gym.simulate.models import JOINT_GROUP, OcclusionModel
 
@@ -25,7 +25,8 @@ _FREEZE, _SWING, _COLLAPSE, _SNAP = 0, 1, 2, 3
 _LIMB = np.array([group != "core" for group in JOINT_GROUP])
 
 _LEVELS = skeleton.JOINT_LEVELS
-_LEVEL_PARENTS = [skeleton.PARENTS[level] for level in _LEVELS]
+#: Each joint's parent (the root its own).
+_PARENT = np.where(skeleton.PARENTS >= 0, skeleton.PARENTS, np.arange(skeleton.NUM_JOINTS))
 
 
 @dataclass(frozen=True)
@@ -111,7 +112,7 @@ def _unit_axes(axes: np.ndarray) -> np.ndarray:
 def _glitch(bone_rep: np.ndarray, draws: _OcclusionDraws, t: int, jumps: np.ndarray) -> None:
     """Turn, in place, the reported bones of the hidden limb joints ``jumps`` that glitch at
     ``t``."""
-    axis = _unit_axes(np.cross(bone_rep[jumps], draws.glitch_axis[t, jumps]))
+    axis = _unit_axes(cross_product(bone_rep[jumps], draws.glitch_axis[t, jumps]))
     turned = np.einsum(
         "jab,jb->ja", axis_angle_matrix(axis, draws.glitch_angle[t, jumps]), bone_rep[jumps]
     )
@@ -121,23 +122,23 @@ def _glitch(bone_rep: np.ndarray, draws: _OcclusionDraws, t: int, jumps: np.ndar
 def _propagate(
     model: OcclusionModel,
     excess: np.ndarray,
-    own: np.ndarray,
+    own: np.ndarray | None,
     h: np.ndarray,
     kick: np.ndarray,
-    levels: np.ndarray,
-) -> None:
-    """Update, in place, each joint's occlusion error: a hidden joint's is its parent's plus
-    its own bone error (``own``), a seen joint's decays; a hidden root drifts on its own.
-    ``levels`` ``(L,)`` says which levels of the skeleton have a hidden joint."""
-    decayed = model.recovery * excess
-    root = (1.0 - model.approach_rate) * excess[0] + kick  # pulled back like a bone
-    excess[:] = decayed
-    if h[0]:
+    levels: list[np.ndarray],
+) -> np.ndarray:
+    """Each joint's occlusion error after this frame: a hidden joint's is its parent's plus its
+    own bone error (``own``), a seen joint's decays; a hidden root drifts on its own.
+    ``levels`` holds, for each level of the skeleton with a hidden joint in root-to-leaf order,
+    ``(20, 1)`` the hidden joints of that level (``own`` may be None without one). ``excess`` is
+    updated in place and returned."""
+    root = (1.0 - model.approach_rate) * excess[0] + kick if h[0] else None  # like a bone
+    excess *= model.recovery  # decayed
+    if root is not None:
         excess[0] = root
-    for level, parents, hidden_here in zip(_LEVELS, _LEVEL_PARENTS, levels, strict=True):
-        if hidden_here:
-            seen = h[level]
-            excess[level] = np.where(seen[:, None], excess[parents] + own[level], decayed[level])
+    for hidden_here in levels:  # a level's joints follow their parents, updated before them
+        excess = np.where(hidden_here, excess[_PARENT] + own, excess)
+    return excess
 
 
 def occlusion_effects(
@@ -242,7 +243,7 @@ class _HiddenEpisodes:
         )
         turns = np.tile(np.eye(3), (count, joints, 1, 1))
         starts = np.nonzero(begin)
-        axes = _unit_axes(np.cross(bones[starts], draws.axis_draw[starts]))
+        axes = _unit_axes(cross_product(bones[starts], draws.axis_draw[starts]))
         turns[starts] = axis_angle_matrix(axes, draws.angle_draw[starts])
         episode = (np.maximum(began, 0), np.arange(joints))
         mode, limit = modes[episode], limits[episode]
@@ -306,24 +307,35 @@ def _follow_hidden(
     begins, glitching, calming, snapping = (
         np.asarray(m.any(axis=1)) for m in (begin, glitches, calm, snap_here)
     )
-    # Which levels of the skeleton have a hidden joint, every frame at once: (T, levels).
-    levels = np.stack([hidden[:, level].any(axis=1) for level in _LEVELS], axis=1).tolist()
+    # The hidden joints of each level of the skeleton that has one, every frame at once.
+    level_joints = np.zeros((len(_LEVELS), joints, 1), dtype=bool)
+    for index, level in enumerate(_LEVELS):
+        level_joints[index, level] = True
+    by_level = hidden[:, None, :, None] & level_joints  # (T, levels, 20, 1)
+    active: list[list[bool]] = np.asarray(by_level.any(axis=(2, 3))).tolist()
+    any_hidden: list[bool] = np.asarray(hidden.any(axis=1)).tolist()
+    hidden_rows, begin_rows, freeze_rows = hidden[..., None], begin[..., None], freeze[..., None]
     for t in range(count):
         h = hidden[t]
         bone_t = bones[t]
-        if begins[t]:
-            previous = out[t - 1] - out[t - 1, parent] if t > 0 else bone_t
-            bone_rep = np.where(begin[t, :, None], previous, bone_rep)
-            frozen = np.where(begin[t, :, None], previous, frozen)
-        target = np.where(freeze[t, :, None], frozen, aim[t])
-        bone_rep = np.where(
-            h[:, None],
-            bone_rep + model.approach_rate * (target - bone_rep) + draws.kicks[t],
-            bone_t,
-        )
-        if glitching[t]:
-            _glitch(bone_rep, draws, t, glitches[t])
-        _propagate(model, excess, bone_rep - bone_t, h, draws.kicks[t, 0], levels[t])
+        if not any_hidden[t]:  # every joint seen: the reported bones are the true ones
+            bone_rep = bone_t
+            excess = _propagate(model, excess, None, h, draws.kicks[t, 0], [])
+        else:
+            if begins[t]:
+                previous = out[t - 1] - out[t - 1, parent] if t > 0 else bone_t
+                bone_rep = np.where(begin_rows[t], previous, bone_rep)
+                frozen = np.where(begin_rows[t], previous, frozen)
+            target = np.where(freeze_rows[t], frozen, aim[t])
+            bone_rep = np.where(
+                hidden_rows[t],
+                bone_rep + model.approach_rate * (target - bone_rep) + draws.kicks[t],
+                bone_t,
+            )
+            if glitching[t]:
+                _glitch(bone_rep, draws, t, glitches[t])
+            levels = [by_level[t, i] for i, here in enumerate(active[t]) if here]
+            excess = _propagate(model, excess, bone_rep - bone_t, h, draws.kicks[t, 0], levels)
         if snapping[t]:
             excess = np.where(snap_here[t, :, None], hits[t] - truth[t], excess)
         row = reported[t] + excess + shake[t]

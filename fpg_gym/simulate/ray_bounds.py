@@ -4,7 +4,7 @@
 joint; what counts is the first shape a ray hits (none or the joint's own shape: the ray is not
 blocked; a scene box: blocked by it; another body shape: blocked by the body) and, for a
 joint's central ray, where it stops. Bullet's ray test costs a few microseconds for each shape
-a ray passes near. Two conservative tests, vectorised over every frame, ray and shape, settle
+a ray passes near. Three conservative tests, vectorised over every frame, ray and shape, settle
 most rays without it, with the answer Bullet gives:
 
 * a ray that passes farther than ``margin`` from every shape that is not its joint's own is
@@ -12,8 +12,13 @@ most rays without it, with the answer Bullet gives:
   of each box grown by ``margin``);
 * a ray that enters a box shrunk by ``margin`` before it can come within ``margin`` of any
   other shape (a lower bound of where it meets each one: its bounding sphere, or the box grown
-  by ``margin``) first hits that box. Only the box is known, not where: joints' central rays
-  still go to pybullet.
+  by ``margin``) first hits that box;
+* a ray that passes closer than its radius less ``margin`` to the axis of a capsule that is not
+  its joint's own before it can come within ``margin`` of one of its own shapes is blocked by
+  the body (the shape it first hits may be another, but it is not the joint's own).
+
+Only the blocking shape is known, not where the ray stops: joints' central rays still go to
+pybullet whenever they may be blocked.
 
 Bullet finds the surfaces of these capsules, spheres and boxes to well under a millimetre
 (a ray 0.5 mm off a surface misses it, 1 mm inside hits it), so ``margin`` (1 cm) leaves ample
@@ -55,6 +60,14 @@ def _distances(
     start: np.ndarray, end: np.ndarray, first: np.ndarray, second: np.ndarray
 ) -> np.ndarray:
     """:func:`segment_distances` of segments given by their coordinates ``(3, ...)``."""
+    return _closest(start, end, first, second)[0]
+
+
+def _closest(
+    start: np.ndarray, end: np.ndarray, first: np.ndarray, second: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_distances`, and where on the first segment (``s`` in [0, 1]) the closest points
+    are."""
     d1, d2, r = end - start, second - first, start - first
     a = _dot(d1, d1)
     e = _dot(d2, d2)
@@ -72,7 +85,7 @@ def _distances(
     s = np.where(u > 1.0, np.clip((b - c) / safe_a, 0.0, 1.0), s)
     u = np.clip(u, 0.0, 1.0)
     gap = [start[k] + d1[k] * s - first[k] - d2[k] * u for k in range(3)]
-    return np.asarray(np.sqrt(_dot(gap, gap)))
+    return np.asarray(np.sqrt(_dot(gap, gap))), s
 
 
 def _slab_entry(
@@ -89,10 +102,12 @@ def _slab_entry(
         with np.errstate(divide="ignore", invalid="ignore"):
             near = (-extent - origin) / step
             far = (extent - origin) / step
+        low, high = np.minimum(near, far), np.maximum(near, far)
         parallel = step == 0.0
-        inside = np.abs(origin) <= extent
-        low = np.where(parallel, np.where(inside, -np.inf, np.inf), np.minimum(near, far))
-        high = np.where(parallel, np.where(inside, np.inf, -np.inf), np.maximum(near, far))
+        if parallel.any():  # a segment parallel to the slab: inside it all along, or never
+            inside = np.broadcast_to(np.abs(origin) <= extent, parallel.shape)[parallel]
+            low[parallel] = np.where(inside, -np.inf, np.inf)
+            high[parallel] = np.where(inside, np.inf, -np.inf)
         enter, leave = np.maximum(enter, low), np.minimum(leave, high)
     return np.where(enter <= leave, enter, np.inf)
 
@@ -134,7 +149,9 @@ def rays_to_cast(
     cast : ndarray of bool, shape (T, R)
         The rays to cast.
     first : ndarray of int, shape (T, R)
-        For the others, the shape they first hit (a box), or -1 when none that blocks them.
+        For the others, a shape that blocks them (the box they first hit, or a body capsule
+        not their joint's own that they go through before any of their own shapes), or -1 when
+        none does.
     """
     # Shapes first, (S, T, R): every reduction runs over the few shapes, not the many rays.
     capsules = len(radius)
@@ -169,26 +186,54 @@ def rays_to_cast(
     distance2 = centre[:, 0] ** 2 + centre[:, 1] ** 2 + centre[:, 2] ** 2
     closest = distance2 - (2.0 * along - reach) * reach / np.maximum(squared, 1e-300)
     bound = (radius + half_height + margin)[:, None, None]  # (C, 1, 1)
-    capsule_low = (along / length - bound) / length  # a fraction of the ray
     near = np.zeros(along.shape, dtype=bool)
     # Whether a capsule is near a ray matters when it may block the ray (not the ray's own, and
     # no box makes the ray cast anyway) or when the ray may be settled.
     matters = (~own.T[:capsules, None, :] & ~by_box) | settleable
-    c, t, r = np.nonzero((closest < bound * bound) & matters)
-    if len(t):
+    nc, nt, nr = np.nonzero((closest < bound * bound) & matters)
+    distance = passes = np.zeros(0)
+    if len(nt):
         # The capsules' axes: their rotations' Z columns, coordinates first (3, T, C).
         rotations = quaternion_to_matrix(shape_quat[:, :capsules][..., [3, 0, 1, 2]])
         z_axes = np.moveaxis(rotations[..., 2], -1, 0)
-        axis = z_axes[:, t, c] * half_height[c]
-        middle = np.moveaxis(shape_pos, -1, 0)[:, t, c]
-        ends = np.moveaxis(targets, -1, 0)[:, t, r]
-        distance = _distances(camera[:, None], ends, middle - axis, middle + axis)
-        near[c, t, r] = distance < radius[c] + margin
+        axis = z_axes[:, nt, nc] * half_height[nc]
+        middle = np.moveaxis(shape_pos, -1, 0)[:, nt, nc]
+        ends = np.moveaxis(targets, -1, 0)[:, nt, nr]
+        distance, passes = _closest(camera[:, None], ends, middle - axis, middle + axis)
+        near[nc, nt, nr] = distance < radius[nc] + margin
     meets = np.concatenate([near, np.isfinite(grown)])  # (S, T, R)
     cast = np.any(meets & ~own.T[:, None, :], axis=0)
-    # Whether the first box a ray surely enters comes before any other shape.
-    low = np.where(meets, np.concatenate([capsule_low, grown]), np.inf)
-    np.put_along_axis(low, (capsules + box)[None], np.inf, axis=0)
-    settled = cast & settleable & (enters < low.min(axis=0))
-    first = np.where(settled, capsules + box, -1)
-    return cast & ~settled, first
+    # Whether the first box a ray surely enters comes before any other shape: only for the rays
+    # that may be settled, (S, N).
+    t, r = np.nonzero(cast & settleable)
+    first = np.full(cast.shape, -1)
+    if len(t):
+        length_n = length[t, r]
+        capsule_low = (along[:, t, r] / length_n - bound[:, :, 0]) / length_n  # a fraction
+        low = np.where(meets[:, t, r], np.concatenate([capsule_low, grown[:, t, r]]), np.inf)
+        entered = capsules + box[t, r]
+        low[entered, np.arange(len(t))] = np.inf
+        settled = enters[t, r] < low.min(axis=0)
+        first[t[settled], r[settled]] = entered[settled]
+    # A ray that is not central and goes through a capsule not its own (closer to its axis than
+    # its radius less the margin, at ``passes`` along the ray) before it can meet one of its own
+    # shapes is blocked by the body.
+    through = (distance < radius[nc] - margin) & ~own[nr, nc] & ~central[nr]
+    if through.any():
+        nc, nt, nr, passes = nc[through], nt[through], nr[through], passes[through]
+        blocked_at = np.full(cast.shape, np.inf)
+        np.minimum.at(blocked_at, (nt, nr), passes)
+        blocker = np.full(cast.shape, -1)
+        blocker[nt, nr] = nc
+        t, r = np.nonzero(cast & (first < 0) & np.isfinite(blocked_at))
+        length_n = length[t, r]
+        capsule_low = (along[:, t, r] / length_n - bound[:, :, 0]) / length_n  # a fraction
+        own_capsule = own.T[:capsules, r] & (closest[:, t, r] < bound[:, :, 0] * bound[:, :, 0])
+        own_box = own.T[capsules:, r] & np.isfinite(grown[:, t, r])
+        own_low = np.minimum(
+            np.where(own_capsule, capsule_low, np.inf).min(axis=0),
+            np.where(own_box, grown[:, t, r], np.inf).min(axis=0),
+        )
+        settled = blocked_at[t, r] < own_low
+        first[t[settled], r[settled]] = blocker[t[settled], r[settled]]
+    return cast & (first < 0), first

@@ -21,6 +21,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from itertools import repeat
 from typing import Any
 
 import numpy as np
@@ -28,7 +29,7 @@ import numpy.typing as npt
 
 from fpg_gym.core import poses, skeleton
 from fpg_gym.core.rotations import matrix_to_quaternion_xyzw, shortest_arc
-from fpg_gym.physics.pybullet_utils import connect_direct, pybullet
+from fpg_gym.physics.pybullet_utils import hand_back, pybullet, reuse_direct
 from fpg_gym.simulate.ray_bounds import rays_to_cast
 
 __all__ = ["Box", "RayCaster", "TraceResult", "body_shape_poses", "box_poses"]
@@ -273,7 +274,7 @@ class RayCaster:
             raise ValueError(f"rays_per_joint: expected 1 or 5, got {rays_per_joint}")
         self.rays_per_joint = rays_per_joint
         self.spread = float(spread)
-        self._client: int | None = connect_direct(renderer=False)
+        self._client: int | None = reuse_direct("rays")  # the first build resets its world
         self._uids: list[int] = []
         self._shape_of_uid = np.zeros(0, dtype=np.intp)
         self._radius = self._half_height = np.zeros(0)
@@ -283,13 +284,11 @@ class RayCaster:
 
     # -- lifecycle
     def close(self) -> None:
-        """Disconnect the pybullet client (idempotent)."""
+        """Release the pybullet client (idempotent): emptied and kept for the next caster
+        (:func:`fpg_gym.physics.pybullet_utils.hand_back`)."""
         if self._client is not None:
-            try:
-                pybullet.disconnect(physicsClientId=self._client)
-            except pybullet.error:  # pragma: no cover - already gone
-                pass
-            self._client = None
+            client, self._client = self._client, None
+            hand_back("rays", client)
 
     def __enter__(self) -> RayCaster:
         return self
@@ -298,7 +297,10 @@ class RayCaster:
         self.close()
 
     def __del__(self) -> None:  # pragma: no cover - best effort
-        self.close()
+        try:
+            self.close()
+        except Exception:
+            pass
 
     @property
     def client(self) -> int:
@@ -478,14 +480,19 @@ class RayCaster:
         uids = np.empty(len(ends), dtype=np.intp)
         stops = ends.copy()
         start, first = camera.tolist(), 0
-        client, reset, uid_list = self.client, pybullet.resetBasePositionAndOrientation, self._uids
+        client, reset = self.client, pybullet.resetBasePositionAndOrientation
+        moving_uids = [self._uids[k] for k in moving]
+        moving_pos, moving_quat = shape_pos[:, moving], shape_quat[:, moving]
+        counts = per_frame.tolist()
         # Python objects live one frame at a time: a clip's worth at once sets off the garbage
         # collector, whose full passes cost as much as the rest in a process holding many.
-        for t in np.flatnonzero(per_frame):
-            pos_t, quat_t = shape_pos[t].tolist(), shape_quat[t].tolist()
-            for k in moving:
-                reset(uid_list[k], pos_t[k], quat_t[k], client)
-            last = first + int(per_frame[t])
+        for t in np.flatnonzero(per_frame).tolist():
+            # The moving shapes placed by map (no Python frame per call), positionally.
+            for _ in map(
+                reset, moving_uids, moving_pos[t].tolist(), moving_quat[t].tolist(), repeat(client)
+            ):
+                pass
+            last = first + counts[t]
             result = pybullet.rayTestBatch(
                 [start] * (last - first), ends[first:last].tolist(), physicsClientId=client
             )
