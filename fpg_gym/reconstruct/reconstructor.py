@@ -338,11 +338,14 @@ class Reconstructor(FrameDrivers):
         states: np.ndarray,
         timestamp: float | None = None,
         started: float | None = None,
+        *,
+        no_body: bool | None = None,
     ) -> SearchProblem:
         """:meth:`prepare` of a frame whose input was checked before: ``positions`` ``(20, 3)``
         float32 and finite, ``states`` ``(20,)`` (a recording's frames, checked as a whole
         when its :class:`~fpg_gym.reconstruct.streams.Stream` starts); ``started`` is the
-        frame's ``time.perf_counter()`` start.
+        frame's ``time.perf_counter()`` start; ``no_body``, when given, whether no state is
+        above 0 (found for a whole recording at once).
 
         Raises
         ------
@@ -362,7 +365,8 @@ class Reconstructor(FrameDrivers):
         if timestamp is None:
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)
-        no_body = not bool((states > 0).any())
+        if no_body is None:
+            no_body = not bool((states > 0).any())
         self._restart_after_gap(timestamp)
         first = not self._history
         dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
@@ -591,18 +595,21 @@ class Reconstructor(FrameDrivers):
         RuntimeError
             If no frame was prepared.
         """
-        pending = self._prepared("finish")
+        pending = self._pending
+        if pending is None:
+            raise RuntimeError("finish: no prepared frame (call prepare first)")
         t0 = time.perf_counter()
         problem = pending.problem
+        x0 = problem.x0  # (d,), checked by the problem
         if z is None:
-            z = problem.x0 if pending.found is None else pending.found
+            z = x0 if pending.found is None else pending.found
         z = np.asarray(z, dtype=np.float64).reshape(-1)
-        dim = problem.dim
+        dim = len(x0)
         if z.shape != (dim,) or not np.isfinite(z).all():
             raise ValueError(f"z: expected {dim} finite values, got shape {z.shape}")
         points = np.empty((2, dim))  # z and x0 (an encoded pose: finite)
         points[0] = z
-        points[1] = problem.x0
+        points[1] = x0
         chosen = problem.energy.terms_and_total(points)  # evaluate_terms's, checked, uncounted
         local = problem.decode(points[:1])[0]
         if self.config.sensor_blend > 0.0 and not pending.no_body:
@@ -631,7 +638,7 @@ class Reconstructor(FrameDrivers):
         ms["search"] = 1e3 * (t0 - pending.prepared_at)
         ms["finish"] = 1e3 * ((t1 - t0) + (t3 - t2))  # the output stage counts as finishing
         ms["ragdoll"] = 1e3 * (t2 - t1)
-        ms["total"] = sum(ms[s] for s in STAGES)
+        ms["total"] = sum(map(ms.__getitem__, STAGES))
         terms = pending.terms
         record = frame_record(self._index, pending, chosen, ms, ragdoll_info)
         self._pending = None

@@ -154,9 +154,15 @@ class Stream:
         self.next = 0
         self.records: list[FrameRecord] = []
         self._frames: tuple[np.ndarray, ...] | None = None
+        # Per frame, found once for the recording: its timestamp (a float) and whether no joint
+        # is tracked or inferred (what prepare would find frame by frame).
+        self._stamps: list[float] = []
+        self._no_body: list[bool] = []
         length = 0
         if recording is not None:
             self._frames = _stream_arrays(recording, index, reconstructor.config.frame_dt)
+            self._stamps = self._frames[2].tolist()
+            self._no_body = np.logical_not((self._frames[1] > 0).any(axis=1)).tolist()
             length = len(self._frames[0]) if frames is None else min(frames, len(self._frames[0]))
         self.length = length
         self.poses = np.zeros((length, skeleton.NUM_JOINTS, 3), dtype=np.float32)
@@ -178,9 +184,11 @@ class Stream:
             if self._frames is None or self.done:
                 raise RuntimeError(f"stream {self.index}: no frame left to prepare")
             t = self.next
-            positions, states, timestamps = self._frames
+            positions, states, _ = self._frames
             # checked with the recording (_stream_arrays)
-            return self.reconstructor._prepare_checked(positions[t], states[t], timestamps[t])
+            return self.reconstructor._prepare_checked(
+                positions[t], states[t], self._stamps[t], no_body=self._no_body[t]
+            )
         assert states is not None
         return self.reconstructor.prepare(positions, states, timestamp)
 
