@@ -68,6 +68,7 @@ none.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import fields, replace
 from typing import Any, Literal
@@ -362,6 +363,7 @@ class Reconstructor(FrameDrivers):
         if cfg.sensor_map is not None:  # the sensor's body points -> the database's
             mapped = cfg.sensor_map.apply(positions)
             positions = mapped.astype(np.float32)
+        positions = positions.astype(np.float64)  # once for the stages below (float64 all)
         if timestamp is None:
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)
@@ -496,14 +498,12 @@ class Reconstructor(FrameDrivers):
             kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
         elif self._placement_smoother is not None:
             # Temporal coherence (not in the papers): the output is put back at a smoothed root
-            # (and heading, when smoothed; the pose is then estimated in that heading's frame).
-            smoothed = self._placement_smoother.update(placement, timestamp)
+            # (and heading, when smoothed; the pose is then estimated in that heading's frame;
+            # else the smoothed placement keeps this one's).
+            output_placement = self._placement_smoother.update(placement, timestamp)
             if self.config.temporal.smooth_heading:
-                output_placement = smoothed
-                placement = pose_utils.Placement(root=placement.root, yaw=smoothed.yaw)
+                placement = pose_utils.Placement(root=placement.root, yaw=output_placement.yaw)
                 kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
-            else:
-                output_placement = pose_utils.Placement(root=smoothed.root, yaw=placement.yaw)
         return kinect, placement, output_placement
 
     def _reliability_terms(
@@ -605,7 +605,8 @@ class Reconstructor(FrameDrivers):
             z = x0 if pending.found is None else pending.found
         z = np.asarray(z, dtype=np.float64).reshape(-1)
         dim = len(x0)
-        if z.shape != (dim,) or not np.isfinite(z).all():
+        # z.z is finite only when every value is (NaN and inf stay); else the exact check
+        if z.shape != (dim,) or (not math.isfinite(z @ z) and not np.isfinite(z).all()):
             raise ValueError(f"z: expected {dim} finite values, got shape {z.shape}")
         points = np.empty((2, dim))  # z and x0 (an encoded pose: finite)
         points[0] = z
@@ -616,21 +617,21 @@ class Reconstructor(FrameDrivers):
             pull = self.config.sensor_blend * pending.terms.reliability[:, None]
             local = local + pull * (np.asarray(problem.kinect_pose, dtype=np.float64) - local)
         pose = output_pose(local, problem.lengths, pending.placement)
-        t1 = time.perf_counter()
+        t1 = t2 = time.perf_counter()
         ragdoll_info = None
         if self._ragdoll.factory is not None:
             pose, ragdoll_info = self._ragdoll.track(pose, problem.lengths)
-        history_pose = pose
-        t2 = time.perf_counter()
+            t2 = time.perf_counter()
+        history_pose = np.asarray(pose, dtype=np.float64)  # the smoother's input too
         if self._output_smoother is not None:
             # Light output filter (not in the papers); the bone lengths stay the output's.
             out_lengths = (
                 problem.lengths if self._ragdoll.lengths is None else self._ragdoll.lengths
             )
-            pose = self._output_smoother.update(pose, out_lengths, pending.timestamp)
+            pose = self._output_smoother.update(history_pose, out_lengths, pending.timestamp)
         t3 = time.perf_counter()
 
-        self._history.append((np.asarray(history_pose, dtype=np.float64), pending.timestamp))
+        self._history.append((history_pose, pending.timestamp))
         del self._history[:-2]
         self._placement = pending.placement
         self._last_timestamp = pending.timestamp
