@@ -350,16 +350,19 @@ def reconstruct_streams(
     for stream in streams:
         stream.reconstructor.reset()
     total = sum(s.length - s.next for s in streams)
-    bar = tqdm(total=total, unit="frame", desc="reconstruct", leave=False, disable=not progress)
+    # no bar at all without progress (making a disabled one costs more than a short stream)
+    bar = tqdm(total=total, unit="frame", desc="reconstruct", leave=False) if progress else None
+    checkpoints = checkpoint is not None and checkpoint_s > 0
     last_checkpoint = time.monotonic()
     interrupted = False
     try:
         while outputs := step_streams(streams, choose):
-            bar.update(len(outputs))
+            if bar is not None:
+                bar.update(len(outputs))
             if on_step is not None:
                 on_step(len(outputs))
-            now = time.monotonic()
-            if checkpoint is not None and 0 < checkpoint_s <= now - last_checkpoint:
+            if checkpoints and checkpoint_s <= time.monotonic() - last_checkpoint:
+                assert checkpoint is not None
                 checkpoint([s.result(True, copy=True) for s in streams])
                 last_checkpoint = time.monotonic()
     except KeyboardInterrupt:
@@ -373,7 +376,8 @@ def reconstruct_streams(
             stream.reconstructor.reset()
         raise
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
     return [s.result(interrupted) for s in streams]
 
 
