@@ -662,7 +662,8 @@ class Reconstructor(FrameDrivers):
             spent = 1e3 * (time.perf_counter() - t4)
             record.ms["finish"] += spent
             record.ms["total"] += spent
-        return pose.astype(np.float32), record
+        # Every stage above returns a new array (or its input): no copy of a float32 pose.
+        return np.asarray(pose, dtype=np.float32), record
 
     def _output_stages(self, pose: np.ndarray, pending: Pending, record: FrameRecord) -> np.ndarray:
         """The stages after the history's pose: the output map or the online calibration, the
