@@ -43,7 +43,7 @@ class Pending:
     sensor_states: np.ndarray | None = None  # the raw input's tracking states
     correction: OutputCorrection | None = None  # the searching optimiser's, if it has one
     trust: np.ndarray | None = None  # the fusion's trust in each (relabelled) sensor joint
-    permutation: np.ndarray | None = None  # the labelling's joint permutation
+    labelling_index: int = 0  # the labelling's index in LABELLINGS (LABEL_PERMUTATIONS')
     output_sensor: np.ndarray | None = None  # the sensor in the output's definitions, if mapped
 
 

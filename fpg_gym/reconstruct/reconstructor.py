@@ -431,7 +431,7 @@ class Reconstructor(FrameDrivers):
             tracked,
             sensor_states=raw_states,
             trust=trust,
-            permutation=LABEL_PERMUTATIONS[labelling],
+            labelling_index=labelling,
             # The fusion's sensor in the output's definitions: the relabelling's, when the
             # labels stay (a relabelled pose is mapped again: the map reads its labels).
             output_sensor=compared if labelling == 0 and self._maps_for_fusion else None,
@@ -674,8 +674,8 @@ class Reconstructor(FrameDrivers):
         if self._calibration is None and self._output_bones is None and self._fusion is None:
             return pose
         sensor = pending.sensor
-        if sensor is not None and pending.permutation is not None:
-            sensor = sensor[pending.permutation]  # the labels the frame was reconstructed with
+        if sensor is not None:  # the labels the frame was reconstructed with
+            sensor = sensor[LABEL_PERMUTATIONS[pending.labelling_index]]
         if self._calibration is not None and sensor is not None and pending.tracked is not None:
             target = sensor
             if pending.output_sensor is not None:  # the calibration map's (the fusion's too)
