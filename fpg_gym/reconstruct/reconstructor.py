@@ -603,7 +603,9 @@ class Reconstructor(FrameDrivers):
         x0 = problem.x0  # (d,), checked by the problem
         if z is None:
             z = x0 if pending.found is None else pending.found
-        z = np.asarray(z, dtype=np.float64).reshape(-1)
+        z = np.asarray(z, dtype=np.float64)
+        if z.ndim != 1:
+            z = z.reshape(-1)
         dim = len(x0)
         # z.z is finite only when every value is (NaN and inf stay); else the exact check
         if z.shape != (dim,) or (not math.isfinite(z @ z) and not np.isfinite(z).all()):
