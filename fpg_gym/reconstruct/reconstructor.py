@@ -341,12 +341,14 @@ class Reconstructor(FrameDrivers):
         started: float | None = None,
         *,
         no_body: bool | None = None,
+        positions64: np.ndarray | None = None,
     ) -> SearchProblem:
         """:meth:`prepare` of a frame whose input was checked before: ``positions`` ``(20, 3)``
         float32 and finite, ``states`` ``(20,)`` (a recording's frames, checked as a whole
         when its :class:`~fpg_gym.reconstruct.streams.Stream` starts); ``started`` is the
         frame's ``time.perf_counter()`` start; ``no_body``, when given, whether no state is
-        above 0 (found for a whole recording at once).
+        above 0, and ``positions64``, when given, ``positions`` in float64 (found for a whole
+        recording at once; read only).
 
         Raises
         ------
@@ -360,10 +362,12 @@ class Reconstructor(FrameDrivers):
         t0 = time.perf_counter() if started is None else started
         cfg = self.config
         sensor, raw_states, mapped = positions, states, None
+        # The stages below read the frame in float64 (float32 values, exact).
         if cfg.sensor_map is not None:  # the sensor's body points -> the database's
             mapped = cfg.sensor_map.apply(positions)
-            positions = mapped.astype(np.float32)
-        positions = positions.astype(np.float64)  # once for the stages below (float64 all)
+            positions = mapped.astype(np.float32).astype(np.float64)
+        else:
+            positions = positions.astype(np.float64) if positions64 is None else positions64
         if timestamp is None:
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)

@@ -154,13 +154,16 @@ class Stream:
         self.next = 0
         self.records: list[FrameRecord] = []
         self._frames: tuple[np.ndarray, ...] | None = None
-        # Per frame, found once for the recording: its timestamp (a float) and whether no joint
-        # is tracked or inferred (what prepare would find frame by frame).
+        # Per frame, found once for the recording: its positions in float64, its timestamp (a
+        # float) and whether no joint is tracked or inferred (what prepare would find frame by
+        # frame).
+        self._positions64: np.ndarray | None = None
         self._stamps: list[float] = []
         self._no_body: list[bool] = []
         length = 0
         if recording is not None:
             self._frames = _stream_arrays(recording, index, reconstructor.config.frame_dt)
+            self._positions64 = self._frames[0].astype(np.float64)
             self._stamps = self._frames[2].tolist()
             self._no_body = np.logical_not((self._frames[1] > 0).any(axis=1)).tolist()
             length = len(self._frames[0]) if frames is None else min(frames, len(self._frames[0]))
@@ -185,9 +188,14 @@ class Stream:
                 raise RuntimeError(f"stream {self.index}: no frame left to prepare")
             t = self.next
             positions, states, _ = self._frames
+            assert self._positions64 is not None
             # checked with the recording (_stream_arrays)
             return self.reconstructor._prepare_checked(
-                positions[t], states[t], self._stamps[t], no_body=self._no_body[t]
+                positions[t],
+                states[t],
+                self._stamps[t],
+                no_body=self._no_body[t],
+                positions64=self._positions64[t],
             )
         assert states is not None
         return self.reconstructor.prepare(positions, states, timestamp)
