@@ -66,17 +66,18 @@ def retarget_pose(pose, lengths, bones, rest_directions):
 def assemble_nodes(directions, roots, nodes, lengths, bones):
     """Poses ``(M, 20, 3)`` float32 of the database rows ``nodes``: each root plus, along its
     path, the unit bone ``directions`` ``(N, 19, 3)`` float32 scaled by ``lengths`` ``(19,)``
-    float32 (the bone vectors in float32, their sums in float64)."""
+    float64 rounded to float32 (the bone vectors in float32, their sums in float64)."""
     count = nodes.shape[0]
     joints = bones.shape[0] + 1
     out = np.empty((count, joints, 3), dtype=np.float32)
     offset = np.zeros((joints, 3))
+    scale = lengths.astype(np.float32)
     for i in range(count):
         node = nodes[i]
         for b in range(bones.shape[0]):
             parent, child = bones[b, 0], bones[b, 1]
             for c in range(3):
-                vector = directions[node, b, c] * lengths[b]  # float32, as the numpy path
+                vector = directions[node, b, c] * scale[b]  # float32, as the numpy path
                 offset[child, c] = offset[parent, c] + vector
         for j in range(joints):
             for c in range(3):

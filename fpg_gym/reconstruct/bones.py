@@ -148,16 +148,16 @@ class BoneSettler:
                 self._low + cfg.max_spread_m,
             )
             self._low, self._high = np.minimum(self._low, moved), np.maximum(self._high, moved)
-            largest = np.abs(moved - self._lengths).max()
-            changed = bool((np.abs(moved - self._lengths) > 1e-9).any())
-        if changed:
             change = np.abs(moved - self._lengths)
+            largest = change.max()
+            changed = np.flatnonzero(change > 1e-9)
+        if len(changed):
             self.events.append(
                 {
                     "time_s": timestamp,
                     "kind": "changed",
                     "max_change_mm": float(1000.0 * largest),
-                    "bones": np.flatnonzero(change > 1e-9).tolist(),
+                    "bones": changed.tolist(),
                 }
             )
         self._lengths = moved

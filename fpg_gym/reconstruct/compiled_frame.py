@@ -457,11 +457,12 @@ def settle_lengths(estimate, lengths, low, high, rate, spread):
     each bone of ``lengths`` ``(19,)`` moves toward ``estimate`` by at most ``rate`` and keeps
     its range since settling (``low``, ``high``, updated in place) within ``spread`` (the numpy
     code's operations). Returns the new lengths, the largest change (``np.max`` of its
-    magnitudes) and whether a bone moved more than 1e-9 m."""
+    magnitudes) and the bones that moved more than 1e-9 m (ascending)."""
     count = estimate.shape[0]
     moved = np.empty(count)
     largest = 0.0
-    changed = False
+    changed = np.empty(count, dtype=np.int64)
+    number = 0
     for b in range(count):
         step = scalar_minimum(scalar_maximum(estimate[b] - lengths[b], -rate), rate)
         value = scalar_minimum(scalar_maximum(lengths[b] + step, high[b] - spread), low[b] + spread)
@@ -470,5 +471,7 @@ def settle_lengths(estimate, lengths, low, high, rate, spread):
         high[b] = scalar_maximum(high[b], value)
         change = abs(value - lengths[b])
         largest = scalar_maximum(largest, change)
-        changed = changed or change > 1e-9
-    return moved, largest, changed
+        if change > 1e-9:
+            changed[number] = b
+            number += 1
+    return moved, largest, changed[:number]

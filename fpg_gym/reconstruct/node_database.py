@@ -112,7 +112,7 @@ class NodeDatabase:
                 self._directions,
                 self._roots,
                 nodes,
-                np.asarray(lengths, dtype=np.float32),
+                np.asarray(lengths, dtype=np.float64),  # rounded to float32 by the kernel
                 skeleton.BONES,
             )
             return out

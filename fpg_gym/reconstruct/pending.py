@@ -43,7 +43,7 @@ class Pending:
     sensor_states: np.ndarray | None = None  # the raw input's tracking states
     correction: OutputCorrection | None = None  # the searching optimiser's, if it has one
     trust: np.ndarray | None = None  # the fusion's trust in each (relabelled) sensor joint
-    permutation: np.ndarray | None = None  # the labelling's joint permutation
+    labelling_index: int = 0  # the labelling's index in LABELLINGS (LABEL_PERMUTATIONS')
     output_sensor: np.ndarray | None = None  # the sensor in the output's definitions, if mapped
 
 
@@ -55,12 +55,13 @@ def output_pose(
     and put back at ``placement`` (:func:`~fpg_gym.core.poses.denormalise`); one compiled call
     with numba (the same operations)."""
     compiled = compiled_module("fpg_gym.reconstruct.compiled_frame")
-    if compiled is not None and np.shape(placement.root) == (3,) and not np.ndim(placement.yaw):
+    root, yaw = placement.root, placement.yaw
+    if compiled is not None and np.shape(root) == (3,) and not np.ndim(yaw):
         pose: np.ndarray = compiled.finish_pose(
             np.ascontiguousarray(local, dtype=np.float64),
             np.asarray(lengths, dtype=np.float64),
-            np.asarray(placement.root, dtype=np.float64),
-            float(placement.yaw),
+            np.asarray(root, dtype=np.float64),
+            float(yaw),
             skeleton.BONES,
             pose_utils.REST_DIRECTIONS,
         )
@@ -94,9 +95,9 @@ def frame_record(
         recovered=selection.recovered,
         first=pending.first,
         no_body=pending.no_body,
-        energy=float(chosen["E"][0]),
-        energy_x0=float(chosen["E"][1]),
-        terms={name: float(chosen[name][0]) for name in TERM_NAMES},
+        energy=chosen["E"].item(0),
+        energy_x0=chosen["E"].item(1),
+        terms={name: chosen[name].item(0) for name in TERM_NAMES},
         evaluations=problem.evaluations,
         ms=ms,
         ragdoll=ragdoll_info,

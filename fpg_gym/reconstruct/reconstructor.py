@@ -68,6 +68,7 @@ none.
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import fields, replace
 from typing import Any, Literal
@@ -338,11 +339,16 @@ class Reconstructor(FrameDrivers):
         states: np.ndarray,
         timestamp: float | None = None,
         started: float | None = None,
+        *,
+        no_body: bool | None = None,
+        positions64: np.ndarray | None = None,
     ) -> SearchProblem:
         """:meth:`prepare` of a frame whose input was checked before: ``positions`` ``(20, 3)``
         float32 and finite, ``states`` ``(20,)`` (a recording's frames, checked as a whole
         when its :class:`~fpg_gym.reconstruct.streams.Stream` starts); ``started`` is the
-        frame's ``time.perf_counter()`` start.
+        frame's ``time.perf_counter()`` start; ``no_body``, when given, whether no state is
+        above 0, and ``positions64``, when given, ``positions`` in float64 (found for a whole
+        recording at once; read only).
 
         Raises
         ------
@@ -356,13 +362,17 @@ class Reconstructor(FrameDrivers):
         t0 = time.perf_counter() if started is None else started
         cfg = self.config
         sensor, raw_states, mapped = positions, states, None
+        # The stages below read the frame in float64 (float32 values, exact).
         if cfg.sensor_map is not None:  # the sensor's body points -> the database's
             mapped = cfg.sensor_map.apply(positions)
-            positions = mapped.astype(np.float32)
+            positions = mapped.astype(np.float32).astype(np.float64)
+        else:
+            positions = positions.astype(np.float64) if positions64 is None else positions64
         if timestamp is None:
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)
-        no_body = not bool((states > 0).any())
+        if no_body is None:
+            no_body = not bool((states > 0).any())
         self._restart_after_gap(timestamp)
         first = not self._history
         dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
@@ -425,7 +435,7 @@ class Reconstructor(FrameDrivers):
             tracked,
             sensor_states=raw_states,
             trust=trust,
-            permutation=LABEL_PERMUTATIONS[labelling],
+            labelling_index=labelling,
             # The fusion's sensor in the output's definitions: the relabelling's, when the
             # labels stay (a relabelled pose is mapped again: the map reads its labels).
             output_sensor=compared if labelling == 0 and self._maps_for_fusion else None,
@@ -492,14 +502,12 @@ class Reconstructor(FrameDrivers):
             kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
         elif self._placement_smoother is not None:
             # Temporal coherence (not in the papers): the output is put back at a smoothed root
-            # (and heading, when smoothed; the pose is then estimated in that heading's frame).
-            smoothed = self._placement_smoother.update(placement, timestamp)
+            # (and heading, when smoothed; the pose is then estimated in that heading's frame;
+            # else the smoothed placement keeps this one's).
+            output_placement = self._placement_smoother.update(placement, timestamp)
             if self.config.temporal.smooth_heading:
-                output_placement = smoothed
-                placement = pose_utils.Placement(root=placement.root, yaw=smoothed.yaw)
+                placement = pose_utils.Placement(root=placement.root, yaw=output_placement.yaw)
                 kinect = pose_utils.into_placement(positions, placement).astype(np.float32)
-            else:
-                output_placement = pose_utils.Placement(root=smoothed.root, yaw=placement.yaw)
         return kinect, placement, output_placement
 
     def _reliability_terms(
@@ -591,39 +599,45 @@ class Reconstructor(FrameDrivers):
         RuntimeError
             If no frame was prepared.
         """
-        pending = self._prepared("finish")
+        pending = self._pending
+        if pending is None:
+            raise RuntimeError("finish: no prepared frame (call prepare first)")
         t0 = time.perf_counter()
         problem = pending.problem
+        x0 = problem.x0  # (d,), checked by the problem
         if z is None:
-            z = problem.x0 if pending.found is None else pending.found
-        z = np.asarray(z, dtype=np.float64).reshape(-1)
-        dim = problem.dim
-        if z.shape != (dim,) or not np.isfinite(z).all():
+            z = x0 if pending.found is None else pending.found
+        z = np.asarray(z, dtype=np.float64)
+        if z.ndim != 1:
+            z = z.reshape(-1)
+        dim = len(x0)
+        # z.z is finite only when every value is (NaN and inf stay); else the exact check
+        if z.shape != (dim,) or (not math.isfinite(z @ z) and not np.isfinite(z).all()):
             raise ValueError(f"z: expected {dim} finite values, got shape {z.shape}")
         points = np.empty((2, dim))  # z and x0 (an encoded pose: finite)
         points[0] = z
-        points[1] = problem.x0
+        points[1] = x0
         chosen = problem.energy.terms_and_total(points)  # evaluate_terms's, checked, uncounted
         local = problem.decode(points[:1])[0]
         if self.config.sensor_blend > 0.0 and not pending.no_body:
             pull = self.config.sensor_blend * pending.terms.reliability[:, None]
             local = local + pull * (np.asarray(problem.kinect_pose, dtype=np.float64) - local)
         pose = output_pose(local, problem.lengths, pending.placement)
-        t1 = time.perf_counter()
+        t1 = t2 = time.perf_counter()
         ragdoll_info = None
         if self._ragdoll.factory is not None:
             pose, ragdoll_info = self._ragdoll.track(pose, problem.lengths)
-        history_pose = pose
-        t2 = time.perf_counter()
+            t2 = time.perf_counter()
+        history_pose = np.asarray(pose, dtype=np.float64)  # the smoother's input too
         if self._output_smoother is not None:
             # Light output filter (not in the papers); the bone lengths stay the output's.
             out_lengths = (
                 problem.lengths if self._ragdoll.lengths is None else self._ragdoll.lengths
             )
-            pose = self._output_smoother.update(pose, out_lengths, pending.timestamp)
+            pose = self._output_smoother.update(history_pose, out_lengths, pending.timestamp)
         t3 = time.perf_counter()
 
-        self._history.append((np.asarray(history_pose, dtype=np.float64), pending.timestamp))
+        self._history.append((history_pose, pending.timestamp))
         del self._history[:-2]
         self._placement = pending.placement
         self._last_timestamp = pending.timestamp
@@ -631,7 +645,7 @@ class Reconstructor(FrameDrivers):
         ms["search"] = 1e3 * (t0 - pending.prepared_at)
         ms["finish"] = 1e3 * ((t1 - t0) + (t3 - t2))  # the output stage counts as finishing
         ms["ragdoll"] = 1e3 * (t2 - t1)
-        ms["total"] = sum(ms[s] for s in STAGES)
+        ms["total"] = sum(map(ms.__getitem__, STAGES))
         terms = pending.terms
         record = frame_record(self._index, pending, chosen, ms, ragdoll_info)
         self._pending = None
@@ -654,7 +668,8 @@ class Reconstructor(FrameDrivers):
             spent = 1e3 * (time.perf_counter() - t4)
             record.ms["finish"] += spent
             record.ms["total"] += spent
-        return pose.astype(np.float32), record
+        # Every stage above returns a new array (or its input): no copy of a float32 pose.
+        return np.asarray(pose, dtype=np.float32), record
 
     def _output_stages(self, pose: np.ndarray, pending: Pending, record: FrameRecord) -> np.ndarray:
         """The stages after the history's pose: the output map or the online calibration, the
@@ -665,8 +680,8 @@ class Reconstructor(FrameDrivers):
         if self._calibration is None and self._output_bones is None and self._fusion is None:
             return pose
         sensor = pending.sensor
-        if sensor is not None and pending.permutation is not None:
-            sensor = sensor[pending.permutation]  # the labels the frame was reconstructed with
+        if sensor is not None:  # the labels the frame was reconstructed with
+            sensor = sensor[LABEL_PERMUTATIONS[pending.labelling_index]]
         if self._calibration is not None and sensor is not None and pending.tracked is not None:
             target = sensor
             if pending.output_sensor is not None:  # the calibration map's (the fusion's too)

@@ -27,9 +27,10 @@ STAGES: tuple[str, ...] = (
 """Stages timed in :attr:`FrameRecord.ms` (milliseconds)."""
 
 
-@dataclass(frozen=True)
+@dataclass
 class FrameRecord:
-    """What happened in one frame.
+    """What happened in one frame (not frozen: a frozen dataclass of this many fields costs a
+    frame several microseconds to build).
 
     Attributes
     ----------

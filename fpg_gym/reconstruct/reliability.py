@@ -385,7 +385,6 @@ class ReliabilityEstimator:
             )
         self._prior_height = float(pose_utils.height(pose_utils.rest_pose(self._prior)))
         self._cos_tolerance = float(np.cos(np.deg2rad(self.config.neutral_tolerance_deg)))
-        self._theta_bounds = _theta_bounds(self.config)
         weights = self.config.weights()
         # The filter's weights over the first n frames of a stream, normalised to sum to 1.
         self._filters = [weights[:n] / weights[:n].sum() for n in range(1, len(weights) + 1)]
@@ -398,6 +397,28 @@ class ReliabilityEstimator:
             self._fixed: np.ndarray | None = fixed
         else:
             self._fixed = None
+        # reliability_frame's arguments after the stream's state (the same every frame)
+        floor, span = _theta_bounds(self.config)
+        self._frame_constants = (
+            self._prior,
+            self._fixed is not None,
+            self.config.fallback == "tracked-median",
+            float(self.config.min_displacement_m),
+            floor,
+            span,
+            self._cos_tolerance,
+            self._prior_height,
+            TRACKED,
+            skeleton.ROOT,
+            _CALIBRATION_JOINTS,
+            _FACING,
+            pose_utils.DEGENERATE_LINE_M,
+            skeleton.BONES,
+            pose_utils.REST_DIRECTIONS,
+            _BODY_BONES,
+            _ARM_BONES,
+            _SIDEWAYS,
+        )
         self.reset()
 
     # ------------------------------------------------------------------ state
@@ -610,12 +631,10 @@ class ReliabilityEstimator:
         """:func:`fpg_gym.reconstruct.compiled_reliability.reliability_frame` on this stream's
         state: ``Rb``, the bones' deviations, ``Rt``, whether the frame calibrated, whether a
         body was in view."""
-        cfg = self.config
         if self._reference is None:
             self._reference = (
                 self._fixed if self._fixed is not None else np.zeros(skeleton.NUM_BONES)
             )
-        floor, span = self._theta_bounds
         behaviour, deviation, tracking, window, calibration, body = compiled.reliability_frame(
             np.ascontiguousarray(positions),
             states,
@@ -626,24 +645,7 @@ class ReliabilityEstimator:
             self._tracked,
             self._ratios.values,
             self._reference,
-            self._prior,
-            self._fixed is not None,
-            cfg.fallback == "tracked-median",
-            float(cfg.min_displacement_m),
-            floor,
-            span,
-            self._cos_tolerance,
-            self._prior_height,
-            TRACKED,
-            skeleton.ROOT,
-            _CALIBRATION_JOINTS,
-            _FACING,
-            pose_utils.DEGENERATE_LINE_M,
-            skeleton.BONES,
-            pose_utils.REST_DIRECTIONS,
-            _BODY_BONES,
-            _ARM_BONES,
-            _SIDEWAYS,
+            *self._frame_constants,
         )
         self._ratios.values = window
         return behaviour, deviation, tracking, calibration, body

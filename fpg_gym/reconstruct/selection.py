@@ -447,7 +447,7 @@ class GraphSelector:
 
     def neighbourhood(self, nodes: np.ndarray) -> np.ndarray:
         """``nodes`` and all their graph neighbours, sorted and unique."""
-        return np.sort(self._pool(nodes))
+        return np.sort(self._pool(nodes, _compiled()))
 
     def _csr(self) -> tuple[np.ndarray, np.ndarray] | None:
         """The graph's CSR arrays ``(indptr, indices)`` when it has them (looked up once per
@@ -463,10 +463,11 @@ class GraphSelector:
         self._graph_csr = (graph, csr)
         return csr
 
-    def _pool(self, nodes: np.ndarray) -> np.ndarray:
-        """``nodes`` and all their graph neighbours, unique (sorted unless compiled)."""
+    def _pool(self, nodes: np.ndarray, compiled: ModuleType | None) -> np.ndarray:
+        """``nodes`` and all their graph neighbours, unique (sorted unless ``compiled``, the
+        compiled selection kernels)."""
         nodes = np.asarray(nodes, dtype=np.int64)
-        compiled, csr = _compiled(), self._csr()
+        csr = self._csr()
         if compiled is not None and csr is not None:  # a marker array, no sort
             if self._marks is None:
                 self._marks = np.zeros(len(csr[0]) - 1, dtype=np.bool_)
@@ -489,7 +490,7 @@ class GraphSelector:
             selection = self.full_search.select(query)
         else:
             compiled = _compiled()
-            pool = self._pool(self._previous)
+            pool = self._pool(self._previous, compiled)
             if self.strategy == "auto" and walk_cost(len(pool), compiled is not None) >= len(
                 self.database
             ):

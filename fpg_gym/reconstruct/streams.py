@@ -154,9 +154,18 @@ class Stream:
         self.next = 0
         self.records: list[FrameRecord] = []
         self._frames: tuple[np.ndarray, ...] | None = None
+        # Per frame, found once for the recording: its positions in float64, its timestamp (a
+        # float) and whether no joint is tracked or inferred (what prepare would find frame by
+        # frame).
+        self._positions64: np.ndarray | None = None
+        self._stamps: list[float] = []
+        self._no_body: list[bool] = []
         length = 0
         if recording is not None:
             self._frames = _stream_arrays(recording, index, reconstructor.config.frame_dt)
+            self._positions64 = self._frames[0].astype(np.float64)
+            self._stamps = self._frames[2].tolist()
+            self._no_body = np.logical_not((self._frames[1] > 0).any(axis=1)).tolist()
             length = len(self._frames[0]) if frames is None else min(frames, len(self._frames[0]))
         self.length = length
         self.poses = np.zeros((length, skeleton.NUM_JOINTS, 3), dtype=np.float32)
@@ -178,9 +187,16 @@ class Stream:
             if self._frames is None or self.done:
                 raise RuntimeError(f"stream {self.index}: no frame left to prepare")
             t = self.next
-            positions, states, timestamps = self._frames
+            positions, states, _ = self._frames
+            assert self._positions64 is not None
             # checked with the recording (_stream_arrays)
-            return self.reconstructor._prepare_checked(positions[t], states[t], timestamps[t])
+            return self.reconstructor._prepare_checked(
+                positions[t],
+                states[t],
+                self._stamps[t],
+                no_body=self._no_body[t],
+                positions64=self._positions64[t],
+            )
         assert states is not None
         return self.reconstructor.prepare(positions, states, timestamp)
 
@@ -342,16 +358,19 @@ def reconstruct_streams(
     for stream in streams:
         stream.reconstructor.reset()
     total = sum(s.length - s.next for s in streams)
-    bar = tqdm(total=total, unit="frame", desc="reconstruct", leave=False, disable=not progress)
+    # no bar at all without progress (making a disabled one costs more than a short stream)
+    bar = tqdm(total=total, unit="frame", desc="reconstruct", leave=False) if progress else None
+    checkpoints = checkpoint is not None and checkpoint_s > 0
     last_checkpoint = time.monotonic()
     interrupted = False
     try:
         while outputs := step_streams(streams, choose):
-            bar.update(len(outputs))
+            if bar is not None:
+                bar.update(len(outputs))
             if on_step is not None:
                 on_step(len(outputs))
-            now = time.monotonic()
-            if checkpoint is not None and 0 < checkpoint_s <= now - last_checkpoint:
+            if checkpoints and checkpoint_s <= time.monotonic() - last_checkpoint:
+                assert checkpoint is not None
                 checkpoint([s.result(True, copy=True) for s in streams])
                 last_checkpoint = time.monotonic()
     except KeyboardInterrupt:
@@ -365,7 +384,8 @@ def reconstruct_streams(
             stream.reconstructor.reset()
         raise
     finally:
-        bar.close()
+        if bar is not None:
+            bar.close()
     return [s.result(interrupted) for s in streams]
 
 
