@@ -20,6 +20,8 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fpg_gym.core.compiled import JIT_OPTIONS
+
 __all__ = [
     "assemble_nodes",
     "bone_frame_turns",
@@ -36,7 +38,7 @@ __all__ = [
 ]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def retarget_pose(pose, lengths, bones, rest_directions):
     """``pose`` ``(20, 3)`` float64 with bone lengths ``lengths`` ``(19,)``; ``bones`` the
     ``(parent, child)`` pairs, parents first; float32 ``(20, 3)``."""
@@ -62,7 +64,7 @@ def retarget_pose(pose, lengths, bones, rest_directions):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def assemble_nodes(directions, roots, nodes, lengths, bones):
     """Poses ``(M, 20, 3)`` float32 of the database rows ``nodes``: each root plus, along its
     path, the unit bone ``directions`` ``(N, 19, 3)`` float32 scaled by ``lengths`` ``(19,)``
@@ -85,7 +87,7 @@ def assemble_nodes(directions, roots, nodes, lengths, bones):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def bone_lengths_pose(pose, bones):
     """Bone lengths ``(19,)`` float64 of one pose ``(20, 3)`` float64."""
     out = np.empty(bones.shape[0])
@@ -98,7 +100,7 @@ def bone_lengths_pose(pose, bones):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def vector_angles(a, b, min_length):
     """Angle in radians between the rows of ``a`` and ``b`` ``(J, 3)`` float64, 0 where either
     is shorter than ``min_length``."""
@@ -112,7 +114,7 @@ def vector_angles(a, b, min_length):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def facing_yaw_pose(pose, hip_left, hip_right, shoulder_left, shoulder_right, degenerate):
     """Heading of one pose ``(20, 3)`` float64 from its hip line (the shoulder line when the
     hips' horizontal extent is under ``degenerate``), radians; 0 when both are degenerate."""
@@ -127,7 +129,7 @@ def facing_yaw_pose(pose, hip_left, hip_right, shoulder_left, shoulder_right, de
     return 0.0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def normalise_pose(pose, root, hip_left, hip_right, shoulder_left, shoulder_right, degenerate):
     """:func:`fpg_gym.core.poses.normalise` of one pose ``(20, 3)`` float64: its heading
     (:func:`facing_yaw_pose`) and the pose turned into it about its ``root`` joint
@@ -141,7 +143,7 @@ def normalise_pose(pose, root, hip_left, hip_right, shoulder_left, shoulder_righ
     return out, yaw
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def place_pose(pose, root, yaw, inverse):
     """One pose ``(20, 3)`` float64 turned about +Y: ``(p - root) R_y(yaw)`` (row vectors: into
     the placement's frame), or with ``inverse`` ``p R_y(yaw)^T + root`` (back to camera space);
@@ -162,7 +164,7 @@ def place_pose(pose, root, yaw, inverse):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def unit_and_norm(x, y, z):
     """A vector's norm (its squares summed in order, as numpy's) and the vector over
     ``np.maximum(norm, 1e-9)`` (:func:`fpg_gym.definitions._unit`)."""
@@ -171,7 +173,7 @@ def unit_and_norm(x, y, z):
     return norm, x / scale, y / scale, z / scale
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _trunk_frame(pose, left_end, right_end, top, bottom, out):
     """:func:`fpg_gym.definitions._trunk_frame` of ``left = p[left_end] - p[right_end]`` and
     ``up = p[top] - p[bottom]`` into ``out`` ``(3, 3)`` (columns: left, up, forward)."""
@@ -192,7 +194,7 @@ def _trunk_frame(pose, left_end, right_end, top, bottom, out):
     out[2, 2] = x0 * y1 - x1 * y0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def bone_frame_turns(pose, trunk_joints, ends, parents, on_thorax, rest):
     """The first half of :func:`fpg_gym.definitions.joint_frames` for one pose ``(20, 3)``
     float64 (the numpy code's operations in its order): the pelvis and thorax frames ``(2, 3,
@@ -248,7 +250,7 @@ def bone_frame_turns(pose, trunk_joints, ends, parents, on_thorax, rest):
     return trunks, base, turn, True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def offset_pose(pose, trunks, turned, pelvis_joints, thorax_joints, bone_joints, offsets):
     """``p(j) + F_j · o_j`` of one pose ``(20, 3)`` float64 (:meth:`DefinitionMap.apply
     <fpg_gym.definitions.DefinitionMap.apply>`, its product summed in ``np.einsum``'s
@@ -274,13 +276,13 @@ def offset_pose(pose, trunks, turned, pelvis_joints, thorax_joints, bone_joints,
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def scalar_maximum(a, b):
     """``np.maximum`` of two floats (NaN when either is)."""
     return a if (a >= b or a != a) else b
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def scalar_minimum(a, b):
     """``np.minimum`` of two floats (NaN when either is)."""
     return a if (a <= b or a != a) else b

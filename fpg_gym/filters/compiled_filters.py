@@ -15,10 +15,12 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fpg_gym.core.compiled import JIT_OPTIONS
+
 __all__ = ["kalman_step", "one_euro_step"]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def kalman_step(
     frame,
     states,
@@ -93,14 +95,14 @@ def kalman_step(
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _alpha(cutoff, step):
     """:func:`fpg_gym.filters.one_euro.alpha` of one cutoff (the same operations)."""
     tau = 1.0 / (2.0 * np.pi * cutoff)
     return 1.0 / (1.0 + tau / step)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def one_euro_step(frame, states, step, d_cutoff, min_cutoff, beta, value, speed, started):
     """One One-Euro step (``OneEuroFilter._step``) at interval ``step`` > 0, the speed smoothed
     with cutoff ``d_cutoff``; a joint of state 0 (not tracked) or with a non-finite position has

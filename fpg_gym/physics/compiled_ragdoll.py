@@ -21,10 +21,12 @@ import math
 import numba
 import numpy as np
 
+from fpg_gym.core.compiled import JIT_OPTIONS
+
 __all__ = ["bone_frames", "divergence_measures", "pose_from", "substep_goals"]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _mul(a, b):
     """Quaternion product ``a b`` of two 4-tuples (``ragdoll_kinematics.quat_mul``)."""
     ax, ay, az, aw = a
@@ -37,7 +39,7 @@ def _mul(a, b):
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _cross(u, v):
     return (
         u[1] * v[2] - u[2] * v[1],
@@ -46,7 +48,7 @@ def _cross(u, v):
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _rotate(q, v):
     """``v`` rotated by the unit quaternion ``q`` (``ragdoll_kinematics.quat_rotate``)."""
     u = (q[0], q[1], q[2])
@@ -56,7 +58,7 @@ def _rotate(q, v):
     return (v[0] + q[3] * t[0] + d[0], v[1] + q[3] * t[1] + d[1], v[2] + q[3] * t[2] + d[2])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _arc(a, b):
     """Shortest-arc quaternion turning unit ``a`` onto unit ``b``
     (:func:`fpg_gym.core.rotations.shortest_arc`)."""
@@ -71,7 +73,7 @@ def _arc(a, b):
     return (c[0] / norm, c[1] / norm, c[2] / norm, w / norm)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _matrix_quat(m):
     """A rotation matrix ``(3, 3)`` to a unit quaternion (``ragdoll_kinematics.matrix_to_quat``)."""
     trace = m[0, 0] + m[1, 1] + m[2, 2]
@@ -97,7 +99,7 @@ def _matrix_quat(m):
     return q / math.sqrt(q[0] * q[0] + q[1] * q[1] + q[2] * q[2] + q[3] * q[3])
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def bone_frames(pose, directions, root_frame, rest_directions, root_arc, bones, parent_bone, lines):
     """The target's bone frames (``ragdoll_kinematics.bone_frames``).
 
@@ -174,7 +176,7 @@ def bone_frames(pose, directions, root_frame, rest_directions, root_arc, bones, 
     return world, new_directions
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def substep_goals(root0, world0, root1, world1, substeps, rest_vectors, capsule_frames, bones):
     """The capsules' goals at each physics step of a frame (``ragdoll_kinematics.substep_goals``):
     the root moves linearly and each bone frame by normalised quaternion
@@ -222,7 +224,7 @@ def substep_goals(root0, world0, root1, world1, substeps, rest_vectors, capsule_
     return centres, orientations, signed
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def pose_from(centres, orientations, capsule_frames, rest_vectors, bones):
     """Forward kinematics of the simulated capsules (``ragdoll_kinematics.pose_and_gap``).
 
@@ -259,7 +261,7 @@ def pose_from(centres, orientations, capsule_frames, rest_vectors, bones):
     return joints, math.sqrt(gap2)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def divergence_measures(output, target, offset, previous):
     """What ``Ragdoll._divergence`` checks of an output ``(20, 3)`` float32: whether it is
     finite, the largest distance of a joint from ``target + offset`` and from ``previous``

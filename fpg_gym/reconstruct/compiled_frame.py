@@ -19,6 +19,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fpg_gym.core.compiled import JIT_OPTIONS
 from fpg_gym.core.compiled_poses import (
     place_pose,
     retarget_pose,
@@ -42,7 +43,7 @@ __all__ = [
 ]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def centre_poses(poses):
     """Poses ``(K, 20, 3)`` float32 as float64 60-vectors: their mean ``(60,)`` and the centred
     poses ``(K, 60)`` (numpy's ``data.mean(axis=0)`` and ``data - mean``, to the bit: the rows
@@ -67,7 +68,7 @@ def centre_poses(poses):
     return mean, centred, finite
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def whitened_axes(centred, values, vectors, dim, min_std, max_condition):
     """The whitened axes of centred poses ``(K, 60)`` from their Gram matrix's eigenpairs
     (``np.linalg.eigh``'s ``values``, ascending, and ``vectors``), ``1 <= dim <= K - 1``.
@@ -118,7 +119,7 @@ def whitened_axes(centred, values, vectors, dim, min_std, max_condition):
     return basis, std, degenerate, ratio, True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _row_squares(rows):
     """Each row's sum of squares, summed in column order; the rows side by side (independent
     sums, so that they overlap instead of each waiting for its last addition)."""
@@ -129,7 +130,7 @@ def _row_squares(rows):
     return sums
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _neighbour_coordinates(mean, basis, neighbours):
     """Es (Eq. 12): the neighbours' squared distances to the mean ``(K,)``, their coordinates
     ``y (K, d)`` in the space, ``|y_n|^2`` and the squared residuals outside the space ``(K,)``."""
@@ -160,7 +161,7 @@ def _neighbour_coordinates(mean, basis, neighbours):
     return _row_squares(centred), y, _row_squares(y), _row_squares(residual)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def energy_setup(
     mean, basis, std, sensor, reliability, neighbours, lengths, target, weights, child, parent
 ):
@@ -250,7 +251,7 @@ def energy_setup(
     return matrix, c0, ycst, b0, wk / bones, components, joint_weights, y, y_sq, r_sq
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def latent_terms(
     z,
     mean,
@@ -328,7 +329,7 @@ def latent_terms(
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def continuity_poses(last, before, root, yaw, ratio, damping):
     """:func:`fpg_gym.reconstruct.temporal.continuity` of two previous outputs ``(20, 3)``
     (``before`` with no rows: one output only): each root-relative and turned by ``-yaw``
@@ -348,7 +349,7 @@ def continuity_poses(last, before, root, yaw, ratio, damping):
     return previous, prediction
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def finish_pose(local, lengths, root, yaw, bones, rest_directions):
     """:func:`fpg_gym.reconstruct.pending.output_pose`: the normalised pose ``local`` ``(20, 3)``
     retargeted to ``lengths`` (``retarget_pose``, float32), then put back at ``root`` and
@@ -358,7 +359,7 @@ def finish_pose(local, lengths, root, yaw, bones, rest_directions):
     return placed.astype(np.float32)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def restore_output(filtered, lengths, root, root_index, bones, rest_directions):
     """:class:`fpg_gym.reconstruct.temporal.OutputSmoother`'s output from its filter's
     root-relative float32 pose ``(20, 3)``: root-relative again, retargeted to ``lengths``
@@ -378,7 +379,7 @@ def restore_output(filtered, lengths, root, root_index, bones, rest_directions):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def smooth_output(pose, lengths, root_index, bones, rest_directions, kalman):
     """:class:`fpg_gym.reconstruct.temporal.OutputSmoother`'s update of one pose ``(20, 3)``
     float64 with the Kalman filter in one call: the pose root-relative, the filter's step
@@ -398,7 +399,7 @@ def smooth_output(pose, lengths, root_index, bones, rest_directions, kalman):
     )
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def labelling_costs(positions, states, prediction, permutations, tracked, inferred):
     """:func:`fpg_gym.reconstruct.left_right.left_right_costs`: for each row of
     ``permutations`` ``(H, 20)``, the mean distance (weights 1 tracked, 0.5 inferred, 0 not
@@ -423,7 +424,7 @@ def labelling_costs(positions, states, prediction, permutations, tracked, inferr
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def best_labelling(compared, states, last, before, ratio, margin, permutations, tracked, inferred):
     """:func:`fpg_gym.reconstruct.left_right.best_labelling` in one call: the constant-velocity
     guess of the root-relative previous outputs ``last`` and ``before`` ``(20, 3)`` float64
@@ -451,7 +452,7 @@ def best_labelling(compared, states, last, before, ratio, margin, permutations, 
     return 0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def settle_lengths(estimate, lengths, low, high, rate, spread):
     """:meth:`BoneSettler.update <fpg_gym.reconstruct.bones.BoneSettler.update>` after settling:
     each bone of ``lengths`` ``(19,)`` moves toward ``estimate`` by at most ``rate`` and keeps

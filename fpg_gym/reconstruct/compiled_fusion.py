@@ -13,6 +13,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fpg_gym.core.compiled import JIT_OPTIONS
 from fpg_gym.core.compiled_poses import (
     bone_lengths_pose,
     scalar_maximum,
@@ -29,7 +30,7 @@ __all__ = [
 ]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def trust_exponents(states, run_start, timestamp, flicker, half_life, inferred_state):
     """:class:`SensorTrust <fpg_gym.reconstruct.fusion.SensorTrust>`'s inferred runs: each
     inferred joint's run start (``run_start`` ``(20,)`` updated in place, NaN out of a run) and
@@ -49,7 +50,7 @@ def trust_exponents(states, run_start, timestamp, flicker, half_life, inferred_s
     return exponents
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def sensor_trust(
     positions,
     states,
@@ -97,7 +98,7 @@ def sensor_trust(
     return trust
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def fusion_bone_terms(
     trust, database, sensor_bones, bones, length_sum, length_count, disagreement, keep
 ):
@@ -141,7 +142,7 @@ def fusion_bone_terms(
     return bone_trust, estimate, database_units, sensor_units
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def fusion_bones(parent_frames, held, database_units, sensor_units, share, bone_trust, lengths):
     """:meth:`SensorFusion.update <fpg_gym.reconstruct.fusion.SensorFusion.update>`'s bone
     vectors ``V(b)`` ``(19, 3)`` (the numpy code's operations): the ``held`` directions
@@ -168,7 +169,7 @@ def fusion_bones(parent_frames, held, database_units, sensor_units, share, bone_
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def held_directions(pose, parent_frames, bones, bone_trust, held):
     """:meth:`SensorFusion.update <fpg_gym.reconstruct.fusion.SensorFusion.update>`'s memory
     of each seen bone's unit direction in its parent's frame ``(19, 3, 3)`` (``np.einsum``'s

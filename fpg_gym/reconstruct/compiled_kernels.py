@@ -13,6 +13,7 @@ import numba
 import numpy as np
 
 from fpg_gym.core import skeleton
+from fpg_gym.core.compiled import JIT_OPTIONS
 
 __all__ = ["energy_rows", "fused_kernel", "stacked_fused_kernel"]
 
@@ -22,7 +23,7 @@ __all__ = ["energy_rows", "fused_kernel", "stacked_fused_kernel"]
 _NUM_BONES = skeleton.NUM_BONES
 
 
-@numba.njit(cache=True, nogil=True, inline="always")
+@numba.njit(**JIT_OPTIONS, inline="always")
 def _bone_errors(bones, row, b0, lengths, diff):
     """Ek's (Eq. 13) ``|P[bone b] + b0_b| - lengths_b`` of one row's bone columns ``row``."""
     for b in range(bones):
@@ -32,7 +33,7 @@ def _bone_errors(bones, row, b0, lengths, diff):
         diff[b] = np.sqrt(x * x + y * y + w * w) - lengths[b]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def energy_rows(p, z, c0, ycst, b0, lengths, wk, out, lowest_only=False):
     """``out[i] = z_i . P[i, :d] + P[i, d] + c0 + min_k (P[i, d+1+k] + ycst[k]) + wk * sum_b
     (|P[i, bone b] + b0_b| - lengths_b)^2`` (Shum Eq. 10 as in the tables; ``p``, ``b0`` and
@@ -78,7 +79,7 @@ def energy_rows(p, z, c0, ycst, b0, lengths, wk, out, lowest_only=False):
             lowest = out[i]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def fused_kernel(z, matrix, c0, ycst, b0, lengths, wk):
     """One frame: points ``(n, d)`` -> ``(n,)``."""
     out = np.empty(z.shape[0], dtype=z.dtype)
@@ -86,7 +87,7 @@ def fused_kernel(z, matrix, c0, ycst, b0, lengths, wk):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def stacked_fused_kernel(z, matrix, c0, ycst, b0, lengths, wk):
     """S stacked frames: points ``(S, n, d)`` -> ``(S, n)``."""
     out = np.empty(z.shape[:2], dtype=z.dtype)

@@ -12,6 +12,7 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fpg_gym.core.compiled import JIT_OPTIONS
 from fpg_gym.core.compiled_poses import (
     bone_lengths_pose,
     facing_yaw_pose,
@@ -30,7 +31,7 @@ __all__ = [
 ]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def merge_sorted(values, new):
     """The sorted values of ``values`` and ``new`` (both sorted, float64); a value of ``new``
     equal to one of ``values`` goes before it (``np.searchsorted``'s left side)."""
@@ -46,7 +47,7 @@ def merge_sorted(values, new):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def remove_sorted(values, old):
     """``values`` (sorted) without one occurrence of each value of ``old`` (sorted; each one
     present)."""
@@ -65,7 +66,7 @@ def remove_sorted(values, old):
     return out
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _median_of(values):
     """The median of sorted finite values (NaN when there are none): the middle value, or the
     mean of the two middle ones (:meth:`SortedWindow.median
@@ -79,7 +80,7 @@ def _median_of(values):
     return (values[middle - 1] + values[middle]) / 2.0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _select(values, k):
     """The ``k``-th smallest of ``values`` (float64, no NaN), which are reordered in place so
     that the ``k`` before it are not larger (Hoare's selection: the value ``np.partition``
@@ -106,7 +107,7 @@ def _select(values, k):
     return values[k]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _column_medians(rows, finite_only, out):
     """Per column of ``rows`` ``(n, 19)``: ``np.median(rows, axis=0)`` into ``out`` (NaN where a
     column holds one), or with ``finite_only`` ``np.nanmedian`` of the columns that hold a finite
@@ -139,7 +140,7 @@ def _column_medians(rows, finite_only, out):
             out[b] = (lower + upper) / 2.0
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def neutral_pose(
     pose, cos_tolerance, root, facing, degenerate, bones, rest, body_bones, arm_bones, sideways
 ):
@@ -188,7 +189,7 @@ def neutral_pose(
     return True
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _sorted_ratios(row, prior):
     """The finite values of ``row / prior``, sorted (what :class:`SortedWindow
     <fpg_gym.reconstruct.reliability.SortedWindow>` adds or removes for a row)."""
@@ -206,7 +207,7 @@ def _sorted_ratios(row, prior):
     return out[:n]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _update_reference(
     positions,
     states,
@@ -301,7 +302,7 @@ def _update_reference(
     return window, calibration
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _behaviour(positions, recent, angles, counts, root, min_displacement, theta_floor, theta_span):
     """The behaviour term ``Rb`` ``(20,)`` of one frame and its motion history (see
     :func:`reliability_frame`)."""
@@ -356,7 +357,7 @@ def _behaviour(positions, recent, angles, counts, root, min_displacement, theta_
     return behaviour
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def reliability_frame(
     positions,
     states,
@@ -453,7 +454,7 @@ def reliability_frame(
     return behaviour, deviation, tracking, window, calibration, body
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def newest_minimum(behaviour, mean_deviation, tracking, minima, kept):
     """``Rk = 1 - mean_deviation`` (the joints' mean of their bones' deviations, BLAS's
     product) and ``min(Rb, Rk, Rt)`` ``(20,)``, which enters ``minima`` ``(S, 20)`` (newest

@@ -21,6 +21,7 @@ import numba
 import numpy as np
 from numba.extending import overload
 
+from fpg_gym.core.compiled import JIT_OPTIONS
 from fpg_gym.reconstruct.compiled_kernels import energy_rows
 
 __all__ = ["local_search"]
@@ -43,7 +44,7 @@ def _as_dtype_of_overload(points, matrix):
     return lambda points, matrix: points.astype(matrix.dtype)
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _proposals(generator, table, center, step, samples):
     """``samples`` points ``center + step * N(0, I)``: drawn now, or a block of ``table``'s
     rows at a uniform offset with a random sign per axis (``LocalSearch._from_table``)."""
@@ -73,7 +74,7 @@ def _proposals(generator, table, center, step, samples):
     return z
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def local_search(
     generator,
     table,

@@ -19,12 +19,14 @@ from __future__ import annotations
 import numba
 import numpy as np
 
+from fpg_gym.core.compiled import JIT_OPTIONS
+
 __all__ = ["fpg_walk_best", "neighbourhood", "shum_full_best"]
 
 _FAST = {"reassoc", "contract"}
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _heap_push(heap, size, k, value):
     """Keep the ``k`` smallest values seen in the max-heap ``heap[:size]``; new size."""
     if size < k:  # sift up
@@ -55,7 +57,7 @@ def _heap_push(heap, size, k, value):
     return size
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _kth(scores, k):
     """The ``k``-th smallest of ``scores`` (NaN counts as +inf; +inf when ``k >= len``), from a
     max-heap of the ``k`` smallest seen in one pass."""
@@ -72,7 +74,7 @@ def _kth(scores, k):
     return heap[0]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _best(nodes, scores, k):
     """The ``k`` nodes of least score, ordered by (score, node id); ``(nodes, scores, tied)``.
 
@@ -114,7 +116,7 @@ def _best(nodes, scores, k):
     return out, kept, False
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def neighbourhood(previous, indptr, indices, marks):
     """The ``previous`` nodes and their CSR neighbours, unique, in visiting order (FPG §6.2).
     ``marks`` (one bool per node) is all False on entry and on return."""
@@ -144,7 +146,7 @@ def neighbourhood(previous, indptr, indices, marks):
 BLOCK = 128
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _fpg_block(xs, ys, zs, m, q, pred, ws, wc, has_prediction, scores, offset):
     """FPG §6.2 ``S = Ss + Sc`` of ``m`` nodes whose joints are ``xs, ys, zs`` ``(20, BLOCK)``
     float64, into ``scores[offset:offset + m]``: Eq. 5 ``Ss = sum_j ws_j ||p_d(j) - p_k(j)||``
@@ -178,7 +180,7 @@ def _fpg_block(xs, ys, zs, m, q, pred, ws, wc, has_prediction, scores, offset):
         scores[offset + t] = acc[t]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _gather_block(poses, nodes, start, m, xs, ys, zs):
     """Joints of ``nodes[start:start + m]`` from ``poses`` ``(N, 20, 3)``, joint-major float64."""
     for t in range(m):
@@ -189,7 +191,7 @@ def _gather_block(poses, nodes, start, m, xs, ys, zs):
             zs[j, t] = pose[j, 2]
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _retarget_block(directions, roots, lengths, bones, nodes, start, m, xs, ys, zs):
     """Joints of ``nodes[start:start + m]`` retargeted in float64: the root plus the unit bone
     ``directions`` times ``lengths`` (rounded to float32, as ``NodeDatabase.poses_for`` takes
@@ -211,7 +213,7 @@ def _retarget_block(directions, roots, lengths, bones, nodes, start, m, xs, ys, 
             zs[child, t] = zs[parent, t] + np.float64(directions[node, b, 2]) * length
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def _fpg_weights(reliability, has_prediction):
     """FPG Eq. 5-6's joint weights ``R / 20`` and ``(1 - R) / 20`` (zeros without a
     prediction) as :func:`fpg_gym.reconstruct.selection.fpg_score` forms them from float32
@@ -228,7 +230,7 @@ def _fpg_weights(reliability, has_prediction):
     return ws, wc
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def fpg_walk_best(
     pool,
     poses,
@@ -268,7 +270,7 @@ def fpg_walk_best(
     return _best(pool, scores, k)
 
 
-@numba.njit(cache=True, nogil=True, fastmath=_FAST)
+@numba.njit(**JIT_OPTIONS, fastmath=_FAST)
 def _shum_scores(poses, q, reliability, scores):
     """Shum Eq. 9 ``D = sum_j R(j) ||p_d(j) - p_k(j)||^2`` of every node of ``poses``
     ``(N, 20, 3)`` against ``q`` ``(20, 3)`` float64."""
@@ -286,7 +288,7 @@ def _shum_scores(poses, q, reliability, scores):
         scores[i] = s
 
 
-@numba.njit(cache=True, nogil=True)
+@numba.njit(**JIT_OPTIONS)
 def shum_full_best(poses, q, reliability, k):
     """Shum Eq. 9 of every node of ``poses`` ``(N, 20, 3)`` (C-contiguous); the ``k`` best
     (:func:`_best`)."""
