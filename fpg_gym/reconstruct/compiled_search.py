@@ -19,6 +19,8 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numba import types
+from numba.extending import overload
 
 from fpg_gym.core.compiled import JIT_OPTIONS
 from fpg_gym.reconstruct.compiled_kernels import energy_rows
@@ -31,9 +33,35 @@ STATUS_OK = 0
 STATUS_NON_FINITE = 1
 
 
+def _uniforms(draws, batch, count):
+    """Batch ``batch``'s ``count`` uniform draws: from the generator now, or row ``batch`` of
+    the draws drawn before."""
+    return draws.random(count)
+
+
+@overload(_uniforms)
+def _uniforms_overload(draws, batch, count):
+    if isinstance(draws, types.Array):
+        return lambda draws, batch, count: draws[batch]
+    return lambda draws, batch, count: draws.random(count)
+
+
+def _normals(draws, batch, samples, d):
+    """Batch ``batch``'s ``(samples, d)`` standard normal draws: from the generator now, or
+    row ``batch`` of the draws drawn before."""
+    return draws.standard_normal((samples, d))
+
+
+@overload(_normals)
+def _normals_overload(draws, batch, samples, d):
+    if isinstance(draws, types.Array):
+        return lambda draws, batch, samples, d: draws[batch].reshape((samples, d))
+    return lambda draws, batch, samples, d: draws.standard_normal((samples, d))
+
+
 @numba.njit(**JIT_OPTIONS)
-def _proposals(generator, table, step, samples, signed):
-    """Where a batch's ``samples`` points ``center + step * N(0, I)`` come from: rows
+def _proposals(draws, batch, table, step, samples, signed):
+    """Where batch ``batch``'s ``samples`` points ``center + step * N(0, I)`` come from: rows
     ``start, ...`` of the returned array scaled per axis by ``signed`` (``d``, filled here);
     fresh normal draws scaled by ``step``, or a block of ``table``'s rows at a uniform offset
     with a random sign per axis (``LocalSearch._from_table``)."""
@@ -41,8 +69,8 @@ def _proposals(generator, table, step, samples, signed):
     if table.shape[0] == 0:
         for j in range(d):
             signed[j] = step
-        return generator.standard_normal((samples, d)), 0
-    uniform = generator.random(d + 1)  # the offset and a sign per axis
+        return _normals(draws, batch, samples, d), 0
+    uniform = _uniforms(draws, batch, d + 1)  # the offset and a sign per axis
     for j in range(d):
         signed[j] = np.copysign(step, uniform[1 + j] - 0.5)
     return table, int(uniform[0] * (table.shape[0] - samples + 1))
@@ -60,7 +88,7 @@ def _coordinate(rows, start, signed, center, first, i, j):
 
 @numba.njit(**JIT_OPTIONS)
 def local_search(
-    generator,
+    draws,
     table,
     x0,
     matrix,
@@ -81,8 +109,10 @@ def local_search(
 
     Parameters
     ----------
-    generator : numpy.random.Generator
-        The optimiser's generator (advanced as the ask/tell loop advances it).
+    draws : numpy.random.Generator or ndarray
+        The optimiser's generator (advanced as the ask/tell loop advances it), or the draws of
+        the batches drawn from it before, a row per batch: ``(batches, d + 1)`` uniforms with
+        the table (``Generator.random``), ``(batches, samples * d)`` standard normals without.
     table : ndarray, shape (rows, d) or (0, d)
         The proposal table, or no rows for fresh normal draws.
     x0 : ndarray, shape (d,), float64
@@ -124,7 +154,7 @@ def local_search(
         asks += 1
         if done or iteration >= iterations:  # the optimiser's None
             break
-        rows, start = _proposals(generator, table, current_step, samples, signed)
+        rows, start = _proposals(draws, iteration, table, current_step, samples, signed)
         first = iteration == 0
         iteration += 1
         admitted = samples if left < 0 else min(samples, left)
