@@ -3,8 +3,9 @@ is installed (:mod:`fpg_gym.reconstruct.search` falls back to the ask/tell loop 
 
 :func:`local_search` is :class:`optimizers.local_search.LocalSearch` run by
 :func:`optimizers.run_optimizer` on a frame's fused energy (:mod:`fpg_gym.reconstruct.kernels`),
-step for step: the same draws from the same generator (numba runs numpy's algorithms on the
-generator's own bit generator, so the generator ends in the same state), the same rows of the
+step for step: the same draws from the same generator (the table's uniforms drawn before the
+call, the normal draws in numba, which runs numpy's algorithms on the generator's own bit
+generator; the generator ends in the same state), the same rows of the
 proposal table, the same budget rule (a batch larger than the evaluations left is clipped, its
 other rows count as ``+inf``), the same energies (:func:`energy_rows` on ``z @ matrix``, as
 :func:`fpg_gym.reconstruct.compiled_kernels.fused_kernel`, except that a row that cannot be the
