@@ -37,7 +37,7 @@ STATUS_NON_FINITE = 1
 def _uniforms(draws, batch, count):
     """Batch ``batch``'s ``count`` uniform draws: from the generator now, or row ``batch`` of
     the draws drawn before."""
-    return draws.random(count)
+    return draws[batch] if isinstance(draws, np.ndarray) else draws.random(count)
 
 
 @overload(_uniforms)
@@ -50,6 +50,8 @@ def _uniforms_overload(draws, batch, count):
 def _normals(draws, batch, samples, d):
     """Batch ``batch``'s ``(samples, d)`` standard normal draws: from the generator now, or
     row ``batch`` of the draws drawn before."""
+    if isinstance(draws, np.ndarray):
+        return draws[batch].reshape((samples, d))
     return draws.standard_normal((samples, d))
 
 
