@@ -191,16 +191,14 @@ def local_search(
                 for j in range(d):
                     if not np.isfinite(_coordinate(rows, start, signed, center, first, i, j)):
                         return best_x, best, evaluations, asks, STATUS_NON_FINITE
-        for i in range(admitted, samples):
-            values[i] = np.inf
         evaluations += admitted
-        # numba's np.argmin is numpy's: the first NaN, else the first minimum
-        row = np.argmin(values[:admitted])  # the run's best point
+        # numba's np.argmin is numpy's: the first NaN, else the first minimum. The run's best
+        # point; also the optimiser's tell (whose clipped rows count as +inf: the same row).
+        row = np.argmin(values[:admitted])
         if values[row] < best:
             best = values[row]
             for j in range(d):
                 best_x[j] = _coordinate(rows, start, signed, center, first, row, j)
-        row = np.argmin(values)  # the optimiser's tell
         if values[row] < centre_energy:
             centre_energy = values[row]
             for j in range(d):  # each coordinate from its own old value
