@@ -33,6 +33,12 @@ def _bone_errors(bones, row, b0, lengths, diff):
         diff[b] = np.sqrt(x * x + y * y + w * w) - lengths[b]
 
 
+@numba.njit(**JIT_OPTIONS, inline="always")
+def _lower(value, lowest):
+    """``value`` if it is below ``lowest`` (a NaN is not), else ``lowest``."""
+    return value if value < lowest else lowest
+
+
 @numba.njit(**JIT_OPTIONS)
 def _partial_rows(p, z, c0, ycst, partial):
     """Each row's energy before ``Ek``: ``z_i . P[i, :d] + P[i, d] + c0 + min_k (P[i, d+1+k] +
@@ -53,18 +59,10 @@ def _partial_rows(p, z, c0, ycst, partial):
         best0 = best1 = best2 = best3 = np.inf
         for m in range(k):  # Es, Eq. 12
             column = d + 1 + m
-            v = p[i, column] + ycst[m]
-            if v < best0:
-                best0 = v
-            v = p[i1, column] + ycst[m]
-            if v < best1:
-                best1 = v
-            v = p[i2, column] + ycst[m]
-            if v < best2:
-                best2 = v
-            v = p[i3, column] + ycst[m]
-            if v < best3:
-                best3 = v
+            best0 = _lower(p[i, column] + ycst[m], best0)
+            best1 = _lower(p[i1, column] + ycst[m], best1)
+            best2 = _lower(p[i2, column] + ycst[m], best2)
+            best3 = _lower(p[i3, column] + ycst[m], best3)
         partial[i3] = e3 + best3
         partial[i2] = e2 + best2
         partial[i1] = e1 + best1
