@@ -157,9 +157,11 @@ def local_search(
         asks += 1
         if done or iteration >= iterations:  # the optimiser's None
             break
-        rows, start = _proposals(draws, iteration, table, current_step, samples, signed)
         first = iteration == 0
         iteration += 1
+        # the batch's index as iteration - 1: a variable that starts at 0 would also compile
+        # _proposals for the literal 0
+        rows, start = _proposals(draws, iteration - 1, table, current_step, samples, signed)
         admitted = samples if left < 0 else min(samples, left)
         # the points in the tables' dtype at once (the float64 point rounded, as astype)
         for i in range(admitted):
