@@ -312,7 +312,8 @@ def main(argv: list[str] | None = None) -> int:
         base = float(np.median([r[figure] for r in rounds["baseline"]]))
         new = float(np.median([r[figure] for r in rounds["this"]]))
         medians[figure] = (base, new)
-        print(f"| {figure} | {base:.4g} | {new:.4g} | {new / base:.2f} |")
+        ratio = f"{new / base:.2f}" if base else "–"  # e.g. a stage that took no time
+        print(f"| {figure} | {base:.4g} | {new:.4g} | {ratio} |")
     if args.json:
         args.json.write_text(
             json.dumps(

@@ -136,11 +136,15 @@ d, k = 4, 3
 tables = (rng.standard_normal((d, d + 1 + k + 57)) * 0.3, 0.2, rng.random(k),
           rng.standard_normal(57), rng.random(19), 0.05)
 out = []
-for proposals in ("table", "normal"):
+for proposals in ("table", "normal", "table drawn before", "normal drawn before"):
     generator = np.random.default_rng(1)
-    table = shared_proposal_table(400, d) if proposals == "table" else np.zeros((0, d))
+    table = shared_proposal_table(400, d) if "table" in proposals else np.zeros((0, d))
+    draws = generator
+    if proposals.endswith("before"):  # the three batches' draws as an array
+        draws = generator.random((3, d + 1)) if "table" in proposals else (
+            generator.standard_normal((3, 10 * d)))
     x, energy, evaluations, asks, status = cs.local_search(
-        generator, table, np.zeros(d), *tables, 10, 3, 1.0, 0.5, 1e-3,
+        draws, table, np.zeros(d), *tables, 10, 3, 1.0, 0.5, 1e-3,
         25, 100000)
     out.append([[float(v) for v in x], float(energy), int(evaluations), int(asks), int(status),
                 generator.random()])

@@ -33,6 +33,42 @@ def _bone_errors(bones, row, b0, lengths, diff):
         diff[b] = np.sqrt(x * x + y * y + w * w) - lengths[b]
 
 
+@numba.njit(**JIT_OPTIONS, inline="always")
+def _lower(value, lowest):
+    """``value`` if it is below ``lowest`` (a NaN is not), else ``lowest``."""
+    return value if value < lowest else lowest
+
+
+@numba.njit(**JIT_OPTIONS)
+def _partial_rows(p, z, c0, ycst, partial):
+    """Each row's energy before ``Ek``: ``z_i . P[i, :d] + P[i, d] + c0 + min_k (P[i, d+1+k] +
+    ycst[k])`` into ``partial`` (float64, as :func:`energy_rows` sums it). Four rows side by
+    side (the last block repeats the last row): each row's sums keep their order, so the
+    values are those of one row at a time to the bit, and the four chains of additions
+    overlap instead of each waiting for its last one."""
+    n, d = z.shape
+    k = ycst.shape[0]
+    for i in range(0, n, 4):
+        i1, i2, i3 = min(i + 1, n - 1), min(i + 2, n - 1), min(i + 3, n - 1)
+        e0, e1, e2, e3 = c0 + p[i, d], c0 + p[i1, d], c0 + p[i2, d], c0 + p[i3, d]
+        for j in range(d):
+            e0 += p[i, j] * z[i, j]
+            e1 += p[i1, j] * z[i1, j]
+            e2 += p[i2, j] * z[i2, j]
+            e3 += p[i3, j] * z[i3, j]
+        best0 = best1 = best2 = best3 = np.inf
+        for m in range(k):  # Es, Eq. 12
+            column = d + 1 + m
+            best0 = _lower(p[i, column] + ycst[m], best0)
+            best1 = _lower(p[i1, column] + ycst[m], best1)
+            best2 = _lower(p[i2, column] + ycst[m], best2)
+            best3 = _lower(p[i3, column] + ycst[m], best3)
+        partial[i3] = e3 + best3
+        partial[i2] = e2 + best2
+        partial[i1] = e1 + best1
+        partial[i] = e0 + best0
+
+
 @numba.njit(**JIT_OPTIONS)
 def energy_rows(p, z, c0, ycst, b0, lengths, wk, out, lowest_only=False):
     """``out[i] = z_i . P[i, :d] + P[i, d] + c0 + min_k (P[i, d+1+k] + ycst[k]) + wk * sum_b
@@ -49,20 +85,13 @@ def energy_rows(p, z, c0, ycst, b0, lengths, wk, out, lowest_only=False):
     bones = lengths.shape[0]
     base = d + 1 + k
     diff = np.empty(bones, dtype=p.dtype)
+    partial = np.empty(n)
+    _partial_rows(p, z, c0, ycst, partial)
     lowest = np.inf
     skip = lowest_only and wk > 0.0
     for i in range(n):
-        e = c0 + p[i, d]
-        for j in range(d):
-            e += p[i, j] * z[i, j]
-        best = np.inf
-        for m in range(k):  # Es, Eq. 12
-            v = p[i, d + 1 + m] + ycst[m]
-            if v < best:
-                best = v
-        partial = e + best
-        if skip and lowest < partial < np.inf:
-            out[i] = partial
+        if skip and lowest < partial[i] < np.inf:
+            out[i] = partial[i]
             continue
         # Ek, Eq. 13: the row's bone errors first (one vectorised loop for the skeleton's
         # bones), then their squares summed in order (the same result to the bit)
@@ -74,7 +103,7 @@ def energy_rows(p, z, c0, ycst, b0, lengths, wk, out, lowest_only=False):
         s = 0.0
         for b in range(bones):
             s += diff[b] * diff[b]
-        out[i] = partial + wk * s
+        out[i] = partial[i] + wk * s
         if out[i] < lowest:
             lowest = out[i]
 

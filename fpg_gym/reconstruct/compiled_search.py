@@ -3,8 +3,9 @@ is installed (:mod:`fpg_gym.reconstruct.search` falls back to the ask/tell loop 
 
 :func:`local_search` is :class:`optimizers.local_search.LocalSearch` run by
 :func:`optimizers.run_optimizer` on a frame's fused energy (:mod:`fpg_gym.reconstruct.kernels`),
-step for step: the same draws from the same generator (numba runs numpy's algorithms on the
-generator's own bit generator, so the generator ends in the same state), the same rows of the
+step for step: the same draws from the same generator (the table's uniforms drawn before the
+call, the normal draws in numba, which runs numpy's algorithms on the generator's own bit
+generator; the generator ends in the same state), the same rows of the
 proposal table, the same budget rule (a batch larger than the evaluations left is clipped, its
 other rows count as ``+inf``), the same energies (:func:`energy_rows` on ``z @ matrix``, as
 :func:`fpg_gym.reconstruct.compiled_kernels.fused_kernel`, except that a row that cannot be the
@@ -19,6 +20,7 @@ from __future__ import annotations
 
 import numba
 import numpy as np
+from numba import types
 from numba.extending import overload
 
 from fpg_gym.core.compiled import JIT_OPTIONS
@@ -32,51 +34,64 @@ STATUS_OK = 0
 STATUS_NON_FINITE = 1
 
 
-def _as_dtype_of(points, matrix):
-    """``points`` in ``matrix``'s dtype: themselves when they are in it already, else a copy."""
-    return points.astype(matrix.dtype)
+def _uniforms(draws, batch, count):
+    """Batch ``batch``'s ``count`` uniform draws: from the generator now, or row ``batch`` of
+    the draws drawn before."""
+    return draws[batch] if isinstance(draws, np.ndarray) else draws.random(count)
 
 
-@overload(_as_dtype_of)
-def _as_dtype_of_overload(points, matrix):
-    if points.dtype == matrix.dtype:
-        return lambda points, matrix: points
-    return lambda points, matrix: points.astype(matrix.dtype)
+@overload(_uniforms)
+def _uniforms_overload(draws, batch, count):
+    if isinstance(draws, types.Array):
+        return lambda draws, batch, count: draws[batch]
+    return lambda draws, batch, count: draws.random(count)
+
+
+def _normals(draws, batch, samples, d):
+    """Batch ``batch``'s ``(samples, d)`` standard normal draws: from the generator now, or
+    row ``batch`` of the draws drawn before."""
+    if isinstance(draws, np.ndarray):
+        return draws[batch].reshape((samples, d))
+    return draws.standard_normal((samples, d))
+
+
+@overload(_normals)
+def _normals_overload(draws, batch, samples, d):
+    if isinstance(draws, types.Array):
+        return lambda draws, batch, samples, d: draws[batch].reshape((samples, d))
+    return lambda draws, batch, samples, d: draws.standard_normal((samples, d))
 
 
 @numba.njit(**JIT_OPTIONS)
-def _proposals(generator, table, center, step, samples):
-    """``samples`` points ``center + step * N(0, I)``: drawn now, or a block of ``table``'s
-    rows at a uniform offset with a random sign per axis (``LocalSearch._from_table``)."""
-    d = center.shape[0]
+def _proposals(draws, batch, table, step, samples, signed):
+    """Where batch ``batch``'s ``samples`` points ``center + step * N(0, I)`` come from: rows
+    ``start, ...`` of the returned array scaled per axis by ``signed`` (``d``, filled here);
+    fresh normal draws scaled by ``step``, or a block of ``table``'s rows at a uniform offset
+    with a random sign per axis (``LocalSearch._from_table``)."""
+    d = signed.shape[0]
     if table.shape[0] == 0:
-        z = generator.standard_normal((samples, d))
-        for i in range(samples):
-            for j in range(d):
-                z[i, j] *= step
-    else:
-        uniform = generator.random(d + 1)  # the offset and a sign per axis
-        start = int(uniform[0] * (table.shape[0] - samples + 1))
-        signed = np.empty(d)
         for j in range(d):
-            signed[j] = np.copysign(step, uniform[1 + j] - 0.5)
-        z = np.empty((samples, d))
-        for i in range(samples):
-            row = table[start + i]
-            for j in range(d):
-                z[i, j] = row[j] * signed[j] + center[j]
-        return z
-    # Element loops here and below: array-wide assignments compile numba's shape-error
-    # messages (seconds of compilation on a fresh install).
-    for i in range(samples):
-        for j in range(d):
-            z[i, j] += center[j]
-    return z
+            signed[j] = step
+        return _normals(draws, batch, samples, d), 0
+    uniform = _uniforms(draws, batch, d + 1)  # the offset and a sign per axis
+    for j in range(d):
+        signed[j] = np.copysign(step, uniform[1 + j] - 0.5)
+    return table, int(uniform[0] * (table.shape[0] - samples + 1))
+
+
+@numba.njit(**JIT_OPTIONS)
+def _coordinate(rows, start, signed, center, first, i, j):
+    """Coordinate ``j`` of the batch's point ``i`` (float64): ``rows[start + i, j] *
+    signed[j] + center[j]`` (``LocalSearch.ask``'s rounding), the centre itself for the
+    first batch's first point (the start is scored)."""
+    if first and i == 0:
+        return center[j]
+    return rows[start + i, j] * signed[j] + center[j]
 
 
 @numba.njit(**JIT_OPTIONS)
 def local_search(
-    generator,
+    draws,
     table,
     x0,
     matrix,
@@ -97,8 +112,10 @@ def local_search(
 
     Parameters
     ----------
-    generator : numpy.random.Generator
-        The optimiser's generator (advanced as the ask/tell loop advances it).
+    draws : numpy.random.Generator or ndarray
+        The optimiser's generator (advanced as the ask/tell loop advances it), or the draws of
+        the batches drawn from it before, a row per batch: ``(batches, d + 1)`` uniforms with
+        the table (``Generator.random``), ``(batches, samples * d)`` standard normals without.
     table : ndarray, shape (rows, d) or (0, d)
         The proposal table, or no rows for fresh normal draws.
     x0 : ndarray, shape (d,), float64
@@ -127,6 +144,9 @@ def local_search(
     current_step = step
     evaluations = asks = iteration = 0
     done = False  # the optimiser's own stop (it answers None to the next ask)
+    d = x0.shape[0]
+    signed = np.empty(d)  # the batch's scale per axis
+    points = np.empty((samples, d), dtype=matrix.dtype)  # the batch in the tables' dtype
     energies = np.empty(samples, dtype=matrix.dtype)
     product = np.empty((samples, matrix.shape[1]), dtype=matrix.dtype)  # z @ matrix
     values = np.empty(samples)
@@ -137,40 +157,54 @@ def local_search(
         asks += 1
         if done or iteration >= iterations:  # the optimiser's None
             break
-        z = _proposals(generator, table, center, current_step, samples)
-        if iteration == 0:
-            for j in range(center.shape[0]):  # the start is scored
-                z[0, j] = center[j]
+        first = iteration == 0
         iteration += 1
+        # the batch's index as iteration - 1: a variable that starts at 0 would also compile
+        # _proposals for the literal 0
+        rows, start = _proposals(draws, iteration - 1, table, current_step, samples, signed)
         admitted = samples if left < 0 else min(samples, left)
-        points = _as_dtype_of(z[:admitted], matrix)
+        # the points in the tables' dtype at once (the float64 point rounded, as astype)
+        for i in range(admitted):
+            for j in range(d):
+                points[i, j] = rows[start + i, j] * signed[j] + center[j]
+        if first:  # the start is scored
+            for j in range(d):
+                points[0, j] = center[j]
         # numba's ``points @ matrix`` is this gemm into a new array
-        np.dot(points, matrix, product[:admitted])
-        rows = product[:admitted]  # only the first lowest row counts (the argmins below)
-        energy_rows(rows, points, c0, ycst, b0, lengths, wk, energies[:admitted], np.bool_(True))
+        np.dot(points[:admitted], matrix, product[:admitted])
+        rows_p = product[:admitted]  # only the first lowest row counts (the argmins below)
+        energy_rows(
+            rows_p,
+            points[:admitted],
+            c0,
+            ycst,
+            b0,
+            lengths,
+            wk,
+            energies[:admitted],
+            np.bool_(True),
+        )
         finite = True
         for i in range(admitted):
             values[i] = energies[i]
             finite = finite and np.isfinite(values[i])
         if not finite:  # element loops: np.all(np.isfinite(...)) compiles numba's reductions
             for i in range(admitted):
-                for j in range(z.shape[1]):
-                    if not np.isfinite(z[i, j]):
+                for j in range(d):
+                    if not np.isfinite(_coordinate(rows, start, signed, center, first, i, j)):
                         return best_x, best, evaluations, asks, STATUS_NON_FINITE
-        for i in range(admitted, samples):
-            values[i] = np.inf
         evaluations += admitted
-        # numba's np.argmin is numpy's: the first NaN, else the first minimum
-        row = np.argmin(values[:admitted])  # the run's best point
+        # numba's np.argmin is numpy's: the first NaN, else the first minimum. The run's best
+        # point; also the optimiser's tell (whose clipped rows count as +inf: the same row).
+        row = np.argmin(values[:admitted])
         if values[row] < best:
             best = values[row]
-            for j in range(best_x.shape[0]):
-                best_x[j] = z[row, j]
-        row = np.argmin(values)  # the optimiser's tell
+            for j in range(d):
+                best_x[j] = _coordinate(rows, start, signed, center, first, row, j)
         if values[row] < centre_energy:
             centre_energy = values[row]
-            for j in range(center.shape[0]):
-                center[j] = z[row, j]
+            for j in range(d):  # each coordinate from its own old value
+                center[j] = _coordinate(rows, start, signed, center, first, row, j)
         elif shrink <= 0.0:
             done = True
         else:

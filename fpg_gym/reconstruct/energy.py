@@ -251,10 +251,10 @@ class EnergyModel:
         self._terms_arguments: tuple[Any, ...] | None = None
         if compiled is None:
             self.tables = self._tables(latent, flat)
+            if self.dtype != _FLOAT64:
+                self.tables = self.tables.astype(self.dtype)
         else:
             self.tables = self._setup_compiled(compiled, latent, flat)
-        if self.dtype != _FLOAT64:
-            self.tables = self.tables.astype(self.dtype)
         # The fused kernel bound to the tables, on the first call (a compiled local search
         # takes the tables themselves).
         self._energy: Callable[[np.ndarray], np.ndarray] | None = None
@@ -279,18 +279,23 @@ class EnergyModel:
             _CHILD_COORDS,
             _PARENT_COORDS,
         )
-        arrays: tuple[np.ndarray, ...] = (latent.mean, components, self.sensor, joint_weights)
-        arrays += (y, y_sq, r_sq, latent.std, self.lengths, target)
-        if self.dtype != _FLOAT64:  # the terms' arithmetic in the model's dtype
-            arrays = tuple(a.astype(self.dtype) for a in arrays)
+        lengths = self.lengths
+        arrays = [latent.mean, components, self.sensor, joint_weights, y, y_sq, r_sq, latent.std]
+        if self.dtype != _FLOAT64:  # the tables and the terms' arithmetic in the model's dtype
+            dtype = self.dtype
+            matrix, ycst, b0, lengths = (a.astype(dtype) for a in (matrix, ycst, b0, lengths))
+            arrays = [a.astype(dtype) for a in arrays]
+            target = target.astype(dtype)
         self._terms_arguments = (
             compiled.latent_terms,
             *arrays,
+            lengths,
+            target,
             _CHILD_COORDS,
             _PARENT_COORDS,
             self._w,
         )
-        return EnergyTables(matrix, float(c0), ycst, b0, self.lengths, float(wk))
+        return EnergyTables(matrix, float(c0), ycst, b0, lengths, float(wk))
 
     def _tables(self, latent: LatentSpace, flat: np.ndarray) -> EnergyTables:
         """Eq. 10 as one matrix (:mod:`fpg_gym.reconstruct.kernels`): ``Ec`` (Eq. 11, ``W =

@@ -20,6 +20,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.linalg import lapack
 
 from fpg_gym.core import skeleton
 from fpg_gym.core.compiled import compiled_module
@@ -36,10 +37,16 @@ GRAM_MAX_CONDITION = 1e4
 
 def gram_eigenpairs(centred: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``np.linalg.eigh`` of the Gram matrix ``C C^T`` of centred poses ``(K, 60)`` (eigenvalues
-    ascending), on one BLAS thread (:func:`fpg_gym.runtime.threads.one_blas_thread`)."""
+    ascending), on one BLAS thread (:func:`fpg_gym.runtime.threads.one_blas_thread`).
+
+    LAPACK's ``dsyevd`` on the lower triangle, as ``np.linalg.eigh`` calls it, through scipy's
+    wrapper (the same values and vectors to the bit, about 4 µs less of the 60 µs at K = 30);
+    the vectors C-ordered, as numpy returns them."""
     with one_blas_thread():
-        values, vectors = np.linalg.eigh(centred @ centred.T)
-    return values, vectors
+        values, vectors, info = lapack.dsyevd(centred @ centred.T, compute_v=1, lower=1)
+    if info != 0:  # numpy's error
+        raise np.linalg.LinAlgError("Eigenvalues did not converge")
+    return values, np.ascontiguousarray(vectors)
 
 
 def principal_axes(

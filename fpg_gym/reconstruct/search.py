@@ -105,12 +105,23 @@ def complete_compiled(problem: Any, run: OptimizerRun) -> bool:
     assert isinstance(optimizer, LocalSearch)
     budget = -1 if run.max_evaluations is None else run.max_evaluations
     max_asks = -1 if run.max_asks is None else run.max_asks
-    if optimizer.proposals == "table" and budget != 0 and max_asks != 0:
+    draws: np.random.Generator | np.ndarray = run.rng  # the normal draws: drawn in numba
+    state, batches = None, 0
+    if optimizer.proposals == "table":
+        # Each batch's d + 1 uniforms drawn here, as many batches as the budget allows (an
+        # array costs numba less to take than the generator); the draws of the batches the
+        # search does not run are given back below.
+        batches = optimizer.iterations if max_asks < 0 else min(optimizer.iterations, max_asks)
+        if budget >= 0:
+            batches = min(batches, -(-budget // optimizer.samples))
+        state = run.rng.bit_generator.state
+        draws = run.rng.random((batches, problem.dim + 1))
+    if optimizer.proposals == "table" and batches > 0:
         table = optimizer.proposal_table()  # the process's shared table
     else:
         table = np.zeros((0, problem.dim))
     x, energy, evaluations, asks, status = compiled.local_search(
-        run.rng,
+        draws,
         table,
         np.ascontiguousarray(problem.x0, dtype=np.float64),
         *compiled_arguments(problem.energy.tables),
@@ -122,6 +133,12 @@ def complete_compiled(problem: Any, run: OptimizerRun) -> bool:
         budget,
         max_asks,
     )
+    if state is not None:  # the generator where the ask/tell loop leaves it
+        # every batch but the last is whole; a non-finite batch was drawn, not counted
+        drawn = -(-int(evaluations) // optimizer.samples) + (status == compiled.STATUS_NON_FINITE)
+        if drawn < batches:
+            run.rng.bit_generator.state = state
+            run.rng.random((drawn, problem.dim + 1))
     problem.evaluations += int(evaluations)
     if status == compiled.STATUS_NON_FINITE:
         raise ValueError("Z: non-finite latent coordinates")
