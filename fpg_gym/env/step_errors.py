@@ -11,15 +11,13 @@ from fpg_gym.core.metrics import (
     acceleration,
     bone_vector_errors,
     frame_error,
+    second_difference_norms,
 )
 from fpg_gym.core.poses import bone_vectors
-from fpg_gym.core.skeleton import BONES, NUM_BONES
 from fpg_gym.io.recording import Recording
 from fpg_gym.reconstruct.streams import Stream
 
 __all__ = ["StepErrors"]
-
-_PARENT, _CHILD = BONES[:, 0], BONES[:, 1]
 
 
 def _bone_mean(terms: np.ndarray) -> np.ndarray:
@@ -64,10 +62,9 @@ class StepErrors:
         errors: dict[str, float] = {}
         if self._truth is not None:
             assert self._truth_bones is not None and self._raw_errors is not None
-            output = stream.poses[t].astype(np.float64)
-            diff = self._truth_bones[t] - (output[_CHILD] - output[_PARENT])
-            # Eq. 13's mean: the bones added one after the other, as _bone_mean adds them.
-            error = sum(np.sqrt(np.einsum("bc,bc->b", diff, diff)).tolist()) / NUM_BONES
+            output = bone_vectors(stream.poses[t : t + 1].astype(np.float64))
+            terms = bone_vector_errors(self._truth_bones[t : t + 1], output)
+            error = float(_bone_mean(terms)[0])
             if not math.isfinite(error):
                 frame_error(self._truth[t], stream.poses[t])  # raises, naming the bad value
             errors["frame_error"] = error
@@ -78,13 +75,7 @@ class StepErrors:
             s0, s1, s2 = (float(record.timestamp) for record in stream.records[-3:])
             jerk = float("nan")
             if s0 < s1 < s2:
-                # second_difference_norms of the three frames, its operations in its order
-                h0, h1 = s1 - s0, s2 - s1
-                step = 2.0 * ((outputs[2] - outputs[1]) / h1 - (outputs[1] - outputs[0]) / h0)
-                step /= h0 + h1
-                # np.linalg.norm(step, axis=-1).mean(): the same reductions
-                norms = np.sqrt(np.add.reduce(step * step, axis=-1))
-                jerk = float(np.add.reduce(norms)) / len(norms)
+                jerk = float(second_difference_norms(outputs, np.array([s0, s1, s2])).mean())
             if not math.isfinite(jerk):
                 acceleration(outputs, timestamps=[s0, s1, s2])  # raises, naming the bad value
             errors["acceleration"] = jerk
