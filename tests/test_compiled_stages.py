@@ -69,6 +69,28 @@ def test_the_environment_variable_runs_a_process_as_without_numba() -> None:
         assert out.startswith(expected), (value, out)
 
 
+@pytest.mark.parametrize("before", [None, "0"])
+def test_numpy_only_for_new_processes_sets_the_variable_for_its_block(
+    before: str | None, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The processes a block starts (a compare's spawned workers) run as without numba; the
+    environment is as it was after the block, also when the block raises."""
+    if before is None:
+        monkeypatch.delenv(NO_NUMBA_VARIABLE, raising=False)
+    else:
+        monkeypatch.setenv(NO_NUMBA_VARIABLE, before)
+    code = "from fpg_gym.core.compiled import numba_available; print(numba_available())"
+    with pytest.raises(KeyError), numpy_only(new_processes=True):
+        assert compiled_module(COMPILED_MODULES[0]) is None
+        child = subprocess.run(
+            [sys.executable, "-c", code], capture_output=True, text=True, check=True
+        )
+        assert child.stdout.strip() == "False"
+        raise KeyError("the block fails")
+    assert os.environ.get(NO_NUMBA_VARIABLE) == before
+    assert compiled_module(COMPILED_MODULES[0]) is not None
+
+
 def test_only_compiled_shows_its_modules_and_nests_as_an_intersection() -> None:
     first, second, third = COMPILED_MODULES[:3]
     with only_compiled([first, second]):

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import json
+import os
 from pathlib import Path
+from typing import Any
 
 import imageio.v3 as iio
 import pytest
 
 from fpg_gym.cli import main
+from fpg_gym.core.compiled import NO_NUMBA_VARIABLE, compiled_module, numba_available
 from fpg_gym.experiments import TABLE_COLUMNS
 from fpg_gym.experiments.demo import (
     DEMO_METHODS,
@@ -79,6 +82,49 @@ def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
     if rerun_available():  # the 3D view (fpg-gym[view]) comes with the demo when installed
         assert "demo.rrd" in summary["files"]
         assert "3D view" in printed
+
+
+@pytest.mark.parametrize("cached", [False, True])
+def test_a_cold_cache_runs_numpy_and_compiles_in_the_background(
+    cached: bool, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """With numba's cache cold the demo starts the background compilation and runs every
+    reconstruction on the kernels' numpy versions, in this process and in the processes it
+    starts; with the cache warm it does neither."""
+    import fpg_gym.experiments.demo as demo
+
+    started: list[int] = []
+    seen: list[tuple[bool, str | None]] = []
+
+    class Started:
+        pid = 4242
+
+    def compile_in_background() -> Started:
+        started.append(Started.pid)
+        return Started()
+
+    def run_compare(*args: Any, **kwargs: Any) -> Any:
+        hidden = compiled_module("fpg_gym.reconstruct.compiled_kernels") is None
+        seen.append((hidden, os.environ.get(NO_NUMBA_VARIABLE)))
+        return real_compare(*args, **kwargs)
+
+    real_compare = demo.run_compare
+    monkeypatch.delenv(NO_NUMBA_VARIABLE, raising=False)
+    monkeypatch.setattr(demo, "warm_kernels_cached", lambda: cached)
+    monkeypatch.setattr(demo, "compile_in_background", compile_in_background)
+    monkeypatch.setattr(demo, "run_compare", run_compare)
+    outcome = demo.run_demo(
+        tmp_path / "demo", quick=True, methods=["raw"], progress=False, gif=False, view=False
+    )
+    assert len(seen) == 3  # the simulated comparison and the two real ones
+    if cached:
+        assert started == [] and outcome.compiling is None
+        assert seen == [(not numba_available(), None)] * 3
+    else:
+        assert started == [4242] and outcome.compiling == 4242
+        assert seen == [(True, "1")] * 3
+        assert "numpy versions" in (tmp_path / "demo" / "report.md").read_text()
+    assert os.environ.get(NO_NUMBA_VARIABLE) is None
 
 
 def test_demo_methods_are_valid_names() -> None:

@@ -8,7 +8,8 @@ import os
 NAME = "warm-up"
 HELP = (
     "compile the compiled kernels (fpg-gym[fast]) into numba's disk cache now, shared between "
-    "processes, so that the first demo or reconstruction does not wait for them"
+    "processes, so that a first compare or reconstruction does not wait for them (the demo "
+    "compiles them in the background when they are missing)"
 )
 
 

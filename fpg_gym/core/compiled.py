@@ -57,11 +57,23 @@ _shown: frozenset[str] | None = None  # None: every module
 
 
 @contextmanager
-def numpy_only() -> Iterator[None]:
+def numpy_only(*, new_processes: bool = False) -> Iterator[None]:
     """Within this block :func:`compiled_module` gives None, so that everything built in it runs
-    its numpy path, as without numba (for benchmarks and tests; not thread-safe)."""
-    with only_compiled(()):
-        yield
+    its numpy path, as without numba (not thread-safe). With ``new_processes`` the processes
+    started in the block (a compare's spawned workers) run as without numba too:
+    :data:`NO_NUMBA_VARIABLE` is set in this process's environment for the block."""
+    before = os.environ.get(NO_NUMBA_VARIABLE)
+    if new_processes:
+        os.environ[NO_NUMBA_VARIABLE] = "1"
+    try:
+        with only_compiled(()):
+            yield
+    finally:
+        if new_processes:
+            if before is None:
+                os.environ.pop(NO_NUMBA_VARIABLE, None)
+            else:
+                os.environ[NO_NUMBA_VARIABLE] = before
 
 
 @contextmanager

@@ -25,13 +25,16 @@
    the same episode in 3D with every method (:mod:`fpg_gym.experiments.view`). ``report.md``
    puts the real sections first, then the simulated comparison.
 
-About 24 CPU seconds with numba (README: the measured wall time and its load). ``quick=True``
-runs a reduced version (two real repetitions, one occlusion; two clips, one scenario, 24
-frames, four methods) in a few seconds, for tests.
+About 24 CPU seconds with numba (README: the measured wall time and its load). On a fresh
+installation (numba's cache cold) it runs the kernels' numpy versions, a few CPU seconds more,
+while :func:`fpg_gym.experiments.warm.compile_in_background` compiles them for later runs.
+``quick=True`` runs a reduced version (two real repetitions, one occlusion; two clips, one
+scenario, 24 frames, four methods) in a few seconds, for tests.
 """
 
 from __future__ import annotations
 
+import contextlib
 import os
 import time
 from collections.abc import Sequence
@@ -39,13 +42,14 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from fpg_gym.core.compiled import numpy_only
 from fpg_gym.core.defaults import DEFAULT_EPISODE_SCENARIOS, DEFAULT_HOLDOUT_CLIPS
 from fpg_gym.core.seeding import derive_seed
 from fpg_gym.experiments import CompareConfig, CompareOutcome, format_tests, plots, run_compare
 from fpg_gym.experiments.report import markdown_table
 from fpg_gym.experiments.store import frames_path, load_frames
 from fpg_gym.experiments.view import rerun_available, write_view
-from fpg_gym.experiments.warm import warm_kernels, warm_kernels_cached
+from fpg_gym.experiments.warm import compile_in_background, warm_kernels_cached
 from fpg_gym.io.recording import load_recording, write_recording
 from fpg_gym.simulate.occlude import OCCLUSION_CASES, occlude
 
@@ -88,9 +92,20 @@ def demo_recordings() -> list[Path]:
     return sorted(_DEMO_DATA.glob("*.npz"))
 
 
+#: Said in the output when the kernels were not compiled yet: the numpy versions sum in other
+#: orders, and the local search can then take other steps (docs/performance.md, cold start).
+_NUMPY_KERNELS_NOTE = (
+    "numba's kernels were not compiled yet: this run used their numpy versions (the same "
+    "equations, summed in other orders: a local search can take other steps, so its episodes' "
+    "figures may differ by a few percent from a later run's)"
+)
+
+
 @dataclass
 class DemoOutcome:
-    """What :func:`run_demo` did: the comparisons (real first), the GIF and the time taken."""
+    """What :func:`run_demo` did: the comparisons (real first), the GIF, the time taken and the
+    process compiling the kernels in the background (``compiling``: its pid; None when they
+    were compiled already)."""
 
     compare: CompareOutcome
     gif: Path | None
@@ -102,6 +117,7 @@ class DemoOutcome:
     real_clean: CompareOutcome | None = None
     real_occluded: CompareOutcome | None = None
     headline: Path | None = None
+    compiling: int | None = None
 
     @property
     def files(self) -> list[Path]:
@@ -186,6 +202,8 @@ def _write_report(out: Path, outcome: DemoOutcome) -> None:
     comparison's own report."""
     simulated = (out / "report.md").read_text(encoding="utf-8")
     lines = ["# fpg-gym demo", ""]
+    if outcome.compiling is not None:
+        lines += [f"{_NUMPY_KERNELS_NOTE}; the times below are numpy's.", ""]
     for title, part in (
         ("Real Kinect v2 streams, as they are", outcome.real_clean),
         ("Real Kinect v2 streams with occlusions put into them", outcome.real_occluded),
@@ -329,55 +347,60 @@ def run_demo(
         max_frames=24 if quick else None,
         workers=workers,
     )
-    if not warm_kernels_cached():
-        # A fresh installation: compile the kernels once, shared between the processes,
-        # rather than in every worker of the compare.
-        warm_kernels(workers)
-    outcome = run_compare(config, progress=progress, fresh=True)
-    # The real sections in folders of their own, inside the simulated comparison's (whose
-    # manifest makes the folder compare's own).
-    real = out / "real"
-    clean_inputs, occluded_inputs = real_inputs(real / "inputs", quick=quick, seed=seed)
-    real_methods = [m for m in REAL_METHODS if not quick or m != "holt"]
-    real_clean = _real_compare(real / "clean", clean_inputs, real_methods, workers, seed, progress)
-    real_occluded = _real_compare(
-        real / "occluded", occluded_inputs, real_methods, workers, seed, progress
-    )
-    gif_path = png_path = None
-    episode = f"{GIF_REAL_EPISODE}__s{seed}"  # compare's id of a recording episode
-    method = REAL_METHODS[-1]
-    if gif and episode in real_occluded.summary["episodes"]:
-        try:
-            gif_path, png_path = write_animation(
-                real_occluded.out,
-                episode,
-                method,
-                target=out,
-                source="real, lower legs lost",
-                truth_label="Vicon truth",
-                step=QUICK_GIF_STEP if quick else 1,
-            )
-        except FileNotFoundError:  # interrupted before that run finished
-            gif_path = png_path = None
-    view_path = None
-    if view and rerun_available() and episode in real_occluded.summary["episodes"]:
-        view_path = write_demo_view(real_occluded.out, episode, real_methods, target=out)
-    headline = out / "headline.md"
-    headline.write_text(
-        headline_table(real_clean.summary, real_occluded.summary) + "\n", encoding="utf-8"
-    )
-    result = DemoOutcome(
-        compare=outcome,
-        gif=gif_path,
-        snapshot=png_path,
-        gif_episode=episode,
-        gif_method=method,
-        seconds=time.perf_counter() - started,
-        view=view_path,
-        real_clean=real_clean,
-        real_occluded=real_occluded,
-        headline=headline,
-    )
+    cold = not warm_kernels_cached()
+    # A fresh installation: the demo's frames take less time with the kernels' numpy versions
+    # than compiling the kernels first would (docs/performance.md, cold start); they compile
+    # meanwhile for later runs.
+    compiling = compile_in_background().pid if cold else None
+    with numpy_only(new_processes=True) if cold else contextlib.nullcontext():
+        outcome = run_compare(config, progress=progress, fresh=True)
+        # The real sections in folders of their own, inside the simulated comparison's (whose
+        # manifest makes the folder compare's own).
+        real = out / "real"
+        clean_inputs, occluded_inputs = real_inputs(real / "inputs", quick=quick, seed=seed)
+        real_methods = [m for m in REAL_METHODS if not quick or m != "holt"]
+        real_clean = _real_compare(
+            real / "clean", clean_inputs, real_methods, workers, seed, progress
+        )
+        real_occluded = _real_compare(
+            real / "occluded", occluded_inputs, real_methods, workers, seed, progress
+        )
+        gif_path = png_path = None
+        episode = f"{GIF_REAL_EPISODE}__s{seed}"  # compare's id of a recording episode
+        method = REAL_METHODS[-1]
+        if gif and episode in real_occluded.summary["episodes"]:
+            try:
+                gif_path, png_path = write_animation(
+                    real_occluded.out,
+                    episode,
+                    method,
+                    target=out,
+                    source="real, lower legs lost",
+                    truth_label="Vicon truth",
+                    step=QUICK_GIF_STEP if quick else 1,
+                )
+            except FileNotFoundError:  # interrupted before that run finished
+                gif_path = png_path = None
+        view_path = None
+        if view and rerun_available() and episode in real_occluded.summary["episodes"]:
+            view_path = write_demo_view(real_occluded.out, episode, real_methods, target=out)
+        headline = out / "headline.md"
+        headline.write_text(
+            headline_table(real_clean.summary, real_occluded.summary) + "\n", encoding="utf-8"
+        )
+        result = DemoOutcome(
+            compare=outcome,
+            gif=gif_path,
+            snapshot=png_path,
+            gif_episode=episode,
+            gif_method=method,
+            seconds=time.perf_counter() - started,
+            view=view_path,
+            real_clean=real_clean,
+            real_occluded=real_occluded,
+            headline=headline,
+            compiling=compiling,
+        )
     _write_report(out, result)
     return result
 
@@ -423,3 +446,8 @@ def print_outcome(outcome: DemoOutcome) -> None:
         print(f"  (3D view: episode {outcome.gif_episode}; open with: rerun {outcome.view})")
     state = " (interrupted)" if outcome.compare.interrupted else ""
     print(f"time: {outcome.seconds:.1f} s{state}")
+    if outcome.compiling is not None:
+        print(
+            f"{_NUMPY_KERNELS_NOTE}; a process at the lowest priority (pid {outcome.compiling}) "
+            "is compiling them for later runs (`fpg-gym warm-up` does it in the foreground)"
+        )

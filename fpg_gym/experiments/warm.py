@@ -8,18 +8,24 @@ recording (the auto preset: maps and fusion), alone and side by side with anothe
 kernel compiles with the argument types the real runs use; with ``workers > 1`` this process and
 ``workers - 1`` new ones run them with only their share of the compiled modules switched on
 (:func:`fpg_gym.core.compiled.only_compiled`), so the modules compile in parallel and none
-twice. ``fpg-gym warm-up`` runs it; ``fpg-gym demo`` runs it first when the cache is cold (a
-compare's workers would otherwise each compile every kernel).
+twice. ``fpg-gym warm-up`` runs it. :func:`compile_in_background` runs it in a detached process
+at the lowest CPU priority: ``fpg-gym demo`` starts one when the cache is cold and meanwhile runs
+the kernels' numpy versions, which take less time on the demo's few thousand frames than
+compiling them would.
 """
 
 from __future__ import annotations
 
 import multiprocessing
+import os
+import subprocess
+import sys
 import time
 import warnings
 from collections.abc import Sequence
 from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
+from typing import Any
 
 from fpg_gym.core.compiled import COMPILED_MODULES, kernels_cached, numba_available, only_compiled
 from fpg_gym.core.defaults import DEFAULT_HOLDOUT_CLIPS
@@ -31,7 +37,13 @@ from fpg_gym.physics.ragdoll import PhysicsWarning
 from fpg_gym.reconstruct.presets import choose_pipeline, default_graph_name, sensor_of
 from fpg_gym.simulate import simulate_clips
 
-__all__ = ["REAL_WARM_UP_METHODS", "WARM_UP_METHODS", "warm_kernels", "warm_kernels_cached"]
+__all__ = [
+    "REAL_WARM_UP_METHODS",
+    "WARM_UP_METHODS",
+    "compile_in_background",
+    "warm_kernels",
+    "warm_kernels_cached",
+]
 
 #: Methods whose code paths the warm-up runs (every compiled kernel of the demo).
 WARM_UP_METHODS: tuple[str, ...] = (
@@ -179,3 +191,35 @@ def warm_kernels(workers: int = 1, *, frames: int = 40) -> float:
             for done in others:
                 done.result()
     return time.perf_counter() - started
+
+
+def compile_in_background() -> subprocess.Popen[bytes]:
+    """Start :func:`warm_kernels` in one new process at the lowest CPU priority
+    (``nice`` 19 where the system has it), in a process group of its own, so that it goes on
+    compiling into numba's disk cache after this process ends or is interrupted (Ctrl-C signals
+    the terminal's foreground group only); its output is discarded (``fpg-gym warm-up``
+    compiles in the foreground and shows it). It stays in this session: Linux's autogroup
+    scheduler shares the CPU between sessions before it weighs ``nice``, so a session of its own
+    would take a full share from the demo.
+
+    Returns
+    -------
+    subprocess.Popen
+        The process (``pid``; nothing needs to wait for it).
+    """
+    group: dict[str, Any] = {}
+    if os.name == "posix":
+        group = {"process_group": 0} if sys.version_info >= (3, 11) else {"preexec_fn": os.setpgrp}
+    return subprocess.Popen(
+        [sys.executable, "-m", __name__],
+        stdin=subprocess.DEVNULL,
+        stdout=subprocess.DEVNULL,
+        stderr=subprocess.DEVNULL,
+        **group,
+    )
+
+
+if __name__ == "__main__":  # compile_in_background's process
+    if hasattr(os, "nice"):
+        os.nice(19)
+    warm_kernels(1)
