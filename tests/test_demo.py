@@ -24,7 +24,13 @@ from fpg_gym.experiments.view import rerun_available
 from fpg_gym.io.recording import load_recording
 
 
-def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+def test_quick_demo_command(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    import fpg_gym.experiments.demo as demo
+
+    # On a cold numba cache the demo runs numpy and would leave a compiling process behind.
+    monkeypatch.setattr(demo, "compile_in_background", _NotStarted)
     out = tmp_path / "demo"
     assert main(["demo", "--quick", "--out", str(out), "--quiet", "--json"]) == 0
     printed = capsys.readouterr().out
@@ -84,6 +90,12 @@ def test_quick_demo_command(tmp_path: Path, capsys: pytest.CaptureFixture[str]) 
         assert "3D view" in printed
 
 
+class _NotStarted:
+    """Stands for :func:`fpg_gym.experiments.warm.compile_in_background`'s process."""
+
+    pid = 4242
+
+
 @pytest.mark.parametrize("cached", [False, True])
 def test_a_cold_cache_runs_numpy_and_compiles_in_the_background(
     cached: bool, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
@@ -96,12 +108,9 @@ def test_a_cold_cache_runs_numpy_and_compiles_in_the_background(
     started: list[int] = []
     seen: list[tuple[bool, str | None]] = []
 
-    class Started:
-        pid = 4242
-
-    def compile_in_background() -> Started:
-        started.append(Started.pid)
-        return Started()
+    def compile_in_background() -> _NotStarted:
+        started.append(_NotStarted.pid)
+        return _NotStarted()
 
     def run_compare(*args: Any, **kwargs: Any) -> Any:
         hidden = compiled_module("fpg_gym.reconstruct.compiled_kernels") is None
