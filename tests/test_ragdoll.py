@@ -215,7 +215,7 @@ def test_weak_body_cannot_hold_a_lifted_target() -> None:
     assert out[:, 1].min() > -0.01  # ... and lands on the floor, not through it
 
 
-def test_divergence_resets_counts_and_raises_or_warns(clips: dict[str, np.ndarray]) -> None:
+def test_divergence_resets_counts_and_raises_warns_or_not(clips: dict[str, np.ndarray]) -> None:
     targets = clips["run"]
     with Ragdoll(poses.bone_lengths(targets[0]), max_speed=0.5, on_divergence="raise") as body:
         body.reset(targets[0])
@@ -230,6 +230,13 @@ def test_divergence_resets_counts_and_raises_or_warns(clips: dict[str, np.ndarra
         with pytest.warns(PhysicsWarning):
             out = body.track(targets[5])
         np.testing.assert_allclose(out, targets[5], atol=1e-3)
+        assert body.info["divergences"] == 1
+    with Ragdoll(poses.bone_lengths(targets[0]), max_speed=0.5, on_divergence="quiet") as body:
+        body.reset(targets[0])
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no warning
+            quiet = body.track(targets[5])
+        np.testing.assert_array_equal(quiet, out)  # the same reset
         assert body.info["divergences"] == 1
 
 
