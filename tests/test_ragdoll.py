@@ -258,20 +258,21 @@ def test_instances_side_by_side_are_independent_and_deterministic(
         np.testing.assert_array_equal(np.array(interleaved), _run(alone, a_targets)[:, :, :])
 
 
-@pytest.mark.parametrize("removals", [1, 64])
+@pytest.mark.parametrize(("removals", "stand"), [(1, True), (64, True), (1, False), (64, False)])
 def test_a_rebuilt_body_tracks_as_a_new_one(
-    clips: dict[str, np.ndarray], removals: int, monkeypatch: pytest.MonkeyPatch
+    clips: dict[str, np.ndarray], removals: int, stand: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # rebuild() removes the previous body from the world (and resets the simulation every
     # _REBUILDS_PER_RESET rebuilds): after any earlier stream (contacts, a teleport), the next
-    # one is a fresh body's, to the bit, whichever way the body was rebuilt.
+    # one is a fresh body's, to the bit, whichever way the body was rebuilt, standing first or
+    # not before the stream's reset.
     monkeypatch.setattr(ragdoll_module, "_REBUILDS_PER_RESET", removals)
     kick, walk = clips["kick"], clips["walk"]
     with Ragdoll(poses.bone_lengths(kick[0])) as used:
         for lengths, stream in ((poses.bone_lengths(kick[0]), kick), (None, walk[:20] + 1.0)):
             used.rebuild(lengths)
             _run(used, stream)
-        used.rebuild(poses.bone_lengths(walk[0]))
+        used.rebuild(poses.bone_lengths(walk[0]), stand=stand)
         again = _run(used, walk)
         info = used.info
     with Ragdoll(poses.bone_lengths(walk[0])) as fresh:

@@ -39,7 +39,7 @@ class RagdollProbe:
 
     def rebuild(self, bone_lengths: np.ndarray) -> None:
         self.counts["ragdoll_builds"] += 1
-        self.ragdoll.rebuild(bone_lengths)
+        self.ragdoll.rebuild(bone_lengths, stand=False)  # the ragdoll stage resets it next
 
     def render(self, width: int = 320, height: int = 240) -> np.ndarray:
         return np.asarray(self.ragdoll.render(width, height))

@@ -309,7 +309,11 @@ class Ragdoll:
             raise
 
     def rebuild(
-        self, bone_lengths: np.ndarray | None = None, *, body_mass: float | None = None
+        self,
+        bone_lengths: np.ndarray | None = None,
+        *,
+        body_mass: float | None = None,
+        stand: bool = True,
     ) -> None:
         """Rebuild the body for new bone lengths in the same pybullet client, from scratch.
 
@@ -319,7 +323,8 @@ class Ragdoll:
         does, to the bit (tested). pybullet keeps a removed body's collision shapes, so every
         :data:`_REBUILDS_PER_RESET` rebuilds the whole simulation is reset instead (the same
         results). The counters in :attr:`info` restart and the body stands in
-        :meth:`standing_pose`.
+        :meth:`standing_pose`; with ``stand=False`` it is left where it was built, for a caller
+        that places it with :meth:`reset` next (the same results as after standing).
         """
         self._check_open()
         self.model: BodyModel = build_body_model(bone_lengths, body_mass)
@@ -360,7 +365,8 @@ class Ragdoll:
             self.force_bounds,
             self._friction,
         )
-        self.reset(self.standing_pose())
+        if stand:
+            self.reset(self.standing_pose())
 
     # ----------------------------------------------------------------------- construction
 
