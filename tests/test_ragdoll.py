@@ -215,7 +215,7 @@ def test_weak_body_cannot_hold_a_lifted_target() -> None:
     assert out[:, 1].min() > -0.01  # ... and lands on the floor, not through it
 
 
-def test_divergence_resets_counts_and_raises_or_warns(clips: dict[str, np.ndarray]) -> None:
+def test_divergence_resets_counts_and_raises_warns_or_not(clips: dict[str, np.ndarray]) -> None:
     targets = clips["run"]
     with Ragdoll(poses.bone_lengths(targets[0]), max_speed=0.5, on_divergence="raise") as body:
         body.reset(targets[0])
@@ -230,6 +230,13 @@ def test_divergence_resets_counts_and_raises_or_warns(clips: dict[str, np.ndarra
         with pytest.warns(PhysicsWarning):
             out = body.track(targets[5])
         np.testing.assert_allclose(out, targets[5], atol=1e-3)
+        assert body.info["divergences"] == 1
+    with Ragdoll(poses.bone_lengths(targets[0]), max_speed=0.5, on_divergence="quiet") as body:
+        body.reset(targets[0])
+        with warnings.catch_warnings():
+            warnings.simplefilter("error")  # no warning
+            quiet = body.track(targets[5])
+        np.testing.assert_array_equal(quiet, out)  # the same reset
         assert body.info["divergences"] == 1
 
 
@@ -251,20 +258,21 @@ def test_instances_side_by_side_are_independent_and_deterministic(
         np.testing.assert_array_equal(np.array(interleaved), _run(alone, a_targets)[:, :, :])
 
 
-@pytest.mark.parametrize("removals", [1, 64])
+@pytest.mark.parametrize(("removals", "stand"), [(1, True), (64, True), (1, False), (64, False)])
 def test_a_rebuilt_body_tracks_as_a_new_one(
-    clips: dict[str, np.ndarray], removals: int, monkeypatch: pytest.MonkeyPatch
+    clips: dict[str, np.ndarray], removals: int, stand: bool, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # rebuild() removes the previous body from the world (and resets the simulation every
     # _REBUILDS_PER_RESET rebuilds): after any earlier stream (contacts, a teleport), the next
-    # one is a fresh body's, to the bit, whichever way the body was rebuilt.
+    # one is a fresh body's, to the bit, whichever way the body was rebuilt, standing first or
+    # not before the stream's reset.
     monkeypatch.setattr(ragdoll_module, "_REBUILDS_PER_RESET", removals)
     kick, walk = clips["kick"], clips["walk"]
     with Ragdoll(poses.bone_lengths(kick[0])) as used:
         for lengths, stream in ((poses.bone_lengths(kick[0]), kick), (None, walk[:20] + 1.0)):
             used.rebuild(lengths)
             _run(used, stream)
-        used.rebuild(poses.bone_lengths(walk[0]))
+        used.rebuild(poses.bone_lengths(walk[0]), stand=stand)
         again = _run(used, walk)
         info = used.info
     with Ragdoll(poses.bone_lengths(walk[0])) as fresh:

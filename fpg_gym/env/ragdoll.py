@@ -3,13 +3,12 @@ builds and (through the frame records) divergences for the step's ``info``."""
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
-from fpg_gym.physics.ragdoll import PhysicsWarning, Ragdoll
+from fpg_gym.physics.ragdoll import Ragdoll
 
 __all__ = ["CountingRagdollFactory", "RagdollProbe", "ragdoll_keywords"]
 
@@ -18,8 +17,9 @@ class RagdollProbe:
     """The env's ragdoll: a :class:`~fpg_gym.physics.ragdoll.Ragdoll` that counts resets and builds.
 
     A divergence already resets the body to its target and is counted in the step's info (from
-    the frame record's ``new_divergences``), so its
-    :class:`~fpg_gym.physics.ragdoll.PhysicsWarning` is not repeated as a Python warning.
+    the frame record's ``new_divergences``), so the factory builds the ragdoll with
+    ``on_divergence="quiet"`` (no :class:`~fpg_gym.physics.ragdoll.PhysicsWarning`) unless
+    ``"raise"`` is asked for.
     """
 
     def __init__(self, ragdoll: Any, counts: dict[str, int]) -> None:
@@ -31,19 +31,15 @@ class RagdollProbe:
         return np.asarray(self.ragdoll.reset(pose))
 
     def track(self, target_pose: np.ndarray) -> np.ndarray:
-
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", PhysicsWarning)
-            out = self.ragdoll.track(target_pose)
-        return np.asarray(out)
+        return np.asarray(self.ragdoll.track(target_pose))
 
     @property
     def info(self) -> dict[str, Any]:
-        return dict(self.ragdoll.info)
+        return self.ragdoll.info  # a new dict at each call
 
     def rebuild(self, bone_lengths: np.ndarray) -> None:
         self.counts["ragdoll_builds"] += 1
-        self.ragdoll.rebuild(bone_lengths)
+        self.ragdoll.rebuild(bone_lengths, stand=False)  # the ragdoll stage resets it next
 
     def render(self, width: int = 320, height: int = 240) -> np.ndarray:
         return np.asarray(self.ragdoll.render(width, height))
@@ -57,6 +53,8 @@ class CountingRagdollFactory:
 
     def __init__(self, kwargs: Mapping[str, Any], counts: dict[str, int]) -> None:
         self.kwargs = dict(kwargs)
+        if self.kwargs.get("on_divergence", "reset") == "reset":  # counted, not warned
+            self.kwargs["on_divergence"] = "quiet"
         self.counts = counts
 
     def __call__(self, lengths: np.ndarray) -> RagdollProbe:

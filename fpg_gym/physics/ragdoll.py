@@ -183,10 +183,11 @@ class Ragdoll:
         Coulomb friction coefficient between the body and the floor.
     solver_iterations : int
         Constraint-solver iterations per physics step.
-    on_divergence : {"reset", "raise"}
-        What :meth:`track` does when the simulation diverges. Both reset the body to the target
+    on_divergence : {"reset", "quiet", "raise"}
+        What :meth:`track` does when the simulation diverges. All reset the body to the target
         and count the event in :attr:`info`; ``"reset"`` then warns (:class:`PhysicsWarning`)
-        and returns the target's pose, ``"raise"`` raises :class:`PhysicsError`.
+        and returns the target's pose, ``"quiet"`` returns it without a warning, ``"raise"``
+        raises :class:`PhysicsError`.
     max_speed : float
         A joint faster than this (m/s) counts as divergence.
     max_distance : float
@@ -229,7 +230,7 @@ class Ragdoll:
         floor_height: float | None = 0.0,
         friction: float = 0.9,
         solver_iterations: int = 15,
-        on_divergence: Literal["reset", "raise"] = "reset",
+        on_divergence: Literal["reset", "quiet", "raise"] = "reset",
         max_speed: float = 50.0,
         max_distance: float = 5.0,
         max_joint_gap: float = 0.1,
@@ -255,8 +256,10 @@ class Ragdoll:
             raise ValueError(f"friction: expected a non-negative number, got {friction!r}")
         if int(solver_iterations) < 1:
             raise ValueError(f"solver_iterations: expected at least 1, got {solver_iterations!r}")
-        if on_divergence not in ("reset", "raise"):
-            raise ValueError(f"on_divergence: expected 'reset' or 'raise', got {on_divergence!r}")
+        if on_divergence not in ("reset", "quiet", "raise"):
+            raise ValueError(
+                f"on_divergence: expected 'reset', 'quiet' or 'raise', got {on_divergence!r}"
+            )
         if floor_height is not None and not np.isfinite(floor_height):
             raise ValueError(
                 f"floor_height: expected a finite number or None, got {floor_height!r}"
@@ -306,7 +309,11 @@ class Ragdoll:
             raise
 
     def rebuild(
-        self, bone_lengths: np.ndarray | None = None, *, body_mass: float | None = None
+        self,
+        bone_lengths: np.ndarray | None = None,
+        *,
+        body_mass: float | None = None,
+        stand: bool = True,
     ) -> None:
         """Rebuild the body for new bone lengths in the same pybullet client, from scratch.
 
@@ -316,7 +323,8 @@ class Ragdoll:
         does, to the bit (tested). pybullet keeps a removed body's collision shapes, so every
         :data:`_REBUILDS_PER_RESET` rebuilds the whole simulation is reset instead (the same
         results). The counters in :attr:`info` restart and the body stands in
-        :meth:`standing_pose`.
+        :meth:`standing_pose`; with ``stand=False`` it is left where it was built, for a caller
+        that places it with :meth:`reset` next (the same results as after standing).
         """
         self._check_open()
         self.model: BodyModel = build_body_model(bone_lengths, body_mass)
@@ -357,7 +365,8 @@ class Ragdoll:
             self.force_bounds,
             self._friction,
         )
-        self.reset(self.standing_pose())
+        if stand:
+            self.reset(self.standing_pose())
 
     # ----------------------------------------------------------------------- construction
 
@@ -542,7 +551,8 @@ class Ragdoll:
             message = f"ragdoll diverged at {self._last_error}; reset to the target"
             if self.on_divergence == "raise":
                 raise PhysicsError(message)
-            warnings.warn(message, PhysicsWarning, stacklevel=2)
+            if self.on_divergence == "reset":
+                warnings.warn(message, PhysicsWarning, stacklevel=2)
             return output.copy()
         self._output = output
         return output.copy()

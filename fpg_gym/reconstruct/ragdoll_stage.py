@@ -34,6 +34,7 @@ class RagdollStage:
         self.body: RagdollLike | None = None
         self.lengths: np.ndarray | None = None
         self.rebuilds = 0
+        self.divergences = 0  # the body's count after the last frame
         self.restart()
 
     def restart(self) -> None:
@@ -79,7 +80,9 @@ class RagdollStage:
                 self.rebuilds += 1
             self.lengths = lengths64.copy()
             self.needs_reset = True
-        before = int((getattr(self.body, "info", {}) or {}).get("divergences", 0))
+        if self.needs_reset:  # a new or rebuilt body: its count may have restarted
+            self.divergences = int((getattr(self.body, "info", {}) or {}).get("divergences", 0))
+        before = self.divergences
         world = self.floor.down(target)
         if self.needs_reset:
             out = self.body.reset(world)
@@ -90,5 +93,6 @@ class RagdollStage:
         info["rebuilds"] = self.rebuilds
         info["floor_y"] = self.floor.floor_y
         # The ragdoll's counter is cumulative and restarts with a rebuild: report this frame's.
-        info["new_divergences"] = int(info.get("divergences", 0)) - before
+        self.divergences = int(info.get("divergences", 0))
+        info["new_divergences"] = self.divergences - before
         return self.floor.up(out), info
