@@ -365,42 +365,42 @@ def run_demo(
         real_occluded = _real_compare(
             real / "occluded", occluded_inputs, real_methods, workers, seed, progress
         )
-        gif_path = png_path = None
-        episode = f"{GIF_REAL_EPISODE}__s{seed}"  # compare's id of a recording episode
-        method = REAL_METHODS[-1]
-        if gif and episode in real_occluded.summary["episodes"]:
-            try:
-                gif_path, png_path = write_animation(
-                    real_occluded.out,
-                    episode,
-                    method,
-                    target=out,
-                    source="real, lower legs lost",
-                    truth_label="Vicon truth",
-                    step=QUICK_GIF_STEP if quick else 1,
-                )
-            except FileNotFoundError:  # interrupted before that run finished
-                gif_path = png_path = None
-        view_path = None
-        if view and rerun_available() and episode in real_occluded.summary["episodes"]:
-            view_path = write_demo_view(real_occluded.out, episode, real_methods, target=out)
-        headline = out / "headline.md"
-        headline.write_text(
-            headline_table(real_clean.summary, real_occluded.summary) + "\n", encoding="utf-8"
-        )
-        result = DemoOutcome(
-            compare=outcome,
-            gif=gif_path,
-            snapshot=png_path,
-            gif_episode=episode,
-            gif_method=method,
-            seconds=time.perf_counter() - started,
-            view=view_path,
-            real_clean=real_clean,
-            real_occluded=real_occluded,
-            headline=headline,
-            compiling=compiling,
-        )
+    gif_path = png_path = None
+    episode = f"{GIF_REAL_EPISODE}__s{seed}"  # compare's id of a recording episode
+    method = REAL_METHODS[-1]
+    if gif and episode in real_occluded.summary["episodes"]:
+        try:
+            gif_path, png_path = write_animation(
+                real_occluded.out,
+                episode,
+                method,
+                target=out,
+                source="real, lower legs lost",
+                truth_label="Vicon truth",
+                step=QUICK_GIF_STEP if quick else 1,
+            )
+        except FileNotFoundError:  # interrupted before that run finished
+            gif_path = png_path = None
+    view_path = None
+    if view and rerun_available() and episode in real_occluded.summary["episodes"]:
+        view_path = write_demo_view(real_occluded.out, episode, real_methods, target=out)
+    headline = out / "headline.md"
+    headline.write_text(
+        headline_table(real_clean.summary, real_occluded.summary) + "\n", encoding="utf-8"
+    )
+    result = DemoOutcome(
+        compare=outcome,
+        gif=gif_path,
+        snapshot=png_path,
+        gif_episode=episode,
+        gif_method=method,
+        seconds=time.perf_counter() - started,
+        view=view_path,
+        real_clean=real_clean,
+        real_occluded=real_occluded,
+        headline=headline,
+        compiling=compiling,
+    )
     _write_report(out, result)
     return result
 
