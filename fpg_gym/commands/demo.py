@@ -12,8 +12,9 @@ NAME = "demo"
 HELP = (
     "the whole job on the packaged data (no files needed): real Kinect v2 repetitions against "
     "Vicon, with and without occlusions, then simulated Kinect episodes of the embedded clips; "
-    "filters vs reconstruction, tables, plots and a GIF (34 s, 33 CPU s, on a shared 2-core "
-    "machine at load 3.3; 50 s the first time, which compiles the numba kernels)"
+    "filters vs reconstruction, tables, plots and a GIF (18 s, 26 CPU s, on a shared 2-core "
+    "machine at load about 1; 22 s the first time, which runs the kernels' numpy versions while "
+    "numba compiles them in the background)"
 )
 
 
