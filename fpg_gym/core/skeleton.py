@@ -168,6 +168,13 @@ TRACKED: Final[int] = 2
 #: The valid tracking states, in value order.
 TRACKING_STATES: Final[tuple[int, ...]] = (NOT_TRACKED, INFERRED, TRACKED)
 
+
+def body_present(states: npt.ArrayLike) -> npt.NDArray[np.bool_]:
+    """Whether a body is in view: tracking states ``(..., J)`` -> ``(...)`` bool, True where at
+    least one joint is tracked or inferred."""
+    return np.asarray((np.asarray(states) > NOT_TRACKED).any(axis=-1))
+
+
 #: Kinect v2 ``JointType`` names (25 joints), in SDK 2.0 order.
 KINECT_V2_JOINT_NAMES: Final[tuple[str, ...]] = (
     "SpineBase",

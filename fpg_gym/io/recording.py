@@ -207,7 +207,7 @@ class Recording:
     @property
     def body_present(self) -> np.ndarray:
         """``(T,)`` bool: frames in which at least one joint is tracked or inferred."""
-        return np.asarray((self.states > NOT_TRACKED).any(axis=1))
+        return skeleton.body_present(self.states)
 
     def state_shares(self) -> dict[str, float]:
         """Shares of tracked, inferred and not-tracked joint-frames."""

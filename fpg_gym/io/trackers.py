@@ -138,7 +138,7 @@ def _build(
 ) -> Recording:
     """Not-tracked joints of empty frames take their last known position (the first known one
     before it), as the Kinect readers do; then the recording."""
-    present: np.ndarray = np.asarray((states > NOT_TRACKED).any(axis=1))
+    present = skeleton.body_present(states)
     if not present.any():
         raise DataFormatError(path, "no frame holds a body (every frame is empty)")
     missing = ~present[:, None] | np.all(positions == 0.0, axis=-1)

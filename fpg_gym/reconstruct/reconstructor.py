@@ -372,7 +372,7 @@ class Reconstructor(FrameDrivers):
             timestamp = 0.0 if self._last_timestamp is None else self._last_timestamp + cfg.frame_dt
         timestamp = float(timestamp)
         if no_body is None:
-            no_body = not bool((states > 0).any())
+            no_body = not skeleton.body_present(states)
         self._restart_after_gap(timestamp)
         first = not self._history
         dt = cfg.frame_dt if first else max(timestamp - self._history[-1][1], 1e-6)
@@ -599,9 +599,7 @@ class Reconstructor(FrameDrivers):
         RuntimeError
             If no frame was prepared.
         """
-        pending = self._pending
-        if pending is None:
-            raise RuntimeError("finish: no prepared frame (call prepare first)")
+        pending = self._prepared("finish")
         t0 = time.perf_counter()
         problem = pending.problem
         x0 = problem.x0  # (d,), checked by the problem

@@ -589,7 +589,7 @@ class ReliabilityEstimator:
             assert self._reference is not None
             behaviour = self._behaviour(positions)
             tracking = tracking_reliability(states)
-            body = bool((states > 0).any())
+            body = bool(skeleton.body_present(states))
         assert self._reference is not None
 
         # Kinematic (Shum §IV-B) and tracking state (FPG §5), the minimum entering the filter.

@@ -165,7 +165,7 @@ class Stream:
             self._frames = _stream_arrays(recording, index, reconstructor.config.frame_dt)
             self._positions64 = self._frames[0].astype(np.float64)
             self._stamps = self._frames[2].tolist()
-            self._no_body = np.logical_not((self._frames[1] > 0).any(axis=1)).tolist()
+            self._no_body = np.logical_not(skeleton.body_present(self._frames[1])).tolist()
             length = len(self._frames[0]) if frames is None else min(frames, len(self._frames[0]))
         self.length = length
         self.poses = np.zeros((length, skeleton.NUM_JOINTS, 3), dtype=np.float32)

@@ -88,6 +88,17 @@ def _closest(
     return np.asarray(np.sqrt(_dot(gap, gap))), s
 
 
+def _capsule_entry(
+    along: np.ndarray, length: np.ndarray, bound: np.ndarray, t: np.ndarray, r: np.ndarray
+) -> np.ndarray:
+    """``(C, N)``: a lower bound of where rays ``(t, r)`` come within ``margin`` of each capsule,
+    as a fraction of the ray: the projection of the capsule's centre on the ray (``along``
+    ``(C, T, R)``: its dot product with the ray's vector, whose norm is ``length``) less its
+    bounding radius ``bound`` ``(C, 1, 1)``."""
+    length_n = length[t, r]
+    return np.asarray((along[:, t, r] / length_n - bound[:, :, 0]) / length_n)
+
+
 def _slab_entry(
     start: list[np.ndarray], direction: list[np.ndarray], half: np.ndarray
 ) -> np.ndarray:
@@ -207,10 +218,13 @@ def rays_to_cast(
     # that may be settled, (S, N).
     t, r = np.nonzero(cast & settleable)
     first = np.full(cast.shape, -1)
+
     if len(t):
-        length_n = length[t, r]
-        capsule_low = (along[:, t, r] / length_n - bound[:, :, 0]) / length_n  # a fraction
-        low = np.where(meets[:, t, r], np.concatenate([capsule_low, grown[:, t, r]]), np.inf)
+        low = np.where(
+            meets[:, t, r],
+            np.concatenate([_capsule_entry(along, length, bound, t, r), grown[:, t, r]]),
+            np.inf,
+        )
         entered = capsules + box[t, r]
         low[entered, np.arange(len(t))] = np.inf
         settled = enters[t, r] < low.min(axis=0)
@@ -226,12 +240,10 @@ def rays_to_cast(
         blocker = np.full(cast.shape, -1)
         blocker[nt, nr] = nc
         t, r = np.nonzero(cast & (first < 0) & np.isfinite(blocked_at))
-        length_n = length[t, r]
-        capsule_low = (along[:, t, r] / length_n - bound[:, :, 0]) / length_n  # a fraction
         own_capsule = own.T[:capsules, r] & (closest[:, t, r] < bound[:, :, 0] * bound[:, :, 0])
         own_box = own.T[capsules:, r] & np.isfinite(grown[:, t, r])
         own_low = np.minimum(
-            np.where(own_capsule, capsule_low, np.inf).min(axis=0),
+            np.where(own_capsule, _capsule_entry(along, length, bound, t, r), np.inf).min(axis=0),
             np.where(own_box, grown[:, t, r], np.inf).min(axis=0),
         )
         settled = blocked_at[t, r] < own_low
