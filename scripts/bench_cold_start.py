@@ -8,15 +8,14 @@ time and the CPU time (user + system of the demo and its worker processes) of bo
 difference. A cold demo that leaves a process compiling in the background (its last line names
 the pid) is followed until that process ends, and the process's CPU seconds are reported on their
 own; the warm demo starts after it. The checkouts alternate round by round, so that both see the
-same load of this shared machine. With ``--kernels`` each demo process also lists what numba
-compiled (numba's event API: CPU seconds per compiled function and its signatures, callees
-counted in their own rows).
+same load of this shared machine. What the background process compiles, function by function:
+``scripts/bench_compiled_modules.py``.
 
 Usage::
 
     git worktree add /tmp/base ccc59f8
     python scripts/bench_cold_start.py . /tmp/base --rounds 2 --json /tmp/cold.json
-    python scripts/bench_cold_start.py . --rounds 1 --kernels -- --quick --workers 1
+    python scripts/bench_cold_start.py . --rounds 1 -- --quick --workers 1
 """
 
 from __future__ import annotations
@@ -34,53 +33,12 @@ import time
 from pathlib import Path
 from typing import Any
 
-#: Run in each demo process (via ``sitecustomize``) with ``--kernels``: numba's compile events
-#: of the process, written to ``$FPG_GYM_COMPILE_LOG/<pid>.json`` at exit.
-_RECORDER = """
-import atexit, json, os, time
-from numba.core import event
 
-_log = []
-
-
-class _Compiles(event.Listener):
-    def on_start(self, e):
-        f = getattr(e.data["dispatcher"], "py_func", None)
-        name = f"{getattr(f, '__module__', '?')}.{getattr(f, '__qualname__', '?')}"
-        _log.append(["start", time.process_time(), name, str(e.data["args"])])
-
-    def on_end(self, e):
-        _log.append(["end", time.process_time(), None, None])
-
-
-event.register("numba:compile", _Compiles())
-
-
-def _write():
-    path = os.path.join(os.environ["FPG_GYM_COMPILE_LOG"], f"{os.getpid()}.json")
-    with open(path, "w") as out:
-        json.dump(_log, out)
-
-
-atexit.register(_write)
-"""
-
-
-def _demo(
-    checkout: Path, cache: Path, demo_args: list[str], log: Path | None
-) -> tuple[float, float, float]:
+def _demo(checkout: Path, cache: Path, demo_args: list[str]) -> tuple[float, float, float]:
     """Wall and CPU seconds of one ``fpg-gym demo`` of ``checkout`` with numba's cache in
     ``cache``, and the CPU seconds of the process it left compiling in the background (waited
     for; 0 without one)."""
-    path = [str(checkout)]
-    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache))
-    if log is not None:
-        hook = cache.parent / (cache.name + "_hook")
-        hook.mkdir(exist_ok=True)
-        (hook / "sitecustomize.py").write_text(_RECORDER, encoding="utf-8")
-        path.append(str(hook))
-        env["FPG_GYM_COMPILE_LOG"] = str(log)
-    env["PYTHONPATH"] = os.pathsep.join(path)
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(cache), PYTHONPATH=str(checkout))
     out = cache.parent / (cache.name + "_demo")
     command = [sys.executable, "-m", "fpg_gym.cli", "demo", "--out", str(out), *demo_args]
     before = resource.getrusage(resource.RUSAGE_CHILDREN)
@@ -117,43 +75,10 @@ def _follow(pid: int) -> float:
         time.sleep(0.1)
 
 
-def _compiled(log: Path) -> list[str]:
-    """Lines: each process's compilation CPU seconds, then per function (exclusive of callees)
-    its seconds, compilations and distinct signatures."""
-    lines: list[str] = []
-    seconds: dict[str, float] = {}
-    count: dict[str, int] = {}
-    signatures: dict[str, set[str]] = {}
-    for path in sorted(log.glob("*.json")):
-        stack: list[list[Any]] = []
-        total = 0.0
-        for kind, clock, name, args in json.loads(path.read_text(encoding="utf-8")):
-            if kind == "start":
-                stack.append([name, args, clock, 0.0])
-                continue
-            name, args, start, inner = stack.pop()
-            spent = clock - start
-            seconds[name] = seconds.get(name, 0.0) + spent - inner
-            count[name] = count.get(name, 0) + 1
-            signatures.setdefault(name, set()).add(args)
-            if stack:
-                stack[-1][3] += spent
-            else:
-                total += spent
-        if total:
-            lines.append(f"  process {path.stem}: {total:.2f} CPU s compiling")
-    for name in sorted(seconds, key=lambda n: -seconds[n]):
-        lines.append(
-            f"  {seconds[name]:6.2f} s  {count[name]:3d}x  {len(signatures[name])} sig.  {name}"
-        )
-    return lines
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("checkouts", nargs="+", type=Path, help="checkout roots")
     parser.add_argument("--rounds", type=int, default=2)
-    parser.add_argument("--kernels", action="store_true", help="list what each cold demo compiled")
     parser.add_argument("--json", type=Path, default=None, help="write the figures here")
     argv = sys.argv[1:] if argv is None else argv
     split = argv.index("--") if "--" in argv else len(argv)
@@ -163,11 +88,8 @@ def main(argv: list[str] | None = None) -> int:
     for round_ in range(args.rounds):
         for checkout in args.checkouts if round_ % 2 == 0 else args.checkouts[::-1]:
             folder = Path(tempfile.mkdtemp(prefix="fpg-gym-cold-"))
-            log = folder / "compiled" if args.kernels else None
-            if log is not None:
-                log.mkdir()
-            cold = _demo(checkout.resolve(), folder / "numba", args.demo_args, log)
-            warm = _demo(checkout.resolve(), folder / "numba", args.demo_args, None)
+            cold = _demo(checkout.resolve(), folder / "numba", args.demo_args)
+            warm = _demo(checkout.resolve(), folder / "numba", args.demo_args)
             load = os.getloadavg()[0]
             figures.setdefault(str(checkout), []).append({"cold": cold, "warm": warm, "load": load})
             print(
@@ -177,8 +99,6 @@ def main(argv: list[str] | None = None) -> int:
                 f"demo {cold[2]:.1f} CPU s, load {load:.1f}",
                 flush=True,
             )
-            if log is not None:
-                print("\n".join(_compiled(log)), flush=True)
             shutil.rmtree(folder, ignore_errors=True)
     if args.json is not None:
         args.json.write_text(json.dumps(figures, indent=1), encoding="utf-8")
