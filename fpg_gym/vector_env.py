@@ -38,6 +38,7 @@ from fpg_gym.env import ExactAction, KinectPoseEnv
 from fpg_gym.reconstruct import SearchProblem
 from fpg_gym.reconstruct.search import (
     OptimizerSpec,
+    budgeted_run,
     make_generators,
     make_optimizers,
     search_together,
@@ -317,17 +318,10 @@ class KinectPoseVectorEnv(SyncVectorEnv[Any, Any]):
             base, generator = self._bases[i], generators[i]
             problem = base.problem
             assert problem is not None and generator is not None  # set by reset
-            config = base.reconstructor.config
             problems.append(problem)
             runs.append(
-                OptimizerRun(
-                    problem,
-                    optimizers[i],
-                    generator,
-                    max_evaluations=(
-                        config.max_evaluations if max_evaluations is None else max_evaluations
-                    ),
-                    time_budget_s=config.time_budget_s,
+                budgeted_run(
+                    problem, optimizers[i], generator, base.reconstructor.config, max_evaluations
                 )
             )
         search_together(problems, runs)

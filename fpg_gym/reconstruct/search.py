@@ -35,6 +35,7 @@ import numpy as np
 
 from fpg_gym.core.compiled import compiled_module
 from fpg_gym.core.seeding import as_generator
+from fpg_gym.reconstruct.config import ReconstructorConfig
 from fpg_gym.reconstruct.energy import EnergyModel, StackedEnergy
 from fpg_gym.reconstruct.kernels import compiled_arguments
 from fpg_gym.reconstruct.problem import SearchProblem
@@ -43,6 +44,7 @@ from optimizers.local_search import LocalSearch
 
 __all__ = [
     "OptimizerSpec",
+    "budgeted_run",
     "compiled_search_available",
     "complete_compiled",
     "make_generators",
@@ -144,6 +146,25 @@ def complete_compiled(problem: Any, run: OptimizerRun) -> bool:
         raise ValueError("Z: non-finite latent coordinates")
     run.complete(SearchResult(x=x, energy=float(energy), evaluations=evaluations, asks=asks))
     return True
+
+
+def budgeted_run(
+    problem: SearchProblem,
+    optimizer: Optimizer,
+    rng: np.random.Generator | int | None,
+    config: ReconstructorConfig,
+    max_evaluations: int | None = None,
+) -> OptimizerRun:
+    """An :class:`optimizers.OptimizerRun` of ``optimizer`` on ``problem`` within a
+    reconstructor's budget: ``config.max_evaluations`` (or ``max_evaluations`` when given) and
+    ``config.time_budget_s``."""
+    return OptimizerRun(
+        problem,
+        optimizer,
+        rng,
+        max_evaluations=config.max_evaluations if max_evaluations is None else max_evaluations,
+        time_budget_s=config.time_budget_s,
+    )
 
 
 def run_search(

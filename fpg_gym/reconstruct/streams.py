@@ -47,11 +47,12 @@ from fpg_gym.reconstruct.problem import SearchProblem
 from fpg_gym.reconstruct.records import FrameOutput, FrameRecord, ReconstructionResult
 from fpg_gym.reconstruct.search import (
     OptimizerSpec,
+    budgeted_run,
     make_generators,
     make_optimizers,
     search_together,
 )
-from optimizers import Optimizer, OptimizerRun
+from optimizers import Optimizer
 
 if TYPE_CHECKING:
     from fpg_gym.reconstruct.reconstructor import Reconstructor
@@ -247,15 +248,8 @@ def search_streams(problems: Sequence[SearchProblem], streams: Sequence[Stream])
     for problem, stream in zip(problems, streams, strict=True):
         if stream.optimizer is None:
             raise ValueError(f"stream {stream.index}: no optimiser to search with")
-        config = stream.reconstructor.config
         runs.append(
-            OptimizerRun(
-                problem,
-                stream.optimizer,
-                stream.rng,
-                max_evaluations=config.max_evaluations,
-                time_budget_s=config.time_budget_s,
-            )
+            budgeted_run(problem, stream.optimizer, stream.rng, stream.reconstructor.config)
         )
     seconds = search_together(problems, runs)
     return [
