@@ -236,11 +236,6 @@ class Reconstructor(FrameDrivers):
         return self._ragdoll.body
 
     @property
-    def ragdoll_rebuilds(self) -> int:
-        """Ragdoll rebuilds for new bone lengths within streams, since construction."""
-        return self._ragdoll.rebuilds
-
-    @property
     def problem(self) -> SearchProblem | None:
         """The prepared problem waiting for :meth:`finish` (None otherwise)."""
         return None if self._pending is None else self._pending.problem
