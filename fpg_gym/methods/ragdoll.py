@@ -3,6 +3,7 @@ as a final filter on a filter's output (:class:`RagdollStage`)."""
 
 from __future__ import annotations
 
+import math
 import time
 from typing import Any
 
@@ -10,9 +11,10 @@ import numpy as np
 
 from fpg_gym.core import skeleton
 from fpg_gym.core.metrics import bones_tracked
-from fpg_gym.core.poses import FloorShift, bone_lengths
+from fpg_gym.core.poses import bone_lengths
 from fpg_gym.physics.ragdoll import Ragdoll
 from fpg_gym.reconstruct.config import RagdollFactory
+from fpg_gym.reconstruct.ragdoll_stage import RagdollStage as ReconstructorRagdollStage
 
 __all__ = ["RagdollStage", "ragdoll_factory", "reference_bone_lengths"]
 
@@ -49,46 +51,33 @@ def reference_bone_lengths(positions: np.ndarray, states: np.ndarray) -> np.ndar
     return np.maximum(result, 0.01)
 
 
-class RagdollStage:
-    """The ragdoll as a final filter on any stream of camera-space poses.
+class RagdollStage(ReconstructorRagdollStage):
+    """The reconstructor's ragdoll stage as a final filter on any stream of camera-space poses.
 
-    Mirrors what :class:`~fpg_gym.reconstruct.Reconstructor` does with its ragdoll: camera space
-    has no floor, so the poses are shifted down by a floor height estimated as the lowest joint
-    seen so far (a running minimum); the body is reset on the first frame and tracks the
-    following ones. The ragdoll gets the stream's bone lengths from
-    :func:`reference_bone_lengths`; every stream starts from freshly built physics
-    (:meth:`Ragdoll.rebuild`), so a stream's output does not depend on the ones before it.
+    :class:`fpg_gym.reconstruct.ragdoll_stage.RagdollStage` with the pybullet
+    :class:`~fpg_gym.physics.ragdoll.Ragdoll` and the whole stream's bone lengths (from
+    :func:`reference_bone_lengths`): the poses are shifted down by the lowest joint seen so far
+    (camera space has no floor), the body is rebuilt for each stream (:meth:`Ragdoll.rebuild`,
+    so a stream's output does not depend on the ones before it), reset on the first frame and
+    tracks the following ones.
     """
 
     def __init__(self) -> None:
-        self._ragdoll: Any = None
+        super().__init__(Ragdoll, rebuild_m=math.inf)
 
     def run(
         self, poses: np.ndarray, lengths: np.ndarray
     ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
         """Track ``poses`` ``(T, 20, 3)``; return the output poses, ms per frame and info."""
-
         lengths = np.asarray(lengths, dtype=np.float64)
-        if self._ragdoll is None:
-            self._ragdoll = Ragdoll(bone_lengths=lengths)
-        else:
-            self._ragdoll.rebuild(lengths)
-        body = self._ragdoll
         poses = np.asarray(poses, dtype=np.float64)
         out = np.empty(poses.shape, dtype=np.float32)
         ms = np.empty(len(poses))
-        floor = FloorShift()
+        divergences = 0
+        self.restart()
         for t, target in enumerate(poses):
             t0 = time.perf_counter()
-            world = floor.down(target)
-            out[t] = floor.up(body.reset(world) if t == 0 else body.track(world))
+            out[t], info = self.track(target, lengths)
             ms[t] = 1000.0 * (time.perf_counter() - t0)
-        # Freshly rebuilt for this stream, so its counter holds this stream's divergences.
-        info = {"ragdoll_divergences": int(body.info["divergences"])}
-        return out, ms, info
-
-    def close(self) -> None:
-        """Release the pybullet client."""
-        if self._ragdoll is not None:
-            self._ragdoll.close()
-            self._ragdoll = None
+            divergences += info["new_divergences"]
+        return out, ms, {"ragdoll_divergences": divergences}
