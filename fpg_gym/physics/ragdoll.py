@@ -47,11 +47,12 @@ clipped to ``maxForce × dt``:
 ``erp`` is pybullet's global error-reduction parameter (pybullet ignores it per constraint), so
 it also sets how firmly the joints hold together. Lower values track with more lag and smooth
 more (a first-order lag of time constant ``dt / erp`` per body part), higher values follow the
-target more tightly. The defaults, 120 Hz, ``erp`` 0.6 and 15 solver iterations, track clean
-mocap to a few millimetres and lower the jitter of noisy targets; they replaced 240 Hz, 0.4 and
-10 iterations (issue 38: half the physics steps, the same error against the ground truth to
-0.3 %, see ``docs/performance.md``), which ``physics_rate=240, erp=0.4, solver_iterations=10``
-still give.
+target more tightly. The defaults, 120 Hz, ``erp`` 0.6 and at most 15 solver iterations (fewer
+once an iteration changes no row's velocity by more than ``solver_tolerance``, 0.1 m/s), track
+clean mocap to a few millimetres and lower the jitter of noisy targets; they replaced 240 Hz,
+0.4 and 10 iterations (issue 38: half the physics steps, the same error against the ground truth
+to 0.3 %, see ``docs/performance.md``), which ``physics_rate=240, erp=0.4, solver_iterations=10``
+with ``solver_tolerance=1e-7 ** 0.5`` (pybullet's own threshold, to rounding) still give.
 
 The per-frame arithmetic around pybullet (the target's bone frames, the capsules' goals at
 each step, the forward kinematics of the simulated capsules) runs compiled with numba when
@@ -182,7 +183,12 @@ class Ragdoll:
     friction : float
         Coulomb friction coefficient between the body and the floor.
     solver_iterations : int
-        Constraint-solver iterations per physics step.
+        Constraint-solver iterations per physics step, at most.
+    solver_tolerance : float
+        The solver stops before ``solver_iterations`` once an iteration changes no constraint
+        row's velocity by more than this (m/s, rad/s for the angular rows; pybullet's
+        ``solverResidualThreshold`` is its square, 1e-7 by default: about 3.2e-4). 0.1 m/s
+        moves a part by at most 0.8 mm in a 120 Hz step.
     on_divergence : {"reset", "quiet", "raise"}
         What :meth:`track` does when the simulation diverges. All reset the body to the target
         and count the event in :attr:`info`; ``"reset"`` then warns (:class:`PhysicsWarning`)
@@ -230,6 +236,7 @@ class Ragdoll:
         floor_height: float | None = 0.0,
         friction: float = 0.9,
         solver_iterations: int = 15,
+        solver_tolerance: float = 0.1,
         on_divergence: Literal["reset", "quiet", "raise"] = "reset",
         max_speed: float = 50.0,
         max_distance: float = 5.0,
@@ -247,6 +254,7 @@ class Ragdoll:
             ("max_joint_gap", max_joint_gap),
             ("jump_distance", jump_distance),
             ("recovery_frequency", recovery_frequency),
+            ("solver_tolerance", solver_tolerance),
         ):
             if not (np.isfinite(value) and value > 0):
                 raise ValueError(f"{name}: expected a positive number, got {value!r}")
@@ -280,6 +288,7 @@ class Ragdoll:
         self._glide = 0.5 * max(self._strength - 1.0, 0.5) * GRAVITY
         self._friction = float(friction)
         self._solver_iterations = int(solver_iterations)
+        self._solver_tolerance = float(solver_tolerance)
 
         self._rest_directions = np.array(poses.REST_DIRECTIONS, dtype=np.float64)
         self._root_arc = shortest_arc(np.array([0.0, 1.0, 0.0]), self._rest_directions[0])
@@ -353,6 +362,7 @@ class Ragdoll:
                 time_step=self.time_step,
                 erp=self.erp,
                 solver_iterations=self._solver_iterations,
+                solver_tolerance=self._solver_tolerance,
                 floor_height=self.floor_height,
                 friction=self._friction,
             )

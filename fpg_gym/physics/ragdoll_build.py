@@ -31,6 +31,7 @@ def build_world(
     time_step: float,
     erp: float,
     solver_iterations: int,
+    solver_tolerance: float,
     floor_height: float | None,
     friction: float,
 ) -> int:
@@ -43,6 +44,7 @@ def build_world(
         fixedTimeStep=time_step,
         numSubSteps=0,
         numSolverIterations=solver_iterations,
+        solverResidualThreshold=solver_tolerance**2,  # of the rows' squared velocity changes
         erp=erp,
         deterministicOverlappingPairs=1,
         physicsClientId=cid,
