@@ -188,7 +188,7 @@ class Ragdoll:
         The solver stops before ``solver_iterations`` once an iteration changes no constraint
         row's velocity by more than this (m/s, rad/s for the angular rows; pybullet's
         ``solverResidualThreshold`` is its square, 1e-7 by default: about 3.2e-4). 0.1 m/s
-        moves a part by at most 0.8 mm in a 120 Hz step.
+        over a 120 Hz step is 0.8 mm.
     on_divergence : {"reset", "quiet", "raise"}
         What :meth:`track` does when the simulation diverges. All reset the body to the target
         and count the event in :attr:`info`; ``"reset"`` then warns (:class:`PhysicsWarning`)
