@@ -269,7 +269,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
 
         # Episode state.
         self._recording: Recording | None = None
-        self._body_present: list[bool] = []
         self._episode: dict[str, Any] = {}
         self._problem: SearchProblem | None = None
         self._elapsed = 0
@@ -459,7 +458,6 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
         super().reset(seed=seed)
         recording, episode = self.episodes.draw(self.np_random, dict(options or {}))
         self._recording = recording
-        self._body_present = recording.body_present.tolist()  # the sensor saw a joint, per frame
         self._episode = episode
         for key in self._counts:
             self._counts[key] = 0
@@ -626,7 +624,7 @@ class KinectPoseEnv(gym.Env[Any, np.ndarray], EzPickle):
             problem,
             action_scale=self.action_scale,
             delta=self.action_mode == "delta",
-            no_body=not self._body_present[t],
+            no_body=stream.no_body[t],
             progress=t / recording.num_frames,
             frame_dt=self.reconstructor.config.frame_dt,
         )

@@ -136,6 +136,12 @@ class Stream:
         At most this many frames of ``recording``.
     index : int
         The stream's number among many (in error messages).
+
+    Attributes
+    ----------
+    no_body : list of bool
+        Per frame of ``recording``, whether no joint is tracked or inferred (empty for a live
+        stream).
     """
 
     def __init__(
@@ -160,13 +166,13 @@ class Stream:
         # frame).
         self._positions64: np.ndarray | None = None
         self._stamps: list[float] = []
-        self._no_body: list[bool] = []
+        self.no_body: list[bool] = []
         length = 0
         if recording is not None:
             self._frames = _stream_arrays(recording, index, reconstructor.config.frame_dt)
             self._positions64 = self._frames[0].astype(np.float64)
             self._stamps = self._frames[2].tolist()
-            self._no_body = np.logical_not(skeleton.body_present(self._frames[1])).tolist()
+            self.no_body = np.logical_not(skeleton.body_present(self._frames[1])).tolist()
             length = len(self._frames[0]) if frames is None else min(frames, len(self._frames[0]))
         self.length = length
         self.poses = np.zeros((length, skeleton.NUM_JOINTS, 3), dtype=np.float32)
@@ -195,7 +201,7 @@ class Stream:
                 positions[t],
                 states[t],
                 self._stamps[t],
-                no_body=self._no_body[t],
+                no_body=self.no_body[t],
                 positions64=self._positions64[t],
             )
         assert states is not None

@@ -218,7 +218,6 @@ def rays_to_cast(
     # that may be settled, (S, N).
     t, r = np.nonzero(cast & settleable)
     first = np.full(cast.shape, -1)
-
     if len(t):
         low = np.where(
             meets[:, t, r],
